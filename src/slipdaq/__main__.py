@@ -1,0 +1,3 @@
+from slipdaq.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,186 @@
+"""slipdaq command line: verbs only (parse arguments, build the parts, run). `slipdaq VERB --help` explains each."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+from pathlib import Path
+
+import slipdaq
+from slipdaq.config import Config, ConfigError, load_config
+from slipdaq.decode.can_wheels import DbcError, WptDecoder
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+
+
+def _add_config(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="F", help="TOML config (default: ./slipdaq.toml, else the packaged example)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="slipdaq",
+        description="Live wheel-slip acquisition: WPT pulse counts from CAN and NMEA GPS in, windowed slip, "
+        "effective rolling radius Re, longitudinal force Fx and tire stiffness Cx out, all logged to MCAP.",
+        epilog="Start with `slipdaq demo` (no hardware needed). Exit status: 0 ok, 1 failure, 2 bad config or usage.",
+    )
+    parser.add_argument("--version", action="version", version=f"slipdaq {slipdaq.__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
+    sub = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+
+    p = sub.add_parser("run", help="the live daemon: read CAN and GPS, estimate, log to MCAP, show status",
+                       description="Read WPT frames from the configured CAN bus and NMEA from the GPS serial port, "
+                       "estimate slip, Re, Fx and Cx online, log everything to a new MCAP file in the log dir and "
+                       "show a live status view (one status line every few seconds when stdout is not a terminal). "
+                       "SIGINT/SIGTERM finish the log cleanly.")
+    _add_config(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
+    p.add_argument("--log-dir", metavar="D", help="write the MCAP log here (default: log.dir of the config)")
+
+    p = sub.add_parser("simulate", help="a vehicle and tire model sending WPT frames and NMEA in real time",
+                       description="Send simulated WPT frames on the configured python-can bus and NMEA (RMC, GGA, "
+                       "VTG at 10 Hz) to a serial port, in real time. Without --gps-port a pseudo-terminal is made "
+                       "and its path printed (and linked at --gps-link).")
+    _add_config(p)
+    p.add_argument("--scenario", choices=("accelerate", "brake", "cycle"), default="cycle")
+    p.add_argument("--road", choices=("paved", "sand"), default="paved")
+    p.add_argument("--gps-port", metavar="P", help="serial device to write NMEA to (default: a new pseudo-terminal)")
+    p.add_argument("--gps-link", metavar="L", help="with a pseudo-terminal: make L a symlink to it")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
+    p.add_argument("--wpt-rate-hz", type=float, default=100.0, help="WPT frames per second per wheel (default 100)")
+    p.add_argument("--gps-rate-hz", type=float, default=10.0, help="GPS epochs per second (default 10)")
+    p.add_argument("--gps-latency-s", type=float, default=0.0, help="GPS output latency, fix to sentence (default 0)")
+    p.add_argument("--gps-noise-mps", type=float, default=0.02, help="GPS speed noise, standard deviation (default 0.02)")
+    p.add_argument("--seed", type=int, default=1)
+
+    p = sub.add_parser("demo", help="simulator and daemon together: no hardware, no root",
+                       description="Run the simulator and the daemon in one process on python-can's virtual bus and a "
+                       "pseudo-terminal, with the live view, writing an MCAP log under ./logs; at the end, the "
+                       "estimated slip is compared with the simulator's truth.")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S", help="seconds to run (default 30)")
+    p.add_argument("--scenario", choices=("accelerate", "brake", "cycle"), default="cycle")
+    p.add_argument("--road", choices=("paved", "sand"), default="paved")
+    p.add_argument("--log-dir", metavar="D", default="logs", help="where the MCAP log goes (default ./logs)")
+
+    p = sub.add_parser("import", help="CAN log + NMEA log -> a slipdaq MCAP log",
+                       description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc) and an NMEA "
+                       "log with lines `(EPOCH_SECONDS) $SENTENCE` in the same clock (bare sentences accepted) into a "
+                       "slipdaq log, estimates included, like a live one.")
+    p.add_argument("--can", required=True, metavar="LOG", help="CAN log file")
+    p.add_argument("--nmea", required=True, metavar="LOG", help="NMEA log file")
+    _add_config(p)
+    p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
+
+    p = sub.add_parser("replay", help="re-run the estimator over a log's raw CAN and NMEA",
+                       description="Re-run decode and estimator over the raw CAN and NMEA channels of a slipdaq log, "
+                       "in the order they were recorded, with the config stored in the log (or --config).")
+    p.add_argument("log", metavar="RAW.mcap")
+    _add_config(p)
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
+
+    p = sub.add_parser("export", help="estimates of a log -> CSV",
+                       description="One CSV row per estimate: time_s, speed_mps, accel_mps2, force_n, then for each "
+                       "wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n. Empty cell = undefined.")
+    p.add_argument("log", metavar="LOG.mcap")
+    p.add_argument("--csv", required=True, metavar="OUT.csv")
+    return parser
+
+
+def _config(path: str | None) -> Config:
+    """Load and check the config, its DBC included (one clear ConfigError naming file and key)."""
+    cfg = load_config(path)
+    try:
+        WptDecoder(cfg.load_dbc_text())
+    except DbcError as e:
+        raise ConfigError(f"{cfg.source_path}: can.dbc ({cfg.resolve(cfg.can.dbc)}): {e}") from None
+    return cfg
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from slipdaq.daemon import new_log_path, open_bus, run_daemon
+
+    cfg = _config(args.config)
+    log_dir = Path(args.log_dir) if args.log_dir else cfg.resolve(cfg.log.dir)
+    with open_bus(cfg) as bus:
+        result = asyncio.run(run_daemon(cfg, bus, new_log_path(log_dir), duration_s=args.duration))
+    print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "
+          f"{result.estimates} estimates, {result.lost_frames} lost frames, {result.bad_sentences} bad sentences)")
+    return EXIT_OK
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from slipdaq.simulate import SimOptions, run_simulate
+
+    cfg = _config(args.config)
+    return run_simulate(cfg, SimOptions.from_args(args))
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from slipdaq.demo import run_demo
+
+    return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir))
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from slipdaq.offline import process_to_log
+    from slipdaq.sources.files import iter_can_log, iter_nmea_log, merge_by_time
+
+    cfg = _config(args.config)
+    records = merge_by_time(iter_can_log(args.can), iter_nmea_log(args.nmea))
+    meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)}
+    p = process_to_log(cfg, records, Path(args.output), "import", metadata=meta, description="import")
+    d = p.diagnostics()
+    print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines -> {args.output} "
+          f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
+    return EXIT_OK
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from slipdaq.offline import process_to_log
+    from slipdaq.sources.mcap_log import config_from_log, iter_raw_records, raw_record_count
+
+    cfg = _config(args.config) if args.config else config_from_log(args.log)
+    total = raw_record_count(args.log)
+    p = process_to_log(cfg, iter_raw_records(args.log), Path(args.output), "replay",
+                       metadata={"replay_of": str(args.log)}, total=total, description="replay")
+    print(f"replayed {p.can_frames + p.nmea.lines} records -> {args.output} ({p.estimates} estimates)")
+    return EXIT_OK
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from slipdaq.sinks.csv_export import write_csv
+    from slipdaq.sources.mcap_log import iter_estimates, read_metadata
+
+    read_metadata(args.log)
+    n = write_csv(iter_estimates(args.log), args.csv)
+    print(f"{n} estimates -> {args.csv}")
+    return EXIT_OK
+
+
+COMMANDS = {
+    "run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo, "import": cmd_import,
+    "replay": cmd_replay, "export": cmd_export,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from slipdaq.sources.files import ImportError_
+    from slipdaq.sources.mcap_log import LogError
+
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return COMMANDS[args.verb](args)
+    except ConfigError as e:
+        print(f"slipdaq: config error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except DbcError as e:  # a DBC stored in a log
+        print(f"slipdaq: DBC error: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    except (LogError, ImportError_, OSError) as e:
+        print(f"slipdaq: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,191 @@
+"""TOML config -> typed, validated Config. One clear error per bad key (ConfigError names file and key).
+
+Paths in the file (can.dbc, log.dir) are relative to the config file.
+"""
+
+from __future__ import annotations
+
+import tomllib
+
+import tomli_w
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from slipdaq.tire import TireSizeError, free_radius_m, parse_tire_size
+
+
+class ConfigError(Exception):
+    """A config that cannot be used; str() is one line naming the file, the key and what is expected."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class VehicleConfig(_Section):
+    mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
+    driven_axle: Literal["front", "rear", "all"] = "front"
+    brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
+
+
+class TireConfig(_Section):
+    size: str | None = "195/60 R15"
+    free_radius_m: float | None = Field(None, gt=0, lt=2)
+
+    @field_validator("size")
+    @classmethod
+    def _size_parses(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                parse_tire_size(v)
+            except TireSizeError as e:
+                raise ValueError(str(e)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _one_given(self) -> "TireConfig":
+        if self.size is None and self.free_radius_m is None:
+            raise ValueError("give tire.size (for example '195/60 R15') or tire.free_radius_m")
+        return self
+
+    @property
+    def radius_m(self) -> float:
+        """free_radius_m when set, else the radius from the tire size."""
+        if self.free_radius_m is not None:
+            return self.free_radius_m
+        assert self.size is not None
+        return free_radius_m(self.size)
+
+
+class WptConfig(_Section):
+    pulses_per_rev: int = Field(1000, gt=0)
+
+
+class CanConfig(_Section):
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int = Field(500000, gt=0)
+    dbc: str = "wpt.dbc"
+    receive_buffer_bytes: int = Field(8 * 1024 * 1024, ge=0, description="SO_RCVBUF asked for on SocketCAN")
+
+
+class GpsConfig(_Section):
+    port: str = "/dev/ttyUSB0"
+    baudrate: int = Field(115200, gt=0)
+    latency_s: Literal["auto"] | float = "auto"
+
+    @field_validator("latency_s")
+    @classmethod
+    def _latency_nonneg(cls, v: str | float) -> str | float:
+        if not isinstance(v, str) and not 0 <= v < 5:
+            raise ValueError("must be 'auto' or a number of seconds from 0 to 5")
+        return v
+
+
+class EstimatorConfig(_Section):
+    window_s: float = Field(0.5, gt=0, le=10)
+    min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
+    cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
+    cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
+
+
+class LogConfig(_Section):
+    dir: str = "logs"
+    chunk_size_bytes: int = Field(1024 * 1024, gt=0)
+
+
+class Config(_Section):
+    vehicle: VehicleConfig = VehicleConfig()
+    tire: TireConfig = TireConfig()
+    wpt: WptConfig = WptConfig()
+    can: CanConfig = CanConfig()
+    gps: GpsConfig = GpsConfig()
+    estimator: EstimatorConfig = EstimatorConfig()
+    log: LogConfig = LogConfig()
+
+    source_path: Path | None = Field(None, exclude=True)
+    """The file this config was read from (None for one made in code)."""
+    source_text: str = Field("", exclude=True)
+    """The TOML text as read, stored in every log so that replay needs no other input."""
+    dbc_text: str | None = Field(None, exclude=True)
+    """DBC text, when the config was read from a log rather than from disk."""
+
+    def resolve(self, path: str) -> Path:
+        """A path from the config, relative to the config file's folder."""
+        p = Path(path).expanduser()
+        if p.is_absolute() or self.source_path is None:
+            return p
+        return self.source_path.parent / p
+
+    @property
+    def latency_fixed_s(self) -> float:
+        """The GPS latency subtracted from arrival times: the configured number, or 0 for 'auto' (until estimated)."""
+        return 0.0 if self.gps.latency_s == "auto" else float(self.gps.latency_s)
+
+    def to_toml(self) -> str:
+        """The effective config as TOML (what a log stores, so that replay runs with exactly these values)."""
+        return tomli_w.dumps(self.model_dump(exclude_none=True))
+
+    def with_overrides(self, **sections: dict[str, object]) -> "Config":
+        """A copy with some keys replaced, e.g. with_overrides(can={"interface": "virtual"})."""
+        update = {name: getattr(self, name).model_copy(update=values) for name, values in sections.items()}
+        return self.model_copy(update=update)
+
+    def load_dbc_text(self) -> str:
+        """The DBC's text: from the log it was stored in, else from can.dbc on disk."""
+        if self.dbc_text is not None:
+            return self.dbc_text
+        path = self.resolve(self.can.dbc)
+        try:
+            return path.read_text(encoding="utf-8", errors="replace")
+        except OSError as e:
+            raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot read {path}: {e.strerror}") from None
+
+
+def packaged_config_path() -> Path:
+    """The example config shipped with the package (used when no --config and no ./slipdaq.toml)."""
+    return Path(str(resources.files("slipdaq") / "data" / "slipdaq.toml"))
+
+
+def default_config_path() -> Path:
+    local = Path("slipdaq.toml")
+    return local if local.is_file() else packaged_config_path()
+
+
+def _format_error(source: str, err: ValidationError) -> str:
+    e = err.errors()[0]
+    key = ".".join(str(p) for p in e["loc"]) or "<top level>"
+    if e["type"] == "extra_forbidden":
+        return f"{source}: {key}: unknown key"
+    got = e.get("input")
+    shown = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
+    msg = e["msg"].removeprefix("Value error, ")
+    more = f" (and {len(err.errors()) - 1} more)" if len(err.errors()) > 1 else ""
+    return f"{source}: {key}: {msg}{shown}{more}"
+
+
+def parse_config(text: str, source_path: Path | None = None, dbc_text: str | None = None) -> Config:
+    """Parse TOML text into a Config; raises ConfigError with one line naming the file and key."""
+    source = str(source_path) if source_path is not None else "<config>"
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{source}: not valid TOML: {e}") from None
+    try:
+        cfg = Config.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(_format_error(source, e)) from None
+    return cfg.model_copy(update={"source_path": source_path, "source_text": text, "dbc_text": dbc_text})
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Read and validate a config file (default: ./slipdaq.toml, else the packaged example)."""
+    p = Path(path) if path is not None else default_config_path()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read config: {e.strerror}") from None
+    return parse_config(text, p.resolve())

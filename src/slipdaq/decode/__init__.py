@@ -1,0 +1,1 @@
+"""Pure decoders: raw CAN frames -> wheel samples (DBC), raw NMEA lines -> GPS fixes."""

@@ -1,0 +1,59 @@
+"""A growable ring of (time, value) samples kept contiguous in numpy arrays, for windowed look-ups."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class SeriesRing:
+    """Samples in time order; `times`/`values` are contiguous views of the kept samples.
+
+    Appending is O(1) amortised: when the arrays are full, samples older than `drop_before` (set by the
+    owner) are dropped by one move of the rest to the front; the arrays double only when that frees nothing.
+    """
+
+    def __init__(self, capacity: int = 4096) -> None:
+        self._t = np.empty(capacity, dtype=np.float64)
+        self._v = np.empty(capacity, dtype=np.float64)
+        self._start = 0
+        self._end = 0
+        self.drop_before = -np.inf
+
+    def __len__(self) -> int:
+        return self._end - self._start
+
+    @property
+    def times(self) -> np.ndarray:
+        return self._t[self._start : self._end]
+
+    @property
+    def values(self) -> np.ndarray:
+        return self._v[self._start : self._end]
+
+    @property
+    def last_time(self) -> float:
+        return float(self._t[self._end - 1]) if self._end > self._start else -np.inf
+
+    @property
+    def first_time(self) -> float:
+        return float(self._t[self._start]) if self._end > self._start else np.inf
+
+    def append(self, t: float, v: float) -> None:
+        if self._end == len(self._t):
+            self._make_room()
+        self._t[self._end] = t
+        self._v[self._end] = v
+        self._end += 1
+
+    def _make_room(self) -> None:
+        keep_from = self._start + int(np.searchsorted(self.times, self.drop_before, side="left"))
+        n = self._end - keep_from
+        if n > len(self._t) // 2:
+            t = np.empty(2 * len(self._t), dtype=np.float64)
+            v = np.empty(2 * len(self._v), dtype=np.float64)
+        else:
+            t, v = self._t, self._v
+        t[:n] = self._t[keep_from : self._end]
+        v[:n] = self._v[keep_from : self._end]
+        self._t, self._v = t, v
+        self._start, self._end = 0, n

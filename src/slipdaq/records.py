@@ -1,0 +1,135 @@
+"""Typed records that flow between modules: sources -> decode -> estimator -> sinks.
+
+Times are seconds in the log's clock (host wall clock for live runs, the files' clock for imports).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True, slots=True)
+class CanFrame:
+    """One raw CAN frame as received, with its receive timestamp."""
+
+    timestamp_s: float
+    arbitration_id: int
+    data: bytes
+    is_extended_id: bool = False
+    is_error_frame: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class NmeaLine:
+    """One raw line from the GPS serial port (without line ending), with its host receive timestamp."""
+
+    timestamp_s: float
+    line: str
+
+
+RawRecord = CanFrame | NmeaLine
+
+
+@dataclass(frozen=True, slots=True)
+class WheelSample:
+    """A decoded WPT frame: the unwrapped cumulative pulse count of one wheel."""
+
+    timestamp_s: float
+    wheel: str
+    count: int
+    """Cumulative pulses since the first frame of this wheel, unwrapped across 2^32."""
+    raw_count: int
+    seq: int
+    lost_frames: int
+    """Frames missing before this one, from the gap in Seq."""
+
+
+@dataclass(frozen=True, slots=True)
+class GpsFix:
+    """One GPS velocity epoch decoded from NMEA."""
+
+    timestamp_s: float
+    """Host receive time of the sentence that completed the epoch."""
+    speed_mps: float
+    fix_time_utc_s: float | None = None
+    """The fix's own UTC time (seconds since the epoch), when the sentence carries date and time."""
+    valid: bool = True
+    course_deg: float | None = None
+    latitude_deg: float | None = None
+    longitude_deg: float | None = None
+    altitude_m: float | None = None
+    fix_quality: int | None = None
+    satellites: int | None = None
+    sentence: str = "RMC"
+
+
+@dataclass(frozen=True, slots=True)
+class WheelEstimate:
+    slip: float | None
+    re_m: float | None
+    r0_m: float
+    cx_n: float | None
+    force_n: float | None
+    speed_mps: float | None
+    """Wheel circumferential speed omega*r0 over the window."""
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """Windowed estimate centred on one GPS epoch."""
+
+    time_s: float
+    speed_mps: float
+    accel_mps2: float | None
+    force_n: float | None
+    window_s: float
+    wheels: dict[str, WheelEstimate]
+
+    def as_row(self) -> dict[str, float | None]:
+        """Flat mapping in the CSV/MCAP column names."""
+        row: dict[str, float | None] = {
+            "time_s": self.time_s,
+            "speed_mps": self.speed_mps,
+            "accel_mps2": self.accel_mps2,
+            "force_n": self.force_n,
+        }
+        for w, e in self.wheels.items():
+            row[f"slip_{w}"] = e.slip
+            row[f"re_{w}_m"] = e.re_m
+            row[f"r0_{w}_m"] = e.r0_m
+            row[f"cx_{w}_n"] = e.cx_n
+        return row
+
+
+@dataclass(slots=True)
+class Diagnostics:
+    """Running counters of what the pipeline saw; a snapshot is logged about once a second."""
+
+    time_s: float = 0.0
+    can_frames: int = 0
+    wpt_frames: dict[str, int] = field(default_factory=dict)
+    lost_frames: dict[str, int] = field(default_factory=dict)
+    count_wraps: dict[str, int] = field(default_factory=dict)
+    unknown_frames: int = 0
+    error_frames: int = 0
+    bad_frames: int = 0
+    nmea_lines: int = 0
+    bad_sentences: int = 0
+    gps_fixes: int = 0
+    estimates: int = 0
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "time_s": self.time_s,
+            "can_frames": self.can_frames,
+            "wpt_frames": dict(self.wpt_frames),
+            "lost_frames": dict(self.lost_frames),
+            "count_wraps": dict(self.count_wraps),
+            "unknown_frames": self.unknown_frames,
+            "error_frames": self.error_frames,
+            "bad_frames": self.bad_frames,
+            "nmea_lines": self.nmea_lines,
+            "bad_sentences": self.bad_sentences,
+            "gps_fixes": self.gps_fixes,
+            "estimates": self.estimates,
+        }

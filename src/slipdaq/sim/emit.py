@@ -1,0 +1,230 @@
+"""The vehicle model turned into raw records: WPT CAN frames, NMEA lines and truth samples. No I/O, no clock.
+
+WPT:   PulseCount = (start_count + floor(theta/(2*pi) * pulses_per_rev)) mod 2^32 at the nominal sampling instant,
+       Seq = frame index mod 256 per wheel; wheel i of WHEELS is sampled at k/rate + i/(4*rate).
+GPS:   epoch k at k/gps_rate describes the truth at that instant; its RMC, GGA, VTG lines arrive gps_latency_s later.
+Truth: a TruthSample every 10 ms and at every GPS epoch.
+Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+
+import cantools
+import numpy as np
+
+from slipdaq import WHEELS
+from slipdaq.config import Config
+from slipdaq.records import CanFrame, NmeaLine
+from slipdaq.sim.vehicle import Road, Scenario, TruthSample, VehicleSim
+
+TRUTH_RATE_HZ = 100.0
+"""Truth samples per second (plus one at every GPS epoch)."""
+COUNT_MODULUS = 2**32
+SEQ_MODULUS = 256
+KNOT_MPS = 1852.0 / 3600.0
+EARTH_RADIUS_M = 6_371_008.8
+"""Mean Earth radius, for the local flat-earth position x -> (lat, lon)."""
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    wpt_rate_hz: float = 100.0
+    """Frames per second per wheel (<= 0: no WPT frames)."""
+    gps_rate_hz: float = 10.0
+    """GPS epochs per second (<= 0: no GPS lines)."""
+    gps_latency_s: float = 0.0
+    """Delay from the fix's epoch time to the arrival of its sentences."""
+    gps_noise_mps: float = 0.02
+    """Standard deviation of the Gaussian speed noise."""
+    can_jitter_s: float = 0.0
+    """Frames arrive at the sampling time plus uniform [0, can_jitter_s)."""
+    start_count: int = 2**32 - 20000
+    """PulseCount at angle 0 (close to 2^32, so counts wrap early in every run)."""
+    seed: int = 1
+    step_s: float = 0.001
+    """Largest model integration step."""
+    start_utc_s: float = 1_767_225_600.0
+    """Wall-clock time of sim time 0 (2026-01-01T00:00:00Z)."""
+    origin_lat_deg: float = 52.0
+    origin_lon_deg: float = 10.0
+    heading_deg: float = 90.0
+
+
+@dataclass(frozen=True, slots=True)
+class SimEvent:
+    time_s: float
+    """Seconds since the simulation start at which the record arrives (or the truth holds)."""
+    record: CanFrame | NmeaLine | None
+    truth: TruthSample | None
+
+
+class WptEncoder:
+    """Encodes WPT frames with the DBC's messages WPT_<wheel> and signals PulseCount, Seq (looked up by name).
+
+    When both signals are plain little-endian unsigned raw values, the payload is packed directly as
+    PulseCount << start | Seq << start (checked against cantools' encode at construction); otherwise cantools encodes.
+    """
+
+    _CHECK_VALUES = ((0, 0), (2**32 - 1, 255), (0x12345678, 0xA5))
+
+    def __init__(self, config: Config) -> None:
+        db = cantools.database.load_string(config.load_dbc_text(), database_format="dbc")
+        self.messages = [db.get_message_by_name(f"WPT_{w}") for w in WHEELS]
+        self._shifts = [self._packing_shifts(m) for m in self.messages]
+
+    @classmethod
+    def _packing_shifts(cls, msg: cantools.database.can.Message) -> tuple[int, int] | None:
+        """(PulseCount start bit, Seq start bit) if direct packing reproduces cantools' encode, else None."""
+        signals = [msg.get_signal_by_name(name) for name in ("PulseCount", "Seq")]
+        if any(s.byte_order != "little_endian" or s.is_signed or s.scale != 1 or s.offset != 0 for s in signals):
+            return None
+        shifts = (signals[0].start, signals[1].start)
+        for count, seq in cls._CHECK_VALUES:
+            packed = ((count << shifts[0]) | (seq << shifts[1])).to_bytes(msg.length, "little")
+            try:
+                if bytes(msg.encode({"PulseCount": count, "Seq": seq})) != packed:
+                    return None
+            except (ValueError, KeyError, cantools.database.errors.Error):
+                return None
+        return shifts
+
+    def frame(self, wheel_index: int, timestamp_s: float, count: int, seq: int) -> CanFrame:
+        """The CanFrame of WPT_<WHEELS[wheel_index]> carrying count and seq."""
+        msg, shifts = self.messages[wheel_index], self._shifts[wheel_index]
+        if shifts is None:
+            data = bytes(msg.encode({"PulseCount": count, "Seq": seq}))
+        else:
+            data = ((count << shifts[0]) | (seq << shifts[1])).to_bytes(msg.length, "little")
+        return CanFrame(timestamp_s, msg.frame_id, data, msg.is_extended_frame)
+
+
+def pulse_count(angle_rad: float, start_count: int, pulses_per_rev: int) -> int:
+    """(start_count + floor(theta/(2*pi) * pulses_per_rev)) mod 2^32."""
+    return (start_count + math.floor(angle_rad / (2.0 * math.pi) * pulses_per_rev)) % COUNT_MODULUS
+
+
+def nmea_sentence(body: str) -> str:
+    """'$' + body + '*HH', HH = XOR of the body's bytes (NMEA 0183 checksum)."""
+    checksum = 0
+    for byte in body.encode("ascii"):
+        checksum ^= byte
+    return f"${body}*{checksum:02X}"
+
+
+def _nmea_angle(value_deg: float, degree_digits: int, positive: str, negative: str) -> tuple[str, str]:
+    """Degrees -> ('ddmm.mmmmm' or 'dddmm.mmmmm', hemisphere), rounded to 1e-5 minute."""
+    units = round(abs(value_deg) * 60 * 100_000)
+    degrees, rem = divmod(units, 60 * 100_000)
+    minutes, frac = divmod(rem, 100_000)
+    return f"{degrees:0{degree_digits}d}{minutes:02d}.{frac:05d}", positive if value_deg >= 0 else negative
+
+
+def _nmea_time_date(utc_s: float) -> tuple[str, str]:
+    """UTC seconds -> ('hhmmss.ss', 'ddmmyy')."""
+    seconds, hundredths = divmod(round(utc_s * 100), 100)
+    t = datetime.fromtimestamp(seconds, UTC)
+    return f"{t:%H%M%S}.{hundredths:02d}", f"{t:%d%m%y}"
+
+
+def position_deg(distance_m: float, settings: SimSettings) -> tuple[float, float]:
+    """(lat, lon) after distance_m along heading from the origin (local flat earth)."""
+    heading = math.radians(settings.heading_deg)
+    north_m, east_m = distance_m * math.cos(heading), distance_m * math.sin(heading)
+    lat = settings.origin_lat_deg + math.degrees(north_m / EARTH_RADIUS_M)
+    lon = settings.origin_lon_deg + math.degrees(
+        east_m / (EARTH_RADIUS_M * math.cos(math.radians(settings.origin_lat_deg)))
+    )
+    return lat, lon
+
+
+def gps_epoch_lines(truth: TruthSample, speed_mps: float, settings: SimSettings) -> list[str]:
+    """RMC, GGA, VTG sentences (talker GP) for a fix at truth.time_s with the given speed over ground."""
+    hms, ddmmyy = _nmea_time_date(settings.start_utc_s + truth.time_s)
+    lat, lon = position_deg(truth.distance_m, settings)
+    lat_s, ns = _nmea_angle(lat, 2, "N", "S")
+    lon_s, ew = _nmea_angle(lon, 3, "E", "W")
+    knots, kmh, course = speed_mps / KNOT_MPS, speed_mps * 3.6, settings.heading_deg % 360.0
+    return [
+        nmea_sentence(f"GPRMC,{hms},A,{lat_s},{ns},{lon_s},{ew},{knots:.3f},{course:.1f},{ddmmyy},,,A"),
+        nmea_sentence(f"GPGGA,{hms},{lat_s},{ns},{lon_s},{ew},1,12,0.8,100.0,M,0.0,M,,"),
+        nmea_sentence(f"GPVTG,{course:.1f},T,,M,{knots:.3f},N,{kmh:.3f},K,A"),
+    ]
+
+
+class _Jitter:
+    """Uniform [0, jitter_s) delays from a seeded generator, drawn in blocks."""
+
+    def __init__(self, jitter_s: float, rng: np.random.Generator) -> None:
+        self.jitter_s, self.rng = jitter_s, rng
+        self._block: list[float] = []
+
+    def next_s(self) -> float:
+        if self.jitter_s <= 0.0:
+            return 0.0
+        if not self._block:
+            self._block = (self.rng.random(1024) * self.jitter_s).tolist()[::-1]
+        return self._block.pop()
+
+
+def _instant(index: int, rate_hz: float) -> float:
+    """index/rate as one correctly rounded division, so coinciding instants of different streams compare equal."""
+    return index / rate_hz if rate_hz > 0 else math.inf
+
+
+def generate(
+    config: Config,
+    scenario: Scenario,
+    road: Road,
+    settings: SimSettings = SimSettings(),
+    duration_s: float | None = None,
+    r0_offset_m: float | Mapping[str, float] = 0.0,
+) -> Iterator[SimEvent]:
+    """Events in nondecreasing time_s over [0, duration_s) (forever when duration_s is None)."""
+    sim = VehicleSim(config, scenario, road, r0_offset_m, max_step_s=settings.step_s)
+    encoder = WptEncoder(config)
+    jitter = _Jitter(settings.can_jitter_s, np.random.default_rng([settings.seed, 1]))
+    noise_rng = np.random.default_rng([settings.seed, 2])
+    pulses_per_rev, wheel_count = config.wpt.pulses_per_rev, len(WHEELS)
+    slot_rate_hz = settings.wpt_rate_hz * wheel_count
+    end_s = math.inf if duration_s is None else duration_s
+    pending: list[tuple[float, int, SimEvent]] = []
+    order = itertools.count()
+
+    def push(time_s: float, record: CanFrame | NmeaLine | None, truth: TruthSample | None = None) -> None:
+        heapq.heappush(pending, (time_s, next(order), SimEvent(time_s, record, truth)))
+
+    n_slot = n_truth = n_gps = 0
+    t_slot, t_truth, t_gps = _instant(0, slot_rate_hz), 0.0, _instant(0, settings.gps_rate_hz)
+    while True:
+        t = min(t_slot, t_truth, t_gps)
+        while pending and pending[0][0] <= t and pending[0][0] < end_s:
+            yield heapq.heappop(pending)[2]
+        if t >= end_s:
+            return
+        sim.advance_to(t)
+        if t_truth == t or t_gps == t:
+            push(t, None, sim.state)
+        if t_slot == t:
+            frame_index, wheel = divmod(n_slot, wheel_count)
+            count = pulse_count(sim.angles_rad()[wheel], settings.start_count, pulses_per_rev)
+            arrival_s = t + jitter.next_s()
+            push(arrival_s, encoder.frame(wheel, settings.start_utc_s + arrival_s, count, frame_index % SEQ_MODULUS))
+            n_slot += 1
+            t_slot = _instant(n_slot, slot_rate_hz)
+        if t_gps == t:
+            speed_mps = max(0.0, sim.state.speed_mps + float(noise_rng.normal(0.0, settings.gps_noise_mps)))
+            arrival_s = t + settings.gps_latency_s
+            for line in gps_epoch_lines(sim.state, speed_mps, settings):
+                push(arrival_s, NmeaLine(settings.start_utc_s + arrival_s, line))
+            n_gps += 1
+            t_gps = _instant(n_gps, settings.gps_rate_hz)
+        if t_truth == t:
+            n_truth += 1
+            t_truth = _instant(n_truth, TRUTH_RATE_HZ)

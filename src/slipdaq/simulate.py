@@ -1,0 +1,116 @@
+"""`slipdaq simulate`: the vehicle model's WPT frames onto a python-can bus and its NMEA onto a serial port."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import os
+import pty
+import signal
+import sys
+import time
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import serial
+
+from slipdaq.config import Config
+from slipdaq.daemon import open_bus
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.realtime import play
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    scenario: str = "cycle"
+    road: str = "paved"
+    gps_port: str | None = None
+    gps_link: str | None = None
+    duration_s: float | None = None
+    settings: SimSettings = SimSettings()
+
+    @classmethod
+    def from_args(cls, a: argparse.Namespace) -> "SimOptions":
+        return cls(a.scenario, a.road, a.gps_port, a.gps_link, a.duration, SimSettings(
+            wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz, gps_latency_s=a.gps_latency_s,
+            gps_noise_mps=a.gps_noise_mps, seed=a.seed,
+        ))
+
+
+class PtyGps:
+    """A pseudo-terminal standing in for a GPS receiver's serial port: write to it, read its `path`."""
+
+    def __init__(self, link: str | None = None) -> None:
+        self.master_fd, self.slave_fd = pty.openpty()
+        tty.setraw(self.slave_fd)
+        os.set_blocking(self.master_fd, False)
+        self.path = os.ttyname(self.slave_fd)
+        self.link = Path(link) if link else None
+        self.dropped_lines = 0
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.link.unlink()
+            self.link.symlink_to(self.path)
+
+    def write(self, data: bytes) -> None:
+        """Write a line; when nobody reads and the buffer is full, the line is dropped (as a UART would)."""
+        try:
+            os.write(self.master_fd, data)
+        except BlockingIOError:
+            self.dropped_lines += 1
+
+    def close(self) -> None:
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.link.unlink()
+        os.close(self.master_fd)
+        os.close(self.slave_fd)
+
+
+def serial_writer(port: str, baudrate: int) -> tuple[Callable[[bytes], object], Callable[[], None]]:
+    s = serial.Serial(port, baudrate, write_timeout=0)
+
+    def write(data: bytes) -> None:
+        with contextlib.suppress(serial.SerialTimeoutException):
+            s.write(data)
+
+    return write, s.close
+
+
+def run_simulate(cfg: Config, opts: SimOptions, out=sys.stdout) -> int:
+    settings = replace(opts.settings, start_utc_s=time.time())
+    pty_gps: PtyGps | None = None
+    if opts.gps_port:
+        write, close = serial_writer(opts.gps_port, cfg.gps.baudrate)
+        where = opts.gps_port
+    else:
+        pty_gps = PtyGps(opts.gps_link)
+        write, close = pty_gps.write, pty_gps.close
+        where = pty_gps.path + (f" (linked at {opts.gps_link})" if opts.gps_link else "")
+    print(f"simulate: {opts.scenario} on {opts.road}; WPT frames on {cfg.can.interface}:{cfg.can.channel}, "
+          f"NMEA on {where}", file=out, flush=True)
+    try:
+        with open_bus(cfg) as bus:
+            frames = asyncio.run(_play(cfg, opts, settings, bus, write))
+    finally:
+        close()
+    print(f"simulate: sent {frames} CAN frames", file=out, flush=True)
+    return 0
+
+
+async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write) -> int:  # type: ignore[no-untyped-def]
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, task.cancel)
+    events = generate(cfg, opts.scenario, opts.road, settings, duration_s=opts.duration_s)  # type: ignore[arg-type]
+    sent = 0
+    try:
+        sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s)
+    except asyncio.CancelledError:
+        pass
+    return sent

@@ -1,0 +1,168 @@
+"""The live status view: per wheel speed, slip and Re; GPS; frame rates, losses, bad sentences; the log.
+
+On a terminal it is a rich table redrawn a few times a second; otherwise one plain line every few seconds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TextIO
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from slipdaq import WHEELS
+from slipdaq.records import Estimate, GpsFix, RawRecord, WheelSample
+
+
+@dataclass
+class SourceStatus:
+    """What the live runner knows beyond the records: ports, connections, the log file."""
+
+    can: str = ""
+    gps_port: str = ""
+    gps_connected: Callable[[], bool] = lambda: True
+    log_path: str = ""
+    log_size_bytes: Callable[[], int] = lambda: 0
+    can_reader_errors: Callable[[], int] = lambda: 0
+
+
+@dataclass
+class StatusSink:
+    """A Sink that keeps the latest of everything for the view (cheap per record)."""
+
+    sources: SourceStatus = field(default_factory=SourceStatus)
+    estimate: Estimate | None = None
+    fix: GpsFix | None = None
+    can_frames: int = 0
+    nmea_lines: int = 0
+    wheel_frames: dict[str, int] = field(default_factory=lambda: {w: 0 for w in WHEELS})
+    diagnostics: dict[str, object] = field(default_factory=dict)
+
+    def on_raw(self, record: RawRecord) -> None:
+        if hasattr(record, "arbitration_id"):
+            self.can_frames += 1
+        else:
+            self.nmea_lines += 1
+
+    def on_wheel(self, sample: WheelSample) -> None:
+        self.wheel_frames[sample.wheel] += 1
+
+    def on_fix(self, fix: GpsFix) -> None:
+        self.fix = fix
+
+    def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
+        self.estimate = estimate
+
+    def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
+        self.diagnostics = diagnostics
+
+
+def _fmt(v: float | None, spec: str, scale: float = 1.0) -> str:
+    return "—" if v is None else format(v * scale, spec)
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000  # type: ignore[assignment]
+    return ""
+
+
+class _Rates:
+    """Frames per second from counters sampled at each redraw."""
+
+    def __init__(self) -> None:
+        self._last: tuple[float, int, int] | None = None
+        self.can_fps = 0.0
+        self.nmea_lps = 0.0
+
+    def update(self, s: StatusSink) -> None:
+        now = time.monotonic()
+        if self._last is not None and now - self._last[0] >= 0.5:
+            dt = now - self._last[0]
+            self.can_fps = (s.can_frames - self._last[1]) / dt
+            self.nmea_lps = (s.nmea_lines - self._last[2]) / dt
+            self._last = (now, s.can_frames, s.nmea_lines)
+        elif self._last is None:
+            self._last = (now, s.can_frames, s.nmea_lines)
+
+
+def render(s: StatusSink, rates: _Rates) -> Group:
+    d = s.diagnostics
+    lost = d.get("lost_frames", {}) if d else {}
+    wheels = Table(title="slipdaq — live", expand=False)
+    for col in ("wheel", "speed km/h", "slip %", "Re mm", "r0 mm", "Cx kN", "frames", "lost"):
+        wheels.add_column(col, justify="right")
+    e = s.estimate
+    for w in WHEELS:
+        we = e.wheels[w] if e else None
+        wheels.add_row(
+            w,
+            _fmt(we.speed_mps if we else None, ".1f", 3.6),
+            _fmt(we.slip if we else None, "+.2f", 100),
+            _fmt(we.re_m if we else None, ".1f", 1000),
+            _fmt(we.r0_m if we else None, ".1f", 1000),
+            _fmt(we.cx_n if we else None, ".1f", 1e-3),
+            str(s.wheel_frames[w]),
+            str(lost.get(w, 0)) if isinstance(lost, dict) else "0",
+        )
+    f = s.fix
+    gps = "no fix yet" if f is None else (
+        f"{f.speed_mps * 3.6:6.1f} km/h  {'valid' if f.valid else 'INVALID'}  "
+        f"quality {f.fix_quality if f.fix_quality is not None else '—'}  sats {f.satellites if f.satellites is not None else '—'}"
+    )
+    connected = s.sources.gps_connected()
+    lines = [
+        Text(f"GPS   {s.sources.gps_port}: {gps}" + ("" if connected else "  [DISCONNECTED]"),
+             style="" if connected else "bold red"),
+        Text(f"accel {_fmt(e.accel_mps2 if e else None, '+.2f')} m/s²   Fx {_fmt(e.force_n if e else None, '+.0f')} N"),
+        Text(f"CAN   {s.sources.can}: {rates.can_fps:7.0f} frames/s, {s.can_frames} frames, "
+             f"unknown {d.get('unknown_frames', 0)}, errors {d.get('error_frames', 0)}, "
+             f"reader errors {s.sources.can_reader_errors()}"),
+        Text(f"NMEA  {rates.nmea_lps:5.1f} lines/s, {s.nmea_lines} lines, bad sentences {d.get('bad_sentences', 0)}"),
+        Text(f"log   {s.sources.log_path} ({_size(s.sources.log_size_bytes())})"),
+    ]
+    return Group(wheels, *lines)
+
+
+def status_line(s: StatusSink, rates: _Rates) -> str:
+    e = s.estimate
+    d = s.diagnostics
+    slips = " ".join(
+        f"{w}={_fmt(e.wheels[w].slip if e else None, '+.2f', 100)}%" for w in WHEELS
+    )
+    lost = sum(d.get("lost_frames", {}).values()) if isinstance(d.get("lost_frames"), dict) else 0  # type: ignore[union-attr]
+    gps = "—" if s.fix is None else f"{s.fix.speed_mps:.2f}"
+    return (
+        f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'} | slip {slips} | "
+        f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}) | "
+        f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)} | "
+        f"log {s.sources.log_path} {_size(s.sources.log_size_bytes())}"
+    )
+
+
+async def show(s: StatusSink, stream: TextIO | None = None, line_every_s: float = 5.0) -> None:
+    """Run the view until cancelled: a live table on a terminal, else a status line every line_every_s."""
+    stream = stream or sys.stdout
+    rates = _Rates()
+    rates.update(s)
+    if stream.isatty():
+        console = Console(file=stream)
+        with Live(render(s, rates), console=console, refresh_per_second=4, transient=False) as live:
+            while True:
+                await asyncio.sleep(0.25)
+                rates.update(s)
+                live.update(render(s, rates))
+    else:
+        while True:
+            await asyncio.sleep(line_every_s)
+            rates.update(s)
+            print(status_line(s, rates), file=stream, flush=True)

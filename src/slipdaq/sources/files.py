@@ -1,0 +1,74 @@
+"""Import sources: CAN log files (any format python-can reads) and timestamped NMEA logs.
+
+NMEA log lines are `(EPOCH_SECONDS) $SENTENCE` in the CAN log's clock; bare `$SENTENCE` lines are
+accepted too and take the time of the sentence itself (RMC date + time), else of the line before.
+"""
+
+from __future__ import annotations
+
+import heapq
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+
+from slipdaq.decode.nmea import NmeaDecoder
+from slipdaq.records import CanFrame, NmeaLine, RawRecord
+from slipdaq.sources.can_bus import to_frame
+
+_STAMPED = re.compile(r"^\s*\(\s*(?P<t>[-+]?\d+(?:\.\d*)?)\s*\)\s?(?P<line>.*)$")
+CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
+
+
+class ImportError_(Exception):
+    """A file that cannot be imported; the message names the file."""
+
+
+def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
+    p = Path(path)
+    if not p.is_file():
+        raise ImportError_(f"{p}: no such CAN log")
+    try:
+        reader = can.LogReader(str(p))
+    except (ValueError, OSError) as e:
+        raise ImportError_(f"{p}: python-can cannot read it ({e}); formats: {', '.join(CAN_SUFFIXES)}") from None
+    with reader:
+        for msg in reader:
+            yield to_frame(msg)
+
+
+def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine]:
+    p = Path(path)
+    if not p.is_file():
+        raise ImportError_(f"{p}: no such NMEA log")
+    last_t: float | None = None
+    pending: list[str] = []  # bare lines before the first time is known
+    probe = NmeaDecoder()
+    with open(p, "rb") as f:
+        for raw in f:
+            text = raw.rstrip(b"\r\n").decode("latin-1")
+            if not text.strip():
+                continue
+            m = _STAMPED.match(text)
+            if m:
+                last_t = float(m["t"])
+                text = m["line"]
+            else:
+                fix = probe.decode(NmeaLine(last_t or 0.0, text))
+                if fix is not None and fix.fix_time_utc_s is not None:
+                    last_t = fix.fix_time_utc_s
+            if last_t is None:
+                pending.append(text)
+                continue
+            for earlier in pending:
+                yield NmeaLine(last_t, earlier)
+            pending.clear()
+            yield NmeaLine(last_t, text)
+    for earlier in pending:  # a file with no time at all
+        yield NmeaLine(0.0, earlier)
+
+
+def merge_by_time(*streams: Iterator[RawRecord]) -> Iterator[RawRecord]:
+    """One stream in timestamp order; on equal times, the earlier stream's record first (stable)."""
+    return heapq.merge(*streams, key=lambda r: r.timestamp_s)

@@ -1,0 +1,24 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from slipdaq.config import Config, load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "config" / "slipdaq.toml"
+DATA = ROOT / "tests" / "data"
+
+
+@pytest.fixture
+def cfg() -> Config:
+    return load_config(CONFIG)
+
+
+def write_config(tmp_path: Path, text: str, dbc: str | None = None) -> Path:
+    """A config file in tmp_path with the example DBC beside it (or the given DBC text)."""
+    (tmp_path / "wpt.dbc").write_text(dbc if dbc is not None else (ROOT / "config" / "wpt.dbc").read_text())
+    p = tmp_path / "slipdaq.toml"
+    p.write_text(text)
+    return p

@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# The whole test suite, from a clean clone: installs the project and its test tools into ./.venv when
+# missing, runs the host tests, then the hardware-in-the-loop suite in a VM with SocketCAN vcan.
+# SLIPDAQ_SKIP_HIL=1 skips the VM part (it needs root to install qemu the first time).
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+py=${SLIPDAQ_PYTHON:-$root/.venv/bin/python}
+if [ ! -x "$py" ]; then
+    echo "tests: creating $root/.venv"
+    python3 -m venv "$root/.venv"
+    py=$root/.venv/bin/python
+fi
+echo "tests: installing slipdaq and its test dependencies into $(dirname "$(dirname "$py")")"
+"$py" -m pip install -q --disable-pip-version-check -e "$root[test]" 2>&1 | grep -v "^WARNING: Location" || true
+"$py" -c "import slipdaq, can, cantools, mcap, pytest, hypothesis" # fail early and clearly if the install failed
+echo "tests: host suite"
+"$py" -m pytest -q -p no:cacheprovider tests --ignore=tests/hil
+if [ "${SLIPDAQ_SKIP_HIL:-0}" = 1 ]; then
+    echo "tests: HIL suite skipped (SLIPDAQ_SKIP_HIL=1)"
+elif [ -f tests/hil/run_vm.sh ]; then
+    echo "tests: hardware-in-the-loop suite (VM with vcan)"
+    SLIPDAQ_PYTHON=$py bash tests/hil/run_vm.sh
+fi
