@@ -51,7 +51,7 @@ async def run_demo_async(
     finally:
         gps.close()
     error = slip_error(iter_estimates(result.log_path), truth_series(truth, settings.start_utc_s)) if truth else \
-        SlipError(0, float("nan"), float("nan"), float("nan"))
+        SlipError(0, *[float("nan")] * 4)
     return result, error, cfg
 
 
@@ -67,7 +67,7 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  NMEA:       {result.nmea_lines} lines, {result.bad_sentences} bad\n"
         f"  estimates:  {result.estimates}\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
-        f"RMS {err.rms_points:.3f} points, max {err.max_abs_points:.3f} points\n"
+        f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
         f"next:\n"
         f"  slipdaq replay {result.log_path} -o replayed.mcap\n"
         f"  slipdaq export {result.log_path} --csv estimates.csv",

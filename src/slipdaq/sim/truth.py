@@ -19,6 +19,7 @@ class SlipError:
     """RMS of estimated minus true slip, in percentage points."""
     max_abs_points: float
     median_abs_points: float
+    p95_abs_points: float
 
 
 def truth_series(truth: Sequence[TruthSample], start_utc_s: float) -> dict[str, np.ndarray]:
@@ -51,5 +52,7 @@ def slip_error(
             errors.append(s - float(np.mean(np.interp(grid, t, truth[f"slip_{w}"]))))
     e = np.abs(np.array(errors)) * 100.0
     if e.size == 0:
-        return SlipError(0, float("nan"), float("nan"), float("nan"))
-    return SlipError(int(e.size), float(np.sqrt(np.mean(e**2))), float(e.max()), float(np.median(e)))
+        return SlipError(0, *[float("nan")] * 4)
+    return SlipError(
+        int(e.size), float(np.sqrt(np.mean(e**2))), float(e.max()), float(np.median(e)), float(np.percentile(e, 95))
+    )
