@@ -29,6 +29,9 @@ class VehicleConfig(_Section):
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
     driven_axle: Literal["front", "rear", "all"] = "front"
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
+    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off)")
+    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off)")
+    air_density_kgpm3: float = Field(1.2, gt=0, lt=2)
 
 
 class TireConfig(_Section):
@@ -90,6 +93,11 @@ class EstimatorConfig(_Section):
     min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
     cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
     cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
+    calibrate_r0: bool = Field(True, description="calibrate the free-rolling radius online (else the tire's)")
+    r0_min_speed_mps: float = Field(3.0, ge=0.5, description="slowest window used to calibrate r0")
+    fit_min_speed_mps: float = Field(5.0, ge=0.5, description="slowest window used in the stiffness fit")
+    max_latency_s: float = Field(0.4, gt=0, le=2, description="largest GPS latency the 'auto' estimate looks for")
+    grade_from_altitude: bool = Field(False, description="add M*g*sin(grade) from GPS altitude to Fx")
 
 
 class LogConfig(_Section):
@@ -121,9 +129,9 @@ class Config(_Section):
         return self.source_path.parent / p
 
     @property
-    def latency_fixed_s(self) -> float:
-        """The GPS latency subtracted from arrival times: the configured number, or 0 for 'auto' (until estimated)."""
-        return 0.0 if self.gps.latency_s == "auto" else float(self.gps.latency_s)
+    def latency_fixed_s(self) -> float | None:
+        """The configured GPS latency in seconds, or None for 'auto' (estimated online)."""
+        return None if self.gps.latency_s == "auto" else float(self.gps.latency_s)
 
     def to_toml(self) -> str:
         """The effective config as TOML (what a log stores, so that replay runs with exactly these values)."""

@@ -35,13 +35,15 @@ async def run_demo_async(
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel)
-    settings = replace(settings or SimSettings(), start_utc_s=time.time())
+    # sim time 0 half a second from now, when the daemon is reading: truth and records then share one clock
+    settings = replace(settings or SimSettings(), start_utc_s=time.time() + 0.5)
     truth: list[TruthSample] = []
     try:
         with open_bus(cfg) as daemon_bus, can.Bus(interface="virtual", channel=channel) as sim_bus:
             events = generate(cfg, scenario, road, settings, duration_s=duration_s)  # type: ignore[arg-type]
             async with asyncio.TaskGroup() as tg:
-                sim = tg.create_task(play(events, bus=sim_bus, nmea_write=gps.write, on_truth=truth.append))
+                sim = tg.create_task(play(events, bus=sim_bus, nmea_write=gps.write, on_truth=truth.append,
+                                          start_wall_s=settings.start_utc_s))
                 result = await run_daemon(
                     cfg, daemon_bus, new_log_path(log_dir, "demo"), duration_s=duration_s,
                     status_stream=status_stream, status_every_s=status_every_s,

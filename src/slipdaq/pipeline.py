@@ -96,6 +96,7 @@ class Pipeline:
             bad_sentences=self.nmea.bad_sentences,
             gps_fixes=self.nmea.fixes,
             estimates=self.estimates,
+            estimator=self.estimator.status(),
         )
 
     def emit_diagnostics(self) -> None:

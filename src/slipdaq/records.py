@@ -72,11 +72,19 @@ class WheelEstimate:
     force_n: float | None
     speed_mps: float | None
     """Wheel circumferential speed omega*r0 over the window."""
+    r0_source: str = "tire_size"
+    """Where r0 came from: 'calibrated' (converged), 'calibrating' (usable, not yet converged), 'other_wheels'
+    (the calibrated wheels' mean), 'tire_size' or 'configured' (tire.free_radius_m)."""
+    slip_nd: float | None = None
+    """Slip against the non-driven wheels' speed (driven wheels only; no GPS needed)."""
+    cx_fit_n: float | None = None
+    """Stiffness fitted over the run so far (initial slope of force against slip)."""
+    cx_fit_conf: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
-    """Windowed estimate centred on one GPS epoch."""
+    """Windowed estimate centred on one GPS epoch (or on the wheels' clock while GPS is lost)."""
 
     time_s: float
     speed_mps: float
@@ -84,10 +92,16 @@ class Estimate:
     force_n: float | None
     window_s: float
     wheels: dict[str, WheelEstimate]
+    phase: str = "cruise"
+    """standstill | accelerate | cruise | brake"""
+    source: str = "gps"
+    """'gps': centred on a GPS epoch; 'wheels': GPS lost, speed from the non-driven wheels."""
+    gps_latency_s: float = 0.0
+    latency_source: str = "fixed"
 
-    def as_row(self) -> dict[str, float | None]:
+    def as_row(self) -> dict[str, float | str | None]:
         """Flat mapping in the CSV/MCAP column names."""
-        row: dict[str, float | None] = {
+        row: dict[str, float | str | None] = {
             "time_s": self.time_s,
             "speed_mps": self.speed_mps,
             "accel_mps2": self.accel_mps2,
@@ -98,6 +112,15 @@ class Estimate:
             row[f"re_{w}_m"] = e.re_m
             row[f"r0_{w}_m"] = e.r0_m
             row[f"cx_{w}_n"] = e.cx_n
+        row["phase"] = self.phase
+        row["source"] = self.source
+        row["gps_latency_s"] = self.gps_latency_s
+        row["latency_source"] = self.latency_source
+        for w, e in self.wheels.items():
+            row[f"r0_source_{w}"] = e.r0_source
+            row[f"slip_nd_{w}"] = e.slip_nd
+            row[f"cx_fit_{w}_n"] = e.cx_fit_n
+            row[f"cx_fit_{w}_conf"] = e.cx_fit_conf
         return row
 
 
@@ -117,6 +140,8 @@ class Diagnostics:
     bad_sentences: int = 0
     gps_fixes: int = 0
     estimates: int = 0
+    estimator: dict[str, object] = field(default_factory=dict)
+    """Calibration state: latency by each method, r0 and its standard error, fitted Cx, per wheel."""
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -132,4 +157,5 @@ class Diagnostics:
             "bad_sentences": self.bad_sentences,
             "gps_fixes": self.gps_fixes,
             "estimates": self.estimates,
+            "estimator": dict(self.estimator),
         }

@@ -110,7 +110,8 @@ async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write
     events = generate(cfg, opts.scenario, opts.road, settings, duration_s=opts.duration_s)  # type: ignore[arg-type]
     sent = 0
     try:
-        sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s)
+        sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s,
+                          start_wall_s=settings.start_utc_s)
     except asyncio.CancelledError:
         pass
     return sent

@@ -1,15 +1,16 @@
 """Windowed longitudinal slip, effective rolling radius Re, force Fx and stiffness Cx (docs/method.md).
 
-For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c:
+For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c (fix time t_c = arrival time - GPS latency):
   d_gps = integral of GPS speed (piecewise linear between fixes)
   N     = (count(t1) - count(t0)) / pulses_per_rev          wheel revolutions (counts interpolated linearly)
-  d_wpt = r_ref * 2*pi * N                                   distance by wheel revolutions
+  d_wpt = r0 * 2*pi * N                                      distance by wheel revolutions, r0 calibrated per wheel
   s     = (d_wpt - d_gps) / d_gps                            SAE slip: > 0 driving, < 0 braking
   Re    = d_gps / (2*pi*N)                                   = V / omega
   a(c)  = (v(c+1) - v(c-1)) / (t(c+1) - t(c-1))             central difference of GPS speed
-  Fx    = M * a;  per tire: driven axle share when Fx >= 0, brake_front_share when Fx < 0
-  Cx    = Fx_tire / s                                        only for cx_slip_min <= |s| <= cx_slip_max
-Pure: records in, estimates out, deterministic in the order records are given. No clock, no I/O.
+  Fx    = M*a [+ f_rr*M*g + rho/2*CdA*v^2 + M*g*sin(grade)]  per tire: driven axle when Fx >= 0, brake share else
+  Cx    = Fx_tire / s  per window (cx_slip_min <= |s| <= cx_slip_max), and a fitted Cx over the run (stiffness.py)
+Latency (latency.py) and r0 (radius.py) are estimated here too. Pure: records in, estimates out, deterministic in
+the order records are given. No clock, no I/O.
 """
 
 from __future__ import annotations
@@ -22,10 +23,15 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config import Config
+from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
+from slipdaq.estimator.radius import RadiusCalibration
 from slipdaq.estimator.ring import SeriesRing
+from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
 
 TWO_PI = 2.0 * math.pi
+G_MPS2 = 9.81
+WHEEL_ONLY_STEP_S = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,30 +45,49 @@ class EstimatorParams:
     brake_front_share: float = 0.7
     pulses_per_rev: int = 1000
     r_ref_m: float = 0.3075
-    gps_latency_s: float = 0.0
+    r_ref_configured: bool = False
+    """True when r_ref is tire.free_radius_m rather than the tire size."""
+    gps_latency_s: float | None = 0.0
+    """Fixed GPS latency; None estimates it online ('auto')."""
+    max_latency_s: float = 0.4
+    calibrate_r0: bool = False
+    r0_min_speed_mps: float = 3.0
+    fit_min_speed_mps: float = 5.0
+    phase_accel_mps2: float = 0.3
+    """|a| above this is accelerating or braking; below it, cruising (or coasting)."""
+    standstill_speed_mps: float = 0.5
+    rolling_resistance_coeff: float = 0.0
+    drag_area_m2: float = 0.0
+    air_density_kgpm3: float = 1.2
+    grade_from_altitude: bool = False
     max_gps_gap_s: float = 1.0
     """GPS fixes further apart than this do not make a window or a central difference."""
+    gps_lost_after_s: float = 1.0
+    """With no GPS fix for this long, estimates continue on the wheels' clock (slip against non-driven wheels)."""
 
     @classmethod
     def from_config(cls, cfg: Config) -> "EstimatorParams":
+        v, e = cfg.vehicle, cfg.estimator
         return cls(
-            window_s=cfg.estimator.window_s,
-            min_speed_mps=cfg.estimator.min_speed_mps,
-            cx_slip_min=cfg.estimator.cx_slip_min,
-            cx_slip_max=cfg.estimator.cx_slip_max,
-            mass_kg=cfg.vehicle.mass_kg,
-            driven_axle=cfg.vehicle.driven_axle,
-            brake_front_share=cfg.vehicle.brake_front_share,
-            pulses_per_rev=cfg.wpt.pulses_per_rev,
-            r_ref_m=cfg.tire.radius_m,
-            gps_latency_s=cfg.latency_fixed_s,
+            window_s=e.window_s, min_speed_mps=e.min_speed_mps, cx_slip_min=e.cx_slip_min, cx_slip_max=e.cx_slip_max,
+            mass_kg=v.mass_kg, driven_axle=v.driven_axle, brake_front_share=v.brake_front_share,
+            pulses_per_rev=cfg.wpt.pulses_per_rev, r_ref_m=cfg.tire.radius_m,
+            r_ref_configured=cfg.tire.free_radius_m is not None, gps_latency_s=cfg.latency_fixed_s,
+            max_latency_s=e.max_latency_s, calibrate_r0=e.calibrate_r0, r0_min_speed_mps=e.r0_min_speed_mps,
+            fit_min_speed_mps=e.fit_min_speed_mps, rolling_resistance_coeff=v.rolling_resistance_coeff,
+            drag_area_m2=v.drag_area_m2, air_density_kgpm3=v.air_density_kgpm3,
+            grade_from_altitude=e.grade_from_altitude,
         )
+
+
+def driven_wheels(driven_axle: str) -> tuple[str, ...]:
+    return {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}[driven_axle]
 
 
 def tire_forces(fx_n: float, driven_axle: str, brake_front_share: float) -> dict[str, float]:
     """Split the total force: evenly over the driven wheels when Fx >= 0, by brake_front_share when Fx < 0."""
     if fx_n >= 0:
-        driven = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}[driven_axle]
+        driven = driven_wheels(driven_axle)
         return {w: (fx_n / len(driven) if w in driven else 0.0) for w in WHEELS}
     front = fx_n * brake_front_share / 2.0
     rear = fx_n * (1.0 - brake_front_share) / 2.0
@@ -83,19 +108,52 @@ def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1
     return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
 
 
+def phase_of(speed_mps: float, accel_mps2: float | None, threshold_mps2: float, standstill_mps: float) -> str:
+    """standstill below standstill_mps; accelerate / brake beyond +-threshold; cruise otherwise."""
+    if speed_mps < standstill_mps:
+        return "standstill"
+    if accel_mps2 is None or abs(accel_mps2) <= threshold_mps2:
+        return "cruise"
+    return "accelerate" if accel_mps2 > 0 else "brake"
+
+
 class SlipEstimator:
     """Feed wheel samples and GPS fixes in record order; each call returns the estimates that became ready.
 
-    An estimate is centred on every valid GPS epoch and is ready when GPS and every wheel that is
-    reporting have samples past the window's end (or GPS is a further window past it, for a silent wheel).
+    An estimate is centred on every valid GPS epoch and is ready when GPS and every wheel that is reporting have
+    samples past the window's end (or GPS is a further window past it, for a silent wheel).
     """
 
     def __init__(self, params: EstimatorParams) -> None:
         self.p = params
-        self._gps = SeriesRing(256)
+        self._gps = SeriesRing(256)  # arrival time -> speed
+        self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
-        self._pending: deque[float] = deque()
+        self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
+        self._utc = UtcLatency(params.max_latency_s)
+        self._lag = WheelLatency(params.max_latency_s)
+        self._lag_prev: tuple[float, float, np.ndarray] | None = None
+        self._radius = {w: RadiusCalibration() for w in WHEELS}
+        self._stiffness = {w: StiffnessFit() for w in WHEELS}
+        self._driven = driven_wheels(params.driven_axle)
+        self._reference = tuple(w for w in WHEELS if w not in self._driven)
+        self._next_wheel_only_s: float | None = None
+        self._last_center_s = -math.inf
         self.rejected_fixes = 0
+
+    # ---- latency ------------------------------------------------------------------------------------
+    @property
+    def latency(self) -> LatencyEstimate:
+        utc = self._utc.estimate()
+        lag = self._lag
+        wheels = lag.latency_s if lag.converged() else None
+        if self.p.gps_latency_s is not None:
+            return LatencyEstimate(self.p.gps_latency_s, "fixed", utc, wheels, lag.sigma_s)
+        if utc is not None:
+            return LatencyEstimate(utc, "utc", utc, wheels, lag.sigma_s)
+        if wheels is not None:
+            return LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
+        return LatencyEstimate(0.0, "none", utc, wheels, lag.sigma_s)
 
     # ---- input -------------------------------------------------------------------------------------
     def add_wheel(self, sample: WheelSample) -> list[Estimate]:
@@ -103,84 +161,285 @@ class SlipEstimator:
         if sample.timestamp_s < ring.last_time:
             return []  # out of order: keep the ring monotonic
         ring.append(sample.timestamp_s, float(sample.count))
+        if sample.timestamp_s - self._gps.last_time > self.p.gps_lost_after_s:
+            return self._gps_lost()
         return self._drain() if self._pending else []
 
     def add_gps(self, fix: GpsFix) -> list[Estimate]:
         if not fix.valid or not math.isfinite(fix.speed_mps):
             self.rejected_fixes += 1
             return []
-        t = fix.timestamp_s - self.p.gps_latency_s
-        if t <= self._gps.last_time:
+        a = fix.timestamp_s
+        if a <= self._gps.last_time:
             self.rejected_fixes += 1
             return []
-        self._gps.append(t, fix.speed_mps)
-        self._pending.append(t)
+        self._utc.add(a, fix.fix_time_utc_s)
+        self._gps.append(a, fix.speed_mps)
+        if fix.altitude_m is not None and self.p.grade_from_altitude:
+            self._alt.append(a, fix.altitude_m)
+        self._pending.append(a)
+        self._next_wheel_only_s = None
         return self._drain()
 
     # ---- readiness ----------------------------------------------------------------------------------
-    def _ready(self, t_c: float) -> bool:
-        t1 = t_c + 0.5 * self.p.window_s
-        gps_last = self._gps.last_time
+    def _reporting(self, since_s: float) -> list[SeriesRing]:
+        return [r for r in self._wheels.values() if len(r) and r.last_time >= since_s]
+
+    def _ready(self, arrival_s: float, latency_s: float) -> bool:
+        half = 0.5 * self.p.window_s
+        t1 = arrival_s - latency_s + half
+        gps_last = self._gps.last_time - latency_s
         if gps_last < t1:
             return False
         if gps_last >= t1 + max(self.p.window_s, 0.5):
             return True
-        return all(r.last_time >= t1 for r in self._wheels.values() if len(r) and r.last_time >= t_c - self.p.window_s)
+        need = max(t1, arrival_s) if self.p.gps_latency_s is None else t1
+        return all(r.last_time >= need for r in self._reporting(t1 - 3 * half))
 
     def _drain(self) -> list[Estimate]:
         out: list[Estimate] = []
-        while self._pending and self._ready(self._pending[0]):
-            out.append(self._estimate(self._pending.popleft()))
-        keep = (self._pending[0] if self._pending else self._gps.last_time) - self.p.window_s - self.p.max_gps_gap_s
+        while self._pending:
+            lat = self.latency
+            if not self._ready(self._pending[0], lat.latency_s):
+                break
+            out.append(self._estimate(self._pending.popleft(), lat))
+        first = self._pending[0] if self._pending else self._gps.last_time
+        keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
         self._gps.drop_before = keep
+        self._alt.drop_before = keep
         for r in self._wheels.values():
             r.drop_before = keep
         return out
 
-    # ---- the estimate -------------------------------------------------------------------------------
-    def _gps_covers(self, t0: float, t1: float) -> bool:
-        times = self._gps.times
-        if len(times) < 2 or times[0] > t0 or times[-1] < t1:
+    # ---- helpers ------------------------------------------------------------------------------------
+    def _gps_covers(self, fix_times: np.ndarray, t0: float, t1: float) -> bool:
+        if len(fix_times) < 2 or fix_times[0] > t0 or fix_times[-1] < t1:
             return False
-        i0 = max(int(np.searchsorted(times, t0, side="right")) - 1, 0)
-        i1 = int(np.searchsorted(times, t1, side="left"))
-        return bool(np.max(np.diff(times[i0 : i1 + 1])) <= self.p.max_gps_gap_s)
+        i0 = max(int(np.searchsorted(fix_times, t0, side="right")) - 1, 0)
+        i1 = int(np.searchsorted(fix_times, t1, side="left"))
+        return bool(np.max(np.diff(fix_times[i0 : i1 + 1])) <= self.p.max_gps_gap_s)
 
-    def _accel(self, t_c: float) -> float | None:
-        times, speeds = self._gps.times, self._gps.values
-        i = int(np.searchsorted(times, t_c))
-        if i < 1 or i + 1 >= len(times) or times[i + 1] - times[i - 1] > 2 * self.p.max_gps_gap_s:
+    def _accel(self, fix_times: np.ndarray, speeds: np.ndarray, t_c: float) -> float | None:
+        i = int(np.searchsorted(fix_times, t_c))
+        if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * self.p.max_gps_gap_s:
             return None
-        return float((speeds[i + 1] - speeds[i - 1]) / (times[i + 1] - times[i - 1]))
+        return float((speeds[i + 1] - speeds[i - 1]) / (fix_times[i + 1] - fix_times[i - 1]))
 
-    def _estimate(self, t_c: float) -> Estimate:
-        p = self.p
-        t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
-        times, speeds = self._gps.times, self._gps.values
-        speed_c = float(np.interp(t_c, times, speeds))
-        accel = self._accel(t_c)
-        force = p.mass_kg * accel if accel is not None else None
-        per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
-        d_gps = integrate_speed_m(times, speeds, t0, t1) if self._gps_covers(t0, t1) else None
-        speed = d_gps / p.window_s if d_gps is not None else speed_c
-        wheels = {w: self._wheel(w, t0, t1, d_gps, per_tire.get(w)) for w in WHEELS}
-        return Estimate(t_c, speed, accel, force, p.window_s, wheels)
-
-    def _wheel(self, w: str, t0: float, t1: float, d_gps: float | None, force: float | None) -> WheelEstimate:
-        p = self.p
+    def _arc_m(self, w: str, t0: float, t1: float) -> float | None:
+        """2*pi*revolutions of wheel w over [t0, t1], or None without samples around both ends."""
         ring = self._wheels[w]
-        empty = WheelEstimate(None, None, p.r_ref_m, None, force, None)
         if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
-            return empty
+            return None
         c0, c1 = np.interp((t0, t1), ring.times, ring.values).tolist()
-        revs = (c1 - c0) / p.pulses_per_rev
-        d_wpt = p.r_ref_m * TWO_PI * revs
+        return TWO_PI * (c1 - c0) / self.p.pulses_per_rev
+
+    def _grade_sin(self, fix_times: np.ndarray, speeds: np.ndarray, t_c: float, latency_s: float) -> float:
+        """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
+        if not self.p.grade_from_altitude or len(self._alt) < 2:
+            return 0.0
+        alt_t = self._alt.times - latency_s
+        t_a = t_c - 2.0
+        if alt_t[0] > t_a or alt_t[-1] < t_c or not self._gps_covers(fix_times, t_a, t_c):
+            return 0.0
+        climb = float(np.interp(t_c, alt_t, self._alt.values) - np.interp(t_a, alt_t, self._alt.values))
+        dist = integrate_speed_m(fix_times, speeds, t_a, t_c)
+        return max(-0.3, min(0.3, climb / dist)) if dist > 5.0 else 0.0
+
+    def _force(self, accel: float, speed: float, sin_grade: float) -> float:
+        """Fx = M*a + f_rr*M*g*cos + rho/2*CdA*v^2 + M*g*sin (each term off unless configured)."""
+        p = self.p
+        cos_grade = math.sqrt(1.0 - sin_grade * sin_grade)
+        return (
+            p.mass_kg * accel
+            + p.rolling_resistance_coeff * p.mass_kg * G_MPS2 * cos_grade
+            + 0.5 * p.air_density_kgpm3 * p.drag_area_m2 * speed * speed
+            + p.mass_kg * G_MPS2 * sin_grade
+        )
+
+    def _r0(self, w: str) -> tuple[float, str]:
+        p = self.p
+        base = "configured" if p.r_ref_configured else "tire_size"
+        if not p.calibrate_r0:
+            return p.r_ref_m, base
+        cal = self._radius[w]
+        if cal.radius_m is not None and cal.usable:
+            return cal.radius_m, "calibrated" if cal.converged else "calibrating"
+        others = [c.radius_m for c in self._radius.values() if c.radius_m is not None and c.usable]
+        if others:
+            return sum(others) / len(others), "other_wheels"
+        return p.r_ref_m, base
+
+    def _free_rolling(self, w: str, accel: float) -> bool:
+        """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""
+        thr = self.p.phase_accel_mps2
+        return abs(accel) <= thr or (w in self._reference and accel >= -thr)
+
+    def _update_lag(self, arrival_s: float, speed_mps: float, accel: float | None) -> None:
+        """One row of the wheel-based latency fit: this fix interval against the free-rolling wheels."""
+        refs = self._reference or WHEELS
+        lag = self._lag
+        times = arrival_s - lag.taus_s
+        arcs = np.zeros_like(times)
+        for w in refs:
+            ring = self._wheels[w]
+            if len(ring) < 2 or ring.first_time > times[-1] - 0.5:
+                self._lag_prev = None
+                return
+            arcs += np.interp(times, ring.times, ring.values)
+        arcs *= TWO_PI / self.p.pulses_per_rev / len(refs)
+        prev, self._lag_prev = self._lag_prev, (arrival_s, speed_mps, arcs)
+        if prev is None or accel is None:
+            return
+        a_prev, v_prev, arcs_prev = prev
+        free = accel >= -self.p.phase_accel_mps2 if self._reference else abs(accel) <= self.p.phase_accel_mps2
+        if free and min(v_prev, speed_mps) >= self.p.r0_min_speed_mps and arrival_s - a_prev <= 0.3:
+            lag.add(0.5 * (v_prev + speed_mps) * (arrival_s - a_prev), arcs - arcs_prev)
+
+    # ---- the estimate -------------------------------------------------------------------------------
+    def _estimate(self, arrival_s: float, lat: LatencyEstimate) -> Estimate:
+        p = self.p
+        t_c = arrival_s - lat.latency_s
+        t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
+        fix_times, speeds = self._gps.times - lat.latency_s, self._gps.values
+        speed_c = float(np.interp(t_c, fix_times, speeds))
+        accel = self._accel(fix_times, speeds, t_c)
+        if p.gps_latency_s is None:
+            self._update_lag(arrival_s, float(np.interp(arrival_s, self._gps.times, speeds)), accel)
+        d_gps = integrate_speed_m(fix_times, speeds, t0, t1) if self._gps_covers(fix_times, t0, t1) else None
+        speed = d_gps / p.window_s if d_gps is not None else speed_c
+        force = None
+        if accel is not None:
+            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s))
+        per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
+        arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
+        if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
+            # While accelerating, the GPS latency must be known; at steady speed it does not matter.
+            steady = abs(accel) <= p.phase_accel_mps2
+            for w in WHEELS:
+                arc = arcs[w]
+                if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
+                    self._radius[w].add(d_gps, arc)
+        r0 = {w: self._r0(w) for w in WHEELS}
+        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed) for w in WHEELS}
+        wheels = self._with_reference_slip(wheels, arcs, r0)
+        self._last_center_s = t_c
+        return Estimate(
+            t_c, speed, accel, force, p.window_s, wheels,
+            phase=phase_of(speed, accel, p.phase_accel_mps2, p.standstill_speed_mps),
+            source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source,
+        )
+
+    def _wheel(
+        self, w: str, arc: float | None, r0: tuple[float, str], d_gps: float | None, force: float | None,
+        speed: float,
+    ) -> WheelEstimate:
+        p = self.p
+        r0_m, r0_source = r0
+        fit = self._stiffness[w]
+        if arc is None:
+            return WheelEstimate(None, None, r0_m, None, force, None, r0_source, None, fit.cx_n, fit.confidence)
+        d_wpt = r0_m * arc
         wheel_speed = d_wpt / p.window_s
-        if d_gps is None or d_gps < p.min_speed_mps * p.window_s or revs <= 0:
-            return WheelEstimate(None, None, p.r_ref_m, None, force, wheel_speed)
+        if d_gps is None or d_gps < p.min_speed_mps * p.window_s or arc <= 0:
+            return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, None, fit.cx_n,
+                                 fit.confidence)
         slip = slip_from_distances(d_wpt, d_gps)
-        re = d_gps / (TWO_PI * revs)
+        re = d_gps / arc
         cx = None
         if force is not None and force != 0 and p.cx_slip_min <= abs(slip) <= p.cx_slip_max and force / slip > 0:
             cx = force / slip
-        return WheelEstimate(slip, re, p.r_ref_m, cx, force, wheel_speed)
+        if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
+            fit.add(force, arc / d_gps)
+        return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, None, fit.cx_n,
+                             fit.confidence if fit.cx_n is not None else None)
+
+    def _with_reference_slip(
+        self, wheels: dict[str, WheelEstimate], arcs: dict[str, float | None], r0: dict[str, tuple[float, str]],
+    ) -> dict[str, WheelEstimate]:
+        """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely)."""
+        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
+        if not refs or len(refs) < len(self._reference):
+            return wheels
+        d_ref = sum(refs) / len(refs)
+        if d_ref < self.p.min_speed_mps * self.p.window_s:
+            return wheels
+        out = dict(wheels)
+        for w in self._driven:
+            arc = arcs[w]
+            if arc is not None:
+                e = wheels[w]
+                out[w] = WheelEstimate(e.slip, e.re_m, e.r0_m, e.cx_n, e.force_n, e.speed_mps, e.r0_source,
+                                       slip_from_distances(r0[w][0] * arc, d_ref), e.cx_fit_n, e.cx_fit_conf)
+        return out
+
+    # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
+    def _gps_lost(self) -> list[Estimate]:
+        """Epochs that will get no later fix are estimated with what there is; then the wheels' clock takes over."""
+        out: list[Estimate] = []
+        lat = self.latency
+        while self._pending:
+            out.append(self._estimate(self._pending.popleft(), lat))
+        return out + self._wheel_only()
+
+    def _wheel_only(self) -> list[Estimate]:
+        """Every WHEEL_ONLY_STEP_S while GPS is lost: wheel speeds, accel from the reference wheels, slip_nd."""
+        p = self.p
+        half = 0.5 * p.window_s
+        rings = self._reporting(-math.inf)
+        if not rings:
+            return []
+        covered = min(r.last_time for r in rings)
+        if self._next_wheel_only_s is None:
+            start = max(self._last_center_s, self._gps.last_time) + WHEEL_ONLY_STEP_S
+            self._next_wheel_only_s = max(start, max(r.first_time for r in rings) + half)
+        out: list[Estimate] = []
+        lat = self.latency
+        while self._next_wheel_only_s + half <= covered:
+            t_c = self._next_wheel_only_s
+            self._next_wheel_only_s = t_c + WHEEL_ONLY_STEP_S
+            out.append(self._wheel_only_estimate(t_c, lat))
+        return out
+
+    def _wheel_only_estimate(self, t_c: float, lat: LatencyEstimate) -> Estimate:
+        p = self.p
+        half = 0.5 * p.window_s
+        refs = self._reference or WHEELS
+        r0 = {w: self._r0(w) for w in WHEELS}
+
+        def ref_distance(a: float, b: float) -> float | None:
+            ds = [r0[w][0] * arc for w in refs if (arc := self._arc_m(w, a, b)) is not None]
+            return sum(ds) / len(ds) if ds else None
+
+        d = ref_distance(t_c - half, t_c + half)
+        first, second = ref_distance(t_c - half, t_c), ref_distance(t_c, t_c + half)
+        speed = d / p.window_s if d is not None else 0.0
+        accel = (second - first) / (half * half) if first is not None and second is not None else None
+        arcs = {w: self._arc_m(w, t_c - half, t_c + half) for w in WHEELS}
+        wheels = {
+            w: WheelEstimate(None, None, r0[w][0], None, None,
+                             r0[w][0] * arcs[w] / p.window_s if arcs[w] is not None else None,  # type: ignore[operator]
+                             r0[w][1])
+            for w in WHEELS
+        }
+        wheels = self._with_reference_slip(wheels, arcs, r0)
+        self._last_center_s = t_c
+        return Estimate(t_c, speed, accel, None, p.window_s, wheels,
+                        phase=phase_of(speed, accel, p.phase_accel_mps2, p.standstill_speed_mps),
+                        source="wheels", gps_latency_s=lat.latency_s, latency_source=lat.source)
+
+    # ---- state for diagnostics ----------------------------------------------------------------------
+    def status(self) -> dict[str, object]:
+        lat = self.latency
+        return {
+            "gps_latency_s": lat.latency_s,
+            "latency_source": lat.source,
+            "gps_latency_utc_s": lat.utc_s,
+            "gps_latency_wheels_s": self._lag.latency_s,
+            "gps_latency_wheels_sigma_s": lat.wheels_sigma_s,
+            "r0_m": {w: self._r0(w)[0] for w in WHEELS},
+            "r0_source": {w: self._r0(w)[1] for w in WHEELS},
+            "r0_se_m": {w: self._radius[w].standard_error_m for w in WHEELS},
+            "cx_fit_n": {w: self._stiffness[w].cx_n for w in WHEELS},
+            "cx_fit_conf": {w: self._stiffness[w].confidence for w in WHEELS},
+            "rejected_fixes": self.rejected_fixes,
+        }

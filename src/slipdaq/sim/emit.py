@@ -52,6 +52,8 @@ class SimSettings:
     """Largest model integration step."""
     start_utc_s: float = 1_767_225_600.0
     """Wall-clock time of sim time 0 (2026-01-01T00:00:00Z)."""
+    host_clock_offset_s: float = 0.0
+    """Host clock minus true UTC: added to every record's timestamp (the NMEA UTC fields stay true)."""
     origin_lat_deg: float = 52.0
     origin_lon_deg: float = 10.0
     heading_deg: float = 90.0
@@ -194,6 +196,7 @@ def generate(
     pulses_per_rev, wheel_count = config.wpt.pulses_per_rev, len(WHEELS)
     slot_rate_hz = settings.wpt_rate_hz * wheel_count
     end_s = math.inf if duration_s is None else duration_s
+    host_t0_s = settings.start_utc_s + settings.host_clock_offset_s
     pending: list[tuple[float, int, SimEvent]] = []
     order = itertools.count()
 
@@ -215,14 +218,14 @@ def generate(
             frame_index, wheel = divmod(n_slot, wheel_count)
             count = pulse_count(sim.angles_rad()[wheel], settings.start_count, pulses_per_rev)
             arrival_s = t + jitter.next_s()
-            push(arrival_s, encoder.frame(wheel, settings.start_utc_s + arrival_s, count, frame_index % SEQ_MODULUS))
+            push(arrival_s, encoder.frame(wheel, host_t0_s + arrival_s, count, frame_index % SEQ_MODULUS))
             n_slot += 1
             t_slot = _instant(n_slot, slot_rate_hz)
         if t_gps == t:
             speed_mps = max(0.0, sim.state.speed_mps + float(noise_rng.normal(0.0, settings.gps_noise_mps)))
             arrival_s = t + settings.gps_latency_s
             for line in gps_epoch_lines(sim.state, speed_mps, settings):
-                push(arrival_s, NmeaLine(settings.start_utc_s + arrival_s, line))
+                push(arrival_s, NmeaLine(host_t0_s + arrival_s, line))
             n_gps += 1
             t_gps = _instant(n_gps, settings.gps_rate_hz)
         if t_truth == t:

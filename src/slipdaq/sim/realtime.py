@@ -7,6 +7,7 @@ sent without sleeping, so 400+ frames/s do not cost one sleep each.
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable, Iterator
 
 import can
@@ -63,13 +64,17 @@ async def play(
     nmea_write: Callable[[bytes], object],
     duration_s: float | None = None,
     on_truth: Callable[[TruthSample], None] | None = None,
+    start_wall_s: float | None = None,
 ) -> int:
     """Send each event at its time_s after the start; stop at duration_s (sim time) or when events run out.
 
     NMEA lines are written as line + CRLF, one write per line. Cancellation propagates. Returns the CAN frames sent.
+    With start_wall_s, sim time 0 is that wall-clock time (time.time()), else the moment play() starts.
     """
     loop = asyncio.get_running_loop()
     start = loop.time()
+    if start_wall_s is not None:  # sim time 0 at this wall-clock time (so truth and records share one clock)
+        start += max(0.0, start_wall_s - time.time())
     frames_sent = 0
     since_yield = 0
     for event in events:

@@ -12,6 +12,12 @@ from slipdaq import WHEELS
 COLUMNS: tuple[str, ...] = ("time_s", "speed_mps", "accel_mps2", "force_n") + tuple(
     c for w in WHEELS for c in (f"slip_{w}", f"re_{w}_m", f"r0_{w}_m", f"cx_{w}_n")
 )
+"""The public contract's columns, in order."""
+EXTRA_COLUMNS: tuple[str, ...] = ("phase", "source", "gps_latency_s", "latency_source") + tuple(
+    c for w in WHEELS for c in (f"r0_source_{w}", f"slip_nd_{w}", f"cx_fit_{w}_n", f"cx_fit_{w}_conf")
+)
+"""Appended after the contract's columns (extensions keep the contract's columns where they are)."""
+ALL_COLUMNS = COLUMNS + EXTRA_COLUMNS
 
 
 def _cell(v: Any) -> str:
@@ -25,8 +31,8 @@ def write_csv(rows: Iterable[dict[str, Any]], path: str | Path) -> int:
     n = 0
     with open(path, "w", newline="", encoding="utf-8") as f:
         out = csv.writer(f)
-        out.writerow(COLUMNS)
+        out.writerow(ALL_COLUMNS)
         for row in rows:
-            out.writerow([_cell(row.get(c)) for c in COLUMNS])
+            out.writerow([_cell(row.get(c)) for c in ALL_COLUMNS])
             n += 1
     return n

@@ -40,13 +40,17 @@ def _obj(title: str, props: dict[str, Any]) -> dict[str, Any]:
 
 
 def _estimate_props() -> dict[str, Any]:
+    text = {"type": "string"}
     props: dict[str, Any] = {
         "time_s": _NUM, "speed_mps": _NUM, "accel_mps2": _NUM_OR_NULL, "force_n": _NUM_OR_NULL, "window_s": _NUM,
+        "phase": {"type": "string", "enum": ["standstill", "accelerate", "cruise", "brake"]},
+        "source": text, "gps_latency_s": _NUM, "latency_source": text,
     }
     for w in WHEELS:
         props |= {
             f"slip_{w}": _NUM_OR_NULL, f"re_{w}_m": _NUM_OR_NULL, f"r0_{w}_m": _NUM, f"cx_{w}_n": _NUM_OR_NULL,
-            f"force_{w}_n": _NUM_OR_NULL, f"wheel_speed_{w}_mps": _NUM_OR_NULL,
+            f"force_{w}_n": _NUM_OR_NULL, f"wheel_speed_{w}_mps": _NUM_OR_NULL, f"r0_source_{w}": text,
+            f"slip_nd_{w}": _NUM_OR_NULL, f"cx_fit_{w}_n": _NUM_OR_NULL, f"cx_fit_{w}_conf": _NUM_OR_NULL,
         }
     return props
 
@@ -76,6 +80,13 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
         "count_wraps": _per_wheel("wraps"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
         "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "estimates": _INT,
+        "estimator": _obj("estimator", {
+            "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
+            "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
+            "r0_m": _obj("r0", {w: _NUM for w in WHEELS}), "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
+            "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
+            "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,
+        }),
     }),
 }
 

@@ -1,0 +1,97 @@
+"""GPS latency (fix time -> host arrival time), estimated two ways; UTC is used when plausible, else the wheels.
+
+- From UTC: arrival time minus the fix's own UTC time (RMC date + time). Right when the host clock is synchronised
+  to UTC (NTP, PPS); it then includes the receiver's output delay and the serial transmission time.
+- From the wheels: the lag tau that best aligns GPS distance between consecutive fixes with the distance rolled by
+  the non-driven wheels while they roll freely: minimise sum_k (y_k - r * x_k(tau))^2 over a grid of tau, with
+  y_k the GPS distance over fix interval k (trapezoid) and x_k(tau) = 2*pi*revolutions over the same interval of
+  arrival times shifted by -tau (r, the radius, is fitted per tau). Needs speed changes to be identifiable.
+  Least squares with exponential forgetting; uncertainty from the curvature of the residual at its minimum.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class LatencyEstimate:
+    latency_s: float
+    source: str
+    """'fixed' (configured), 'wheels', 'utc' or 'none' (no estimate yet: 0 is used)."""
+    utc_s: float | None
+    wheels_s: float | None
+    wheels_sigma_s: float | None
+
+
+class UtcLatency:
+    """Median of (arrival - fix UTC) over the last fixes; plausible only when small, positive and steady."""
+
+    def __init__(self, max_latency_s: float, history: int = 50) -> None:
+        self.max_latency_s = max_latency_s
+        self._d: deque[float] = deque(maxlen=history)
+
+    def add(self, arrival_s: float, fix_utc_s: float | None) -> None:
+        if fix_utc_s is not None:
+            self._d.append(arrival_s - fix_utc_s)
+
+    def estimate(self) -> float | None:
+        if len(self._d) < 5:
+            return None
+        d = np.fromiter(self._d, float)
+        med = float(np.median(d))
+        spread = float(np.median(np.abs(d - med)))
+        return med if 0.0 <= med <= self.max_latency_s and spread <= 0.02 else None
+
+
+class WheelLatency:
+    """Grid search of the lag that aligns GPS distance with free-rolling wheel distance (see module docstring)."""
+
+    def __init__(self, max_latency_s: float, step_s: float = 0.005, forgetting: float = 0.998) -> None:
+        self.taus_s = np.arange(0.0, max_latency_s + 0.5 * step_s, step_s)
+        self.step_s = step_s
+        self.forgetting = forgetting
+        self._syy = 0.0
+        self._sxy = np.zeros_like(self.taus_s)
+        self._sxx = np.zeros_like(self.taus_s)
+        self.rows = 0
+        self._weight = 0.0
+        self.latency_s: float | None = None
+        self.sigma_s: float | None = None
+        self.radius_m: float | None = None
+
+    def add(self, gps_distance_m: float, wheel_arc_m: np.ndarray) -> None:
+        """One fix interval: GPS distance, and 2*pi*revolutions of the reference wheels for each lag on the grid."""
+        lam = self.forgetting
+        self._syy = lam * self._syy + gps_distance_m * gps_distance_m
+        self._sxy = lam * self._sxy + gps_distance_m * wheel_arc_m
+        self._sxx = lam * self._sxx + wheel_arc_m * wheel_arc_m
+        self._weight = lam * self._weight + 1.0
+        self.rows += 1
+        if self.rows >= 20 and self.rows % 5 == 0:
+            self._solve()
+
+    def _solve(self) -> None:
+        if np.any(self._sxx <= 0):
+            return
+        resid = self._syy - self._sxy**2 / self._sxx
+        j = int(np.argmin(resid))
+        if j == 0 or j == len(resid) - 1:
+            self.latency_s = self.sigma_s = None
+            return
+        r0, r1, r2 = resid[j - 1], resid[j], resid[j + 1]
+        curv = (r0 - 2 * r1 + r2) / self.step_s**2
+        if curv <= 0:
+            return
+        offset = 0.5 * (r0 - r2) / (r0 - 2 * r1 + r2) * self.step_s
+        sigma2 = max(r1, 0.0) / max(self._weight - 2.0, 1.0)
+        self.latency_s = float(self.taus_s[j] + offset)
+        self.sigma_s = float(math.sqrt(2.0 * sigma2 / curv))
+        self.radius_m = float(self._sxy[j] / self._sxx[j])
+
+    def converged(self, sigma_max_s: float = 0.01) -> bool:
+        return self.latency_s is not None and self.sigma_s is not None and self.sigma_s <= sigma_max_s

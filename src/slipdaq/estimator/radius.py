@@ -1,0 +1,68 @@
+"""Free-rolling radius r0 per wheel, calibrated online from windows where the tire carries little force.
+
+r0 = sum(d_gps) / sum(2*pi*N) over free-rolling windows (a distance-weighted ratio, = V/omega), with a standard
+error from the spread of the per-window Re (overlapping windows counted as one per window length).
+- usable ('calibrating') once the standard error is below `usable_se_m` (1.5 mm): a tire-size radius is typically
+  off by more than that (the loaded radius is several mm below the free one);
+- converged ('calibrated') below `converged_se_m` (0.3 mm).
+After convergence old windows fade with distance (`track_distance_m`), so r0 tracks wear, pressure and load slowly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(slots=True)
+class RadiusCalibration:
+    converged_se_m: float = 0.0003
+    usable_se_m: float = 0.0015
+    track_distance_m: float = 2000.0
+    min_independent_windows: float = 3.0
+    independent_per_window: float = 0.2
+    """One window of W seconds every fix interval: W / interval windows overlap; 0.1 s / 0.5 s = 0.2."""
+    gps_m: float = 0.0
+    arc_m: float = 0.0
+    sum_w_re: float = 0.0
+    sum_w_re2: float = 0.0
+    windows: float = 0.0
+    converged: bool = False
+
+    def add(self, gps_distance_m: float, arc_m: float) -> None:
+        """One free-rolling window: GPS distance and 2*pi*revolutions."""
+        if arc_m <= 0 or gps_distance_m <= 0:
+            return
+        lam = math.exp(-gps_distance_m / self.track_distance_m) if self.converged else 1.0
+        re = gps_distance_m / arc_m
+        self.gps_m = lam * self.gps_m + gps_distance_m
+        self.arc_m = lam * self.arc_m + arc_m
+        self.sum_w_re = lam * self.sum_w_re + gps_distance_m * re
+        self.sum_w_re2 = lam * self.sum_w_re2 + gps_distance_m * re * re
+        self.windows = lam * self.windows + 1.0
+        if not self.converged:
+            se = self.standard_error_m
+            self.converged = (
+                se is not None and se <= self.converged_se_m
+                and self.windows * self.independent_per_window >= self.min_independent_windows
+            )
+
+    @property
+    def usable(self) -> bool:
+        se = self.standard_error_m
+        return self.converged or (
+            se is not None and se <= self.usable_se_m and self.windows * self.independent_per_window >= 0.6
+        )
+
+    @property
+    def radius_m(self) -> float | None:
+        return self.gps_m / self.arc_m if self.arc_m > 0 else None
+
+    @property
+    def standard_error_m(self) -> float | None:
+        if self.windows < 2 or self.gps_m <= 0:
+            return None
+        mean = self.sum_w_re / self.gps_m
+        var = max(self.sum_w_re2 / self.gps_m - mean * mean, 0.0)
+        n = max(self.windows * self.independent_per_window, 1.0)
+        return math.sqrt(var / n)
