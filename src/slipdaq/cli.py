@@ -19,6 +19,27 @@ def _add_config(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="F", help="TOML config (default: ./slipdaq.toml, else the packaged example)")
 
 
+def _label(text: str) -> str:
+    from slipdaq.report.labels import LabelError, parse_label
+
+    try:
+        parse_label(text)
+    except LabelError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def _add_label(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--label", action="append", type=_label, metavar="KEY=VALUE",
+                   help="a free-form label stored in the log's metadata (e.g. road=sand, maneuver=brake); repeatable")
+
+
+def _labels_meta(args: argparse.Namespace) -> dict[str, str]:
+    from slipdaq.report.labels import labels_metadata, parse_labels
+
+    return labels_metadata(parse_labels(args.label))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slipdaq",
@@ -38,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config(p)
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--log-dir", metavar="D", help="write the MCAP log here (default: log.dir of the config)")
+    _add_label(p)
 
     p = sub.add_parser("simulate", help="a vehicle and tire model sending WPT frames and NMEA in real time",
                        description="Send simulated WPT frames on the configured python-can bus and NMEA (RMC, GGA, "
@@ -63,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", choices=("accelerate", "brake", "cycle"), default="cycle")
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--log-dir", metavar="D", default="logs", help="where the MCAP log goes (default ./logs)")
+    _add_label(p)
 
     p = sub.add_parser("import", help="CAN log + NMEA log -> a slipdaq MCAP log",
                        description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc) and an NMEA "
@@ -72,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nmea", required=True, metavar="LOG", help="NMEA log file")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
+    _add_label(p)
 
     p = sub.add_parser("replay", help="re-run the estimator over a log's raw CAN and NMEA",
                        description="Re-run decode and estimator over the raw CAN and NMEA channels of a slipdaq log, "
@@ -85,6 +109,18 @@ def build_parser() -> argparse.ArgumentParser:
                        "wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n. Empty cell = undefined.")
     p.add_argument("log", metavar="LOG.mcap")
     p.add_argument("--csv", required=True, metavar="OUT.csv")
+
+    p = sub.add_parser("report", help="plots and tables of the slip study from one or more logs",
+                       description="For each log and each maneuver phase in it (accelerate, cruise, brake): per "
+                       "wheel, slip against time, speed, force Fx, effective radius Re and stiffness Cx against slip "
+                       "as PNG, with the linear region's fitted line and the end of linearity marked; a summary "
+                       "table (peak linear Fx and its slip, mean Re, peak and fitted Cx, r0, GPS latency, lost "
+                       "frames, bad sentences); several logs compared side by side, grouped by their labels. "
+                       "Writes DIR/index.html (opens offline), DIR/summary.json and DIR/summary.csv.")
+    p.add_argument("logs", nargs="+", metavar="LOG.mcap")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the report (created)")
+    p.add_argument("--group-by", action="append", metavar="KEY",
+                   help="compare logs grouped by this label (repeatable; default: every label but maneuver)")
     return parser
 
 
@@ -104,7 +140,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = _config(args.config)
     log_dir = Path(args.log_dir) if args.log_dir else cfg.resolve(cfg.log.dir)
     with open_bus(cfg) as bus:
-        result = asyncio.run(run_daemon(cfg, bus, new_log_path(log_dir), duration_s=args.duration))
+        result = asyncio.run(run_daemon(cfg, bus, new_log_path(log_dir), duration_s=args.duration,
+                                        metadata=_labels_meta(args) or None))
     print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "
           f"{result.estimates} estimates, {result.lost_frames} lost frames, {result.bad_sentences} bad sentences)")
     return EXIT_OK
@@ -119,8 +156,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from slipdaq.demo import run_demo
+    from slipdaq.report.labels import parse_labels
 
-    return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir))
+    return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir),
+                    labels=parse_labels(args.label))
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -129,7 +168,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     cfg = _config(args.config)
     records = merge_by_time(iter_can_log(args.can), iter_nmea_log(args.nmea))
-    meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)}
+    meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)} | _labels_meta(args)
     p = process_to_log(cfg, records, Path(args.output), "import", metadata=meta, description="import")
     d = p.diagnostics()
     print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines -> {args.output} "
@@ -139,12 +178,14 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.offline import process_to_log
-    from slipdaq.sources.mcap_log import config_from_log, iter_raw_records, raw_record_count
+    from slipdaq.report.labels import LABEL_PREFIX
+    from slipdaq.sources.mcap_log import config_from_log, iter_raw_records, raw_record_count, read_metadata
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
     total = raw_record_count(args.log)
+    labels = {k: v for k, v in read_metadata(args.log).items() if k.startswith(LABEL_PREFIX)}  # kept
     p = process_to_log(cfg, iter_raw_records(args.log), Path(args.output), "replay",
-                       metadata={"replay_of": str(args.log)}, total=total, description="replay")
+                       metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
     print(f"replayed {p.can_frames + p.nmea.lines} records -> {args.output} ({p.estimates} estimates)")
     return EXIT_OK
 
@@ -159,13 +200,21 @@ def cmd_export(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from slipdaq.report.build import make_report
+
+    make_report(args.logs, args.output, group_by=args.group_by, progress=sys.stdout)
+    return EXIT_OK
+
+
 COMMANDS = {
     "run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo, "import": cmd_import,
-    "replay": cmd_replay, "export": cmd_export,
+    "replay": cmd_replay, "export": cmd_export, "report": cmd_report,
 }
 
 
 def main(argv: list[str] | None = None) -> int:
+    from slipdaq.report.labels import LabelError
     from slipdaq.sources.files import ImportError_
     from slipdaq.sources.mcap_log import LogError
 
@@ -175,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
         return COMMANDS[args.verb](args)
     except ConfigError as e:
         print(f"slipdaq: config error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except LabelError as e:
+        print(f"slipdaq: {e}", file=sys.stderr)
         return EXIT_USAGE
     except DbcError as e:  # a DBC stored in a log
         print(f"slipdaq: DBC error: {e}", file=sys.stderr)

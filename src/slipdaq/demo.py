@@ -14,6 +14,7 @@ import can
 
 from slipdaq.config import Config, load_config, packaged_config_path
 from slipdaq.daemon import RunResult, new_log_path, open_bus, run_daemon
+from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
@@ -30,8 +31,9 @@ def demo_config(gps_port: str, channel: str) -> Config:
 
 async def run_demo_async(
     duration_s: float, scenario: str, road: str, log_dir: Path, *, status_stream: TextIO | None = None,
-    status_every_s: float = 5.0, settings: SimSettings | None = None,
+    status_every_s: float = 5.0, settings: SimSettings | None = None, labels: dict[str, str] | None = None,
 ) -> tuple[RunResult, SlipError, Config]:
+    """labels: free-form {KEY: VALUE} stored in the log's metadata as `label.KEY` (`--label KEY=VALUE`)."""
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel)
@@ -47,7 +49,7 @@ async def run_demo_async(
                 result = await run_daemon(
                     cfg, daemon_bus, new_log_path(log_dir, "demo"), duration_s=duration_s,
                     status_stream=status_stream, status_every_s=status_every_s,
-                    metadata={"demo_scenario": scenario, "demo_road": road},
+                    metadata={"demo_scenario": scenario, "demo_road": road} | labels_metadata(labels or {}),
                 )
                 sim.cancel()
     finally:
@@ -57,10 +59,12 @@ async def run_demo_async(
     return result, error, cfg
 
 
-def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: TextIO = sys.stdout) -> int:
+def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: TextIO = sys.stdout,
+             labels: dict[str, str] | None = None) -> int:
     print(f"demo: {scenario} on {road} road for {duration_s:.0f} s — simulator and daemon on a virtual CAN bus "
           f"and a pseudo-terminal GPS; Ctrl-C stops early.", file=out, flush=True)
-    result, err, _ = asyncio.run(run_demo_async(duration_s, scenario, road, log_dir, status_stream=out))
+    result, err, _ = asyncio.run(run_demo_async(duration_s, scenario, road, log_dir, status_stream=out,
+                                                labels=labels))
     rate = result.can_frames / result.duration_s if result.duration_s > 0 else 0.0
     print(
         f"\ndemo finished after {result.duration_s:.1f} s\n"

@@ -1,13 +1,42 @@
-"""NMEA 0183: bytes -> lines (framing), lines -> GpsFix (pynmea2, checksum checked).
+"""NMEA 0183: bytes -> lines (framing), lines -> GpsFix (pynmea2 for syntax and checksum, fields read here).
 
-One GpsFix per receiver epoch: speed from RMC (status A) when the receiver sends RMC, else from VTG;
-GGA adds fix quality, satellites and altitude to the next fix. Bad lines are counted, never raised.
+What the decoder does with what receivers send (checked against gpsd's twelve regression captures in
+tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
+
+- Talkers: any two-letter talker (GP, GN, GL, GA, BD, GB, QZ, ...); the sentence type decides, the talker does not.
+- Lines: `#` comment lines and blank lines are ignored and counted (ignored_lines, comment_lines). A line that is not a
+  sentence with a good checksum is counted in bad_sentences (binary noise, cut or corrupt sentences, no checksum).
+  Noise before a sentence on the same line (`r$GPRMC,...`) is skipped when the sentence after the last `$` checks out
+  (resynced_lines). Valid sentences of other types (GSV, GSA, TXT, HDT, proprietary $P..., unknown types) are counted in
+  unused_sentences. Nothing here raises on any input: a sentence whose handling fails is counted as bad.
+- Epoch: the UTC time of day of the latest timed sentence (RMC, GGA, GNS, GLL, ZDA). One GpsFix per epoch at most.
+- Speed: from RMC (with NMEA 4.x fields); from VTG only when the receiver sends no RMC (none for VTG_ONLY_AFTER_S host
+  seconds), since VTG carries no time and RMC does. A fix is emitted as soon as its sentence arrives (no added latency),
+  so "best sentence" means: RMC whenever the receiver sends RMC, else VTG.
+- Not double-counted: an RMC or VTG from another talker for an epoch that already has its fix (GNRMC + GPRMC for the
+  same time), and VTG beside RMC, are counted in duplicate_sentences. The same talker repeating the same time is a new
+  report (receivers without a fix may repeat their time), not a duplicate.
+- Validity: RMC status A, and its mode indicator (NMEA 2.3+) neither N (no fix) nor E (dead reckoning, not a GNSS
+  measurement); VTG mode neither N nor E; and this epoch's GGA, when it came first, not quality 0 (invalid) or
+  6 (estimated). The NMEA 4.1 navigational status (last RMC field) does not affect validity: u-blox and others always
+  send V there, which means "status not provided", not "fix invalid" (gpsd reports those fixes: quectel-l76k-nmea).
+- GGA fields (fix quality, satellites, altitude): from this epoch's GGA when it came before the fix; otherwise from the
+  previous GGA if it came less than VTG_ONLY_AFTER_S host seconds ago (receivers that send GGA after RMC, e.g. u-blox:
+  their fixes carry the previous epoch's GGA fields; a previous epoch's quality never invalidates a fix). With two GGA
+  talkers for one epoch (GPGGA + GLGGA), the first is used.
+- Time (fix_time_utc_s): the RMC's date and time of day. An RMC without a date (some receivers) takes the last date seen
+  in an RMC or ZDA, carried across midnight (of the day before, the same day or the day after, the one whose time is
+  nearest the time that date was seen at); with no date known yet it is None. VTG fixes have no time (None). Dates are
+  taken as sent: no GPS week-rollover correction (gpsd applies one; see rst39 in tests/test_nmea_receivers.py).
 """
 
 from __future__ import annotations
 
 import calendar
 import datetime as dt
+import math
+import re
+from dataclasses import dataclass
 
 import pynmea2
 
@@ -17,52 +46,144 @@ KNOT_MPS = 1852.0 / 3600.0
 MAX_LINE_BYTES = 256
 """NMEA allows 82 characters; longer lines are cut here and counted as overlong."""
 
+_DAY_S = 86400.0
+
 
 class NmeaFramer:
-    """Splits a byte stream into lines; a line that grows beyond MAX_LINE_BYTES is cut and counted."""
+    """Splits a byte stream into lines; a line longer than MAX_LINE_BYTES is cut there and counted.
+
+    An overlong line yields its first MAX_LINE_BYTES bytes once (as soon as they are known to be too many) and the rest
+    of it, up to its newline, is dropped. So the lines out do not depend on how the bytes were split into reads, and
+    the framer never holds more than MAX_LINE_BYTES bytes between calls.
+    """
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._skipping = False  # inside the dropped tail of an overlong line
         self.overlong_lines = 0
 
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held for a line whose end has not come yet (at most MAX_LINE_BYTES)."""
+        return len(self._buf)
+
     def feed(self, data: bytes, timestamp_s: float) -> list[NmeaLine]:
-        self._buf += data
+        if not isinstance(data, (bytes, bytearray)):
+            data = bytes(data)
         lines: list[NmeaLine] = []
-        while True:
-            nl = self._buf.find(b"\n")
+        pos, n = 0, len(data)
+        while pos < n:
+            nl = data.find(b"\n", pos)
+            stop = n if nl < 0 else nl
+            if self._skipping:
+                if nl < 0:
+                    break
+                self._skipping = False
+                pos = nl + 1
+                continue
+            take = min(stop - pos, MAX_LINE_BYTES + 1 - len(self._buf))
+            self._buf += data[pos : pos + take]
+            pos += take
+            if len(self._buf) > MAX_LINE_BYTES:
+                self.overlong_lines += 1
+                self._emit(lines, bytes(self._buf[:MAX_LINE_BYTES]), timestamp_s)
+                self._buf.clear()
+                self._skipping = True
+                continue
             if nl < 0:
                 break
-            raw = bytes(self._buf[:nl])
-            del self._buf[: nl + 1]
-            if len(raw) > MAX_LINE_BYTES:
-                self.overlong_lines += 1
-                raw = raw[:MAX_LINE_BYTES]
-            text = raw.rstrip(b"\r").decode("latin-1")
-            if text:
-                lines.append(NmeaLine(timestamp_s, text))
-        if len(self._buf) > MAX_LINE_BYTES:
-            self.overlong_lines += 1
-            lines.append(NmeaLine(timestamp_s, bytes(self._buf[:MAX_LINE_BYTES]).decode("latin-1")))
+            self._emit(lines, bytes(self._buf), timestamp_s)
             self._buf.clear()
+            pos = nl + 1
         return lines
 
+    @staticmethod
+    def _emit(lines: list[NmeaLine], raw: bytes, timestamp_s: float) -> None:
+        text = raw.rstrip(b"\r").decode("latin-1")
+        if text:
+            lines.append(NmeaLine(timestamp_s, text))
 
-def _utc_seconds(date: dt.date | None, time: dt.time | None) -> float | None:
-    if date is None or time is None:
-        return None
-    stamp = dt.datetime.combine(date, time.replace(tzinfo=None))
-    return calendar.timegm(stamp.timetuple()) + stamp.microsecond * 1e-6
+
+# ---- field parsing: the receiver's text, read strictly; anything malformed is None ----
+
+_TOD_RE = re.compile(r"(\d\d)(\d\d)(\d\d(?:\.\d*)?)")
+_DM_RE = re.compile(r"(\d{1,3})(\d\d(?:\.\d*)?)")
+
+
+def _field(data: list[str], i: int) -> str:
+    return data[i].strip() if i < len(data) else ""
 
 
 def _float(value: object) -> float | None:
+    """A finite float, or None (empty, malformed, nan, inf)."""
     try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _int(text: str) -> int | None:
+    return int(text) if text.isascii() and text.isdigit() else None
+
+
+def _tod(text: str) -> float | None:
+    """`hhmmss[.sss]` -> seconds of the UTC day, rounded to the microsecond."""
+    m = _TOD_RE.fullmatch(text)
+    if m is None:
+        return None
+    h, mi, s = int(m[1]), int(m[2]), float(m[3])
+    if h > 23 or mi > 59 or s >= 61.0:
+        return None
+    return round(h * 3600 + mi * 60 + s, 6)
+
+
+def _ddmmyy(text: str) -> dt.date | None:
+    if len(text) != 6 or not (text.isascii() and text.isdigit()):
+        return None
+    try:
+        return dt.datetime.strptime(text, "%d%m%y").date()  # 69-99 -> 19xx, 00-68 -> 20xx
+    except ValueError:
         return None
 
 
+def _degrees(value: str, hemisphere: str, limit: float) -> float | None:
+    """`dddmm.mmmm` plus N/S/E/W -> signed degrees."""
+    m = _DM_RE.fullmatch(value)
+    if m is None or hemisphere.upper() not in ("N", "S", "E", "W"):
+        return None
+    minutes = float(m[2])
+    deg = int(m[1]) + minutes / 60.0
+    if minutes >= 60.0 or deg > limit:
+        return None
+    return -deg if hemisphere.upper() in ("S", "W") else deg
+
+
+def _utc(date: dt.date, tod: float) -> float:
+    return calendar.timegm(date.timetuple()) + tod
+
+
+@dataclass(frozen=True, slots=True)
+class _Gga:
+    talker: str
+    host_s: float
+    quality: int | None
+    satellites: int | None
+    altitude_m: float | None
+
+
+_INVALID_GGA_QUALITY = (0, 6)  # 0 = no fix, 6 = estimated (dead reckoning)
+_INVALID_MODES = ("N", "E")  # FAA mode indicator (NMEA 2.3+): N = not valid, E = estimated (dead reckoning)
+_TIMED = ("RMC", "GGA", "GNS", "GLL", "ZDA")
+
+
 class NmeaDecoder:
-    """Stateful, pure: NMEA lines in arrival order -> GpsFix per epoch, with counters."""
+    """Stateful, pure: NMEA lines in arrival order -> GpsFix per epoch, with counters.
+
+    Counters: lines = ignored_lines + bad_sentences + sentences. Of the sentences (checksum good), unused_sentences are
+    of types not used and duplicate_sentences were not used because their epoch has its speed from another sentence.
+    comment_lines is the part of ignored_lines that starts with `#`; resynced_lines the sentences decoded after noise.
+    """
 
     VTG_ONLY_AFTER_S = 1.5
     """VTG gives the speed only when no RMC has come for this long (no double counting)."""
@@ -73,79 +194,222 @@ class NmeaDecoder:
         self.bad_sentences = 0
         self.ignored_lines = 0
         self.fixes = 0
+        self.comment_lines = 0
+        self.unused_sentences = 0
+        self.duplicate_sentences = 0
+        self.resynced_lines = 0
         self._last_rmc_s: float | None = None
-        self._gga: pynmea2.GGA | None = None
+        self._epoch_tod: float | None = None
+        self._epoch_fix: tuple[str, str] | None = None  # (talker, type) of the sentence that gave this epoch's fix
+        self._epoch_gga: _Gga | None = None
+        self._last_gga: _Gga | None = None
+        self._date: dt.date | None = None
+        self._date_tod = 0.0
+
+    # ---- entry point ----
 
     def decode(self, line: NmeaLine) -> GpsFix | None:
+        """One line -> a GpsFix when it completes an epoch's speed, else None. Never raises on any input."""
         self.lines += 1
-        text = line.line.strip()
+        try:
+            text = str(line.line).strip()
+            timestamp_s = float(line.timestamp_s)
+        except Exception:  # not even a line: count it, never raise
+            self.bad_sentences += 1
+            return None
         if not text or text.startswith("#"):
             self.ignored_lines += 1
+            self.comment_lines += text.startswith("#")
             return None
-        try:
-            msg = pynmea2.parse(text, check=True)
-        except (pynmea2.ParseError, pynmea2.ChecksumError, ValueError, AttributeError, TypeError, IndexError):
+        msg = self._parse(text)
+        if msg is None:
             self.bad_sentences += 1
             return None
         self.sentences += 1
         try:
-            if isinstance(msg, pynmea2.RMC):
-                return self._rmc(msg, line.timestamp_s)
-            if isinstance(msg, pynmea2.GGA):
-                self._gga = msg
-            elif isinstance(msg, pynmea2.VTG):
-                return self._vtg(msg, line.timestamp_s)
-        except (ValueError, TypeError, AttributeError):  # fields present but malformed
+            return self._dispatch(msg, timestamp_s)
+        except Exception:  # a checked sentence whose fields broke the handling: counted as bad, never raised
             self.sentences -= 1
             self.bad_sentences += 1
+            return None
+
+    def _parse(self, text: str) -> pynmea2.NMEASentence | str | None:
+        """The sentence, "unknown" for a good sentence of a type pynmea2 does not know, or None when bad."""
+        candidates = [text]
+        cut = text.rfind("$")
+        if cut > 0:  # noise before the sentence, or a sentence whose line end was lost
+            candidates.append(text[cut:])
+        for i, candidate in enumerate(candidates):
+            try:
+                msg = pynmea2.parse(candidate, check=True)
+            except pynmea2.SentenceTypeError:  # checksum was good (checked first), the type is unknown to pynmea2
+                msg = "unknown"
+            except Exception:  # pynmea2 raises ParseError/ChecksumError, and odd ones on odd input
+                continue
+            self.resynced_lines += i > 0
+            return msg
         return None
 
-    def _gga_fields(self) -> dict[str, object]:
-        g = self._gga
-        if g is None:
-            return {}
-        return {
-            "fix_quality": int(g.gps_qual) if g.gps_qual not in (None, "") else None,
-            "satellites": int(g.num_sats) if g.num_sats not in (None, "") else None,
-            "altitude_m": _float(g.altitude),
-        }
-
-    def _rmc(self, msg: pynmea2.RMC, timestamp_s: float) -> GpsFix | None:
-        self._last_rmc_s = timestamp_s
-        valid = msg.status == "A"
-        speed_kn = _float(msg.spd_over_grnd)
-        if speed_kn is None:
+    def _dispatch(self, msg: pynmea2.NMEASentence | str, timestamp_s: float) -> GpsFix | None:
+        if not isinstance(msg, pynmea2.TalkerSentence):
+            self.unused_sentences += 1
             return None
-        self.fixes += 1
-        return GpsFix(
-            timestamp_s=timestamp_s,
-            speed_mps=speed_kn * KNOT_MPS,
-            fix_time_utc_s=_utc_seconds(msg.datestamp, msg.timestamp),
-            valid=valid,
-            course_deg=_float(msg.true_course),
-            latitude_deg=msg.latitude if msg.lat else None,
-            longitude_deg=msg.longitude if msg.lon else None,
-            sentence="RMC",
-            **self._gga_fields(),  # type: ignore[arg-type]
+        kind = str(getattr(msg, "sentence_type", "")).upper()
+        talker = str(getattr(msg, "talker", "")).upper()
+        data = [str(x) for x in msg.data]
+        if kind == "RMC":
+            return self._rmc(talker, data, timestamp_s)
+        if kind == "VTG":
+            return self._vtg(talker, data, timestamp_s)
+        if kind == "GGA":
+            self._gga(talker, data, timestamp_s)
+        elif kind == "ZDA":
+            self._zda(data)
+        elif kind == "GNS":
+            self._enter_epoch(_tod(_field(data, 0)))
+        elif kind == "GLL":
+            self._enter_epoch(_tod(_field(data, 4)))
+        else:
+            self.unused_sentences += 1
+        return None
+
+    # ---- epochs, dates, GGA ----
+
+    def _enter_epoch(self, tod: float | None) -> None:
+        """A timed sentence: a new time of day starts a new epoch; a sentence without time stays in the current one."""
+        if tod is None or tod == self._epoch_tod:
+            return
+        self._epoch_tod = tod
+        self._epoch_fix = None
+        self._epoch_gga = None
+
+    def _claim_epoch(self, talker: str, kind: str) -> bool:
+        """True when this sentence gives the epoch's fix; False (counted) when the epoch has one from another sentence.
+
+        The same talker and type again within one epoch is a new report (the receiver repeated its time), not a
+        duplicate; another talker or type is a duplicate (GNRMC + GPRMC for the same time, VTG after RMC).
+        """
+        key = (talker, kind)
+        if self._epoch_fix is not None and self._epoch_fix != key:
+            self.duplicate_sentences += 1
+            return False
+        self._epoch_fix = key
+        return True
+
+    def _remember_date(self, date: dt.date, tod: float) -> None:
+        self._date, self._date_tod = date, tod
+
+    def _date_for(self, tod: float) -> dt.date | None:
+        """The date of a time of day with no date of its own: the remembered date, carried across midnight."""
+        if self._date is None:
+            return None
+        k = min((-1, 0, 1), key=lambda d: abs(tod + d * _DAY_S - self._date_tod))
+        date = self._date + dt.timedelta(days=k)
+        self._remember_date(date, tod)
+        return date
+
+    def _gga(self, talker: str, data: list[str], timestamp_s: float) -> None:
+        tod = _tod(_field(data, 0))
+        self._enter_epoch(tod)
+        gga = _Gga(
+            talker=talker,
+            host_s=timestamp_s,
+            quality=_int(_field(data, 5)),
+            satellites=_int(_field(data, 6)),
+            altitude_m=_float(_field(data, 8)),
         )
+        if self._epoch_gga is not None and self._epoch_gga.talker != talker and tod is not None:
+            self.duplicate_sentences += 1  # a second talker's GGA for the same epoch (GPGGA + GLGGA): the first is used
+            return
+        self._epoch_gga = gga
+        self._last_gga = gga
 
-    def _vtg(self, msg: pynmea2.VTG, timestamp_s: float) -> GpsFix | None:
-        if self._last_rmc_s is not None and timestamp_s - self._last_rmc_s < self.VTG_ONLY_AFTER_S:
-            return None
-        kmph = _float(msg.spd_over_grnd_kmph)
-        speed_mps = kmph / 3.6 if kmph is not None else None
-        if speed_mps is None:
-            kn = _float(msg.spd_over_grnd_kts)
-            speed_mps = kn * KNOT_MPS if kn is not None else None
-        if speed_mps is None:
-            return None
-        mode = getattr(msg, "faa_mode", None)
+    def _zda(self, data: list[str]) -> None:
+        tod = _tod(_field(data, 0))
+        self._enter_epoch(tod)
+        day, month, year = _int(_field(data, 1)), _int(_field(data, 2)), _int(_field(data, 3))
+        if tod is None or day is None or month is None or year is None or year < 1980:
+            return
+        try:
+            self._remember_date(dt.date(year, month, day), tod)
+        except ValueError:
+            pass
+
+    def _gga_for_fix(self, timestamp_s: float) -> tuple[_Gga | None, bool]:
+        """GGA fields for a fix, and whether they are this epoch's own (only those can invalidate it)."""
+        if self._epoch_gga is not None:
+            return self._epoch_gga, True
+        last = self._last_gga
+        if last is not None and 0.0 <= timestamp_s - last.host_s < self.VTG_ONLY_AFTER_S:
+            return last, False
+        return None, False
+
+    def _fix(self, timestamp_s: float, speed_mps: float, valid: bool, sentence: str, **kw: object) -> GpsFix:
+        gga, own = self._gga_for_fix(timestamp_s)
+        if gga is not None and own and gga.quality in _INVALID_GGA_QUALITY:
+            valid = False
         self.fixes += 1
         return GpsFix(
             timestamp_s=timestamp_s,
             speed_mps=speed_mps,
-            valid=mode != "N",
-            course_deg=_float(msg.true_track),
-            sentence="VTG",
-            **self._gga_fields(),  # type: ignore[arg-type]
+            valid=valid,
+            sentence=sentence,
+            fix_quality=gga.quality if gga else None,
+            satellites=gga.satellites if gga else None,
+            altitude_m=gga.altitude_m if gga else None,
+            **kw,  # type: ignore[arg-type]
+        )
+
+    # ---- speed sentences ----
+
+    def _rmc(self, talker: str, data: list[str], timestamp_s: float) -> GpsFix | None:
+        tod = _tod(_field(data, 0))
+        self._enter_epoch(tod)
+        self._last_rmc_s = timestamp_s
+        date = _ddmmyy(_field(data, 8))
+        if date is not None and tod is not None:
+            self._remember_date(date, tod)
+        speed_kn = _float(_field(data, 6))
+        if speed_kn is None or speed_kn < 0:
+            return None
+        if not self._claim_epoch(talker, "RMC"):
+            return None
+        if tod is None:
+            fix_time = None
+        else:
+            day = date if date is not None else self._date_for(tod)
+            fix_time = _utc(day, tod) if day is not None else None
+        valid = _field(data, 1).upper() == "A" and _field(data, 11).upper() not in _INVALID_MODES
+        course = _float(_field(data, 7))
+        return self._fix(
+            timestamp_s,
+            speed_kn * KNOT_MPS,
+            valid,
+            "RMC",
+            fix_time_utc_s=fix_time,
+            course_deg=course,
+            latitude_deg=_degrees(_field(data, 2), _field(data, 3), 90.0),
+            longitude_deg=_degrees(_field(data, 4), _field(data, 5), 180.0),
+        )
+
+    def _vtg(self, talker: str, data: list[str], timestamp_s: float) -> GpsFix | None:
+        if self._last_rmc_s is not None and timestamp_s - self._last_rmc_s < self.VTG_ONLY_AFTER_S:
+            self.duplicate_sentences += 1  # the receiver sends RMC, the better sentence (it has the time)
+            return None
+        kmph = _float(_field(data, 6))
+        speed_mps = kmph / 3.6 if kmph is not None and kmph >= 0 else None
+        if speed_mps is None:
+            kn = _float(_field(data, 4))
+            speed_mps = kn * KNOT_MPS if kn is not None and kn >= 0 else None
+        if speed_mps is None:
+            return None
+        if not self._claim_epoch(talker, "VTG"):
+            return None
+        mode = _field(data, 8).upper()
+        return self._fix(
+            timestamp_s,
+            speed_mps,
+            mode not in _INVALID_MODES,
+            "VTG",
+            course_deg=_float(_field(data, 0)),
         )

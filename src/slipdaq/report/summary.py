@@ -1,0 +1,482 @@
+"""The report's numbers: estimate rows of a log in, dataclasses out. Pure (no I/O, no plotting).
+
+Maneuvers
+    Each estimate row has a phase: its own `phase` field when the log has one, else `fallback.derive_phases`
+    (speed < 0.5 m/s standstill, |a| < 0.3 m/s² cruise, else accelerate or brake). A run of fewer than 3
+    consecutive rows of one phase between two runs of one other phase (noise on a) takes that phase. A maneuver is every row of
+    one phase in a log (all accelerate rows together, ...); standstill, and phases of fewer than 5 rows or
+    without any defined slip, make none. Its title gives the speed range in km/h rounded to 5 (e.g. "accelerate 0–60 km/h").
+
+Linear region and the end of linearity (per wheel and maneuver), the exact rule
+    1. Points: rows with slip s and tire force Fx (`force_W_n`) both defined, |s| >= S_MIN and Fx·s > 0
+       (force and slip of the same sign; a wheel carrying no force has no points).
+       S_MIN, S_MAX are the log's `estimator.cx_slip_min`, `cx_slip_max` (defaults 0.005, 0.10).
+    2. Line: Cx_line = Σ Fx·s / Σ s² (least squares through the origin) over the points with |s| <= S_MAX
+       (at least 3 points, else no line and no linearity result).
+    3. Bins: the points are binned by |s| in steps of 1 % slip ([0, 1 %), [1 %, 2 %), ...); bins of fewer than
+       5 points are skipped. A bin is below the line when its median |Fx| < (1 − 0.10)·Cx_line·(its median |s|).
+    4. Linearity ends at the first bin (by increasing |s|) that is below the line and after which every kept bin
+       is below the line too, counting at least 2 kept bins below the line from it on (one lone bin is not enough:
+       noise in s puts a few points of a force plateau in the next bin up); the end point is that bin's
+       (median s, median Fx), signed like the maneuver.
+       If the bin starts at or below S_MAX, the line is refitted on the points with |s| below the bin's lower
+       edge and steps 2–4 repeat, at most 5 times (nonlinear points must not bend the line); with fewer than 3
+       points below the edge the line stays as it is.
+       No such bin: "linear throughout" (no end point is invented).
+    5. Peak linear force: the point of largest |Fx| below the end bin's lower edge (all points when linear
+       throughout), with the slip there.
+
+Other figures per wheel and maneuver
+    mean Re: mean of `re_W_m`; r0: the reference radius `r0_W_m`; peak Cx: the largest median |`cx_W_n`| (the
+    estimator's windowed Fx/s) over the same 1 % slip bins of at least 5 values, with that bin's median slip
+    (a single window's Fx/s at low slip is too noisy to take its maximum); fitted Cx and its confidence: the online `cx_fit_W_n` / `cx_fit_W_conf` of the
+    maneuver's row with the highest confidence when the rows have them, else Cx_line with confidence max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the relative half width
+    of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
+    common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto"). Lost frames (per wheel) and bad sentences: the last `/diagnostics`.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from slipdaq import WHEELS
+from slipdaq.report import fallback
+from slipdaq.report.labels import format_labels
+
+PHASES: tuple[str, ...] = ("accelerate", "cruise", "brake")
+"""Phases that make a maneuver, in report order (standstill has no slip)."""
+MIN_RUN_ROWS = 3
+"""A run of fewer consecutive rows of one phase between two runs of another phase (noise on a) takes that phase."""
+MIN_MANEUVER_ROWS = 5
+"""A phase with fewer rows (after debouncing) makes no maneuver."""
+
+
+def debounce(phases: Sequence[str | None], min_run: int = MIN_RUN_ROWS) -> list[str | None]:
+    """A run of fewer than min_run rows between two runs of one same phase takes that phase (a spike of noise)."""
+    runs: list[list[Any]] = []  # [phase, length]
+    for p in phases:
+        if runs and runs[-1][0] == p:
+            runs[-1][1] += 1
+        else:
+            runs.append([p, 1])
+    for i in range(1, len(runs) - 1):
+        if runs[i][1] < min_run and runs[i - 1][0] == runs[i + 1][0] and runs[i - 1][0] is not None:
+            runs[i][0] = runs[i - 1][0]
+    return [p for p, n in runs for _ in range(n)]
+
+
+@dataclass(frozen=True)
+class LinearityRule:
+    slip_min: float = 0.005
+    slip_max: float = 0.10
+    tolerance: float = 0.10
+    """A bin is below the line when its median force is more than this fraction below it."""
+    bin_width: float = 0.01
+    min_bin_points: int = 5
+    min_fit_points: int = 3
+    max_refits: int = 5
+    min_end_bins: int = 2
+    """The force must stay below the line over at least this many kept bins (a lone bin is slip noise)."""
+
+
+@dataclass(frozen=True)
+class LineFit:
+    cx_n: float
+    stderr_n: float
+    points: int
+
+    @property
+    def confidence(self) -> float:
+        """max(0, 1 − 2·SE/|Cx|)."""
+        return max(0.0, 1.0 - 2.0 * self.stderr_n / abs(self.cx_n)) if self.cx_n else 0.0
+
+
+@dataclass(frozen=True)
+class Linearity:
+    points: int
+    """Sign-consistent points with |s| >= slip_min."""
+    line: LineFit | None
+    end_slip: float | None = None
+    """Median slip of the first bin below the line; None: linear throughout (or no line)."""
+    end_force_n: float | None = None
+    peak_fx_n: float | None = None
+    """Fx of largest |Fx| in the linear region (signed)."""
+    peak_fx_slip: float | None = None
+
+    @property
+    def verdict(self) -> str:
+        if self.line is None:
+            return "no force–slip points" if self.points == 0 else "too few points"
+        if self.end_slip is None:
+            return "linear throughout"
+        return f"ends at {abs(self.end_slip) * 100:.1f} % slip"
+
+
+def fit_through_origin(points: Sequence[tuple[float, float]]) -> LineFit | None:
+    """Least squares Fx = Cx·s through the origin; None for fewer than 2 points."""
+    if len(points) < 2:
+        return None
+    sss = sum(s * s for s, _ in points)
+    if sss <= 0:
+        return None
+    cx = sum(s * f for s, f in points) / sss
+    resid = sum((f - cx * s) ** 2 for s, f in points)
+    stderr = math.sqrt(resid / (len(points) - 1) / sss)
+    return LineFit(cx, stderr, len(points))
+
+
+def analyse_linearity(
+    slips: Sequence[float | None], forces: Sequence[float | None], rule: LinearityRule = LinearityRule(),
+) -> Linearity:
+    """The linear region of one wheel's force–slip points (rule in the module docstring)."""
+    pts = sorted(
+        ((s, f) for s, f in zip(slips, forces)
+         if s is not None and f is not None and abs(s) >= rule.slip_min and s * f > 0),
+        key=lambda p: abs(p[0]),
+    )
+    if not pts:
+        return Linearity(0, None)
+    bins: dict[int, list[tuple[float, float]]] = {}
+    for p in pts:
+        bins.setdefault(math.floor(abs(p[0]) / rule.bin_width), []).append(p)
+    kept = [(j, b) for j, b in sorted(bins.items()) if len(b) >= rule.min_bin_points]
+
+    fit_max = rule.slip_max
+    line: LineFit | None = None
+    end: tuple[int, list[tuple[float, float]]] | None = None
+    for _ in range(rule.max_refits):
+        fit_pts = [p for p in pts if abs(p[0]) <= fit_max]
+        if len(fit_pts) < rule.min_fit_points:
+            break
+        line = fit_through_origin(fit_pts)
+        if line is None:
+            break
+        below = [
+            statistics.median(abs(f) for _, f in b)
+            < (1.0 - rule.tolerance) * abs(line.cx_n) * statistics.median(abs(s) for s, _ in b)
+            for _, b in kept
+        ]
+        end = None
+        for i in range(len(kept) - rule.min_end_bins + 1):
+            if all(below[i:]):
+                end = kept[i]
+                break
+        if end is None:
+            break
+        edge = end[0] * rule.bin_width
+        if edge > fit_max:  # the end lies beyond the fitted points: the line is clean
+            break
+        if sum(abs(p[0]) < edge for p in pts) < rule.min_fit_points:
+            break
+        fit_max = math.nextafter(edge, 0.0)
+    if line is None:
+        return Linearity(len(pts), None)
+    if end is None:
+        linear = pts
+        end_slip = end_force = None
+    else:
+        edge = end[0] * rule.bin_width
+        linear = [p for p in pts if abs(p[0]) < edge]
+        sign = 1.0 if sum(s for s, _ in end[1]) > 0 else -1.0
+        end_slip = sign * statistics.median(abs(s) for s, _ in end[1])
+        end_force = sign * statistics.median(abs(f) for _, f in end[1])
+    peak = max(linear, key=lambda p: abs(p[1]), default=None)
+    return Linearity(
+        len(pts), line, end_slip, end_force,
+        peak[1] if peak else None, peak[0] if peak else None,
+    )
+
+
+def peak_binned(points: Sequence[tuple[float, float]], rule: LinearityRule) -> tuple[float | None, float | None]:
+    """(value, slip) of the bin (by |s|, rule.bin_width) of at least rule.min_bin_points points whose median |value|
+    is largest: the median value and the median slip of that bin, signed; (None, None) when no bin is full enough."""
+    bins: dict[int, list[tuple[float, float]]] = {}
+    for s, v in points:
+        bins.setdefault(math.floor(abs(s) / rule.bin_width), []).append((s, v))
+    best: tuple[float, float] | None = None
+    for b in bins.values():
+        if len(b) < rule.min_bin_points:
+            continue
+        v = statistics.median(abs(x) for _, x in b)
+        if best is None or v > abs(best[0]):
+            sign = 1.0 if sum(x for _, x in b) >= 0 else -1.0
+            ssign = 1.0 if sum(s for s, _ in b) >= 0 else -1.0
+            best = (sign * v, ssign * statistics.median(abs(s) for s, _ in b))
+    return best if best is not None else (None, None)
+
+
+@dataclass(frozen=True)
+class WheelSummary:
+    wheel: str
+    slip_samples: int
+    mean_slip: float | None
+    max_abs_slip: float | None
+    linearity: Linearity
+    mean_re_m: float | None
+    r0_m: float | None
+    peak_cx_n: float | None
+    peak_cx_slip: float | None
+    cx_fit_n: float | None
+    cx_fit_conf: float | None
+    cx_fit_source: str
+    lost_frames: int | None
+
+
+@dataclass(frozen=True)
+class ManeuverSummary:
+    phase: str
+    title: str
+    rows: tuple[dict[str, Any], ...] = field(repr=False, compare=False)
+    t_start_s: float
+    """Seconds since the log's first estimate."""
+    t_end_s: float
+    speed_from_kmh: float
+    speed_to_kmh: float
+    gps_latency_s: float | None
+    gps_latency_source: str
+    wheels: dict[str, WheelSummary]
+
+
+@dataclass(frozen=True)
+class LogSummary:
+    path: str
+    name: str
+    labels: dict[str, str]
+    group: str
+    mode: str
+    estimates: int
+    t0_s: float | None
+    """Time of the first estimate (the log's clock); plot times are relative to it."""
+    lost_frames: dict[str, int]
+    bad_sentences: int | None
+    maneuvers: list[ManeuverSummary]
+
+    @property
+    def title(self) -> str:
+        lab = format_labels(self.labels)
+        return f"{self.name} ({lab})" if lab else self.name
+
+
+def group_of(labels: dict[str, str], group_by: Sequence[str] | None = None) -> str:
+    """The comparison group of a log: its labels on the group_by keys (default: every key but `maneuver`)."""
+    keys = list(group_by) if group_by else [k for k in labels if k != "maneuver"]
+    parts = [f"{k}={labels.get(k, '–')}" for k in keys if group_by or k in labels]
+    return ", ".join(parts) if parts else "(no labels)"
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _round5(v_mps: float) -> int:
+    return int(5 * round(v_mps * 3.6 / 5))
+
+
+def maneuver_title(phase: str, speeds_mps: Sequence[float]) -> tuple[str, float, float]:
+    """('accelerate 0–60 km/h', from, to) with from/to in km/h (rounded to 5 in the title)."""
+    lo, hi = min(speeds_mps), max(speeds_mps)
+    if phase == "accelerate":
+        a, b = lo, hi
+    elif phase == "brake":
+        a, b = hi, lo
+    else:
+        m = statistics.median(speeds_mps)
+        return f"{phase} {_round5(m)} km/h", lo * 3.6, hi * 3.6
+    return f"{phase} {_round5(a)}–{_round5(b)} km/h", a * 3.6, b * 3.6
+
+
+def _config_latency(config_toml: str | None) -> float | None:
+    if not config_toml:
+        return None
+    import tomllib
+
+    try:
+        v = tomllib.loads(config_toml).get("gps", {}).get("latency_s", "auto")
+    except tomllib.TOMLDecodeError:
+        return None
+    return 0.0 if v == "auto" else float(v)
+
+
+def _estimator_rule(config_toml: str | None, base: LinearityRule) -> LinearityRule:
+    import dataclasses
+    import tomllib
+
+    try:
+        est = tomllib.loads(config_toml or "").get("estimator", {})
+    except tomllib.TOMLDecodeError:
+        return base
+    return dataclasses.replace(base, slip_min=float(est.get("cx_slip_min", base.slip_min)),
+                               slip_max=float(est.get("cx_slip_max", base.slip_max)))
+
+
+def summarize_wheel(
+    rows: Sequence[dict[str, Any]], wheel: str, rule: LinearityRule, lost_frames: int | None,
+) -> WheelSummary:
+    slips = [r.get(f"slip_{wheel}") for r in rows]
+    defined = [s for s in slips if s is not None]
+    lin = analyse_linearity(slips, [r.get(f"force_{wheel}_n") for r in rows], rule)
+    peak_cx = peak_binned(
+        [(r[f"slip_{wheel}"], r[f"cx_{wheel}_n"]) for r in rows
+         if r.get(f"cx_{wheel}_n") is not None and r.get(f"slip_{wheel}") is not None], rule)
+    r0s = [r[f"r0_{wheel}_m"] for r in rows if r.get(f"r0_{wheel}_m") is not None]
+    line_cx = lin.line.cx_n if lin.line else None
+    line_conf = lin.line.confidence if lin.line else None
+    cx_fit, cx_conf, source = fallback.fitted_cx(rows, wheel, line_cx, line_conf)
+    return WheelSummary(
+        wheel=wheel,
+        slip_samples=len(defined),
+        mean_slip=_mean(defined),
+        max_abs_slip=max((abs(s) for s in defined), default=None),
+        linearity=lin,
+        mean_re_m=_mean([r[f"re_{wheel}_m"] for r in rows if r.get(f"re_{wheel}_m") is not None]),
+        r0_m=statistics.median(r0s) if r0s else None,
+        peak_cx_n=peak_cx[0],
+        peak_cx_slip=peak_cx[1],
+        cx_fit_n=cx_fit,
+        cx_fit_conf=cx_conf,
+        cx_fit_source=source,
+        lost_frames=lost_frames,
+    )
+
+
+def summarize_log(
+    rows: Sequence[dict[str, Any]],
+    metadata: dict[str, str],
+    diagnostics: dict[str, Any] | None,
+    *,
+    path: str,
+    name: str,
+    labels: dict[str, str],
+    group_by: Sequence[str] | None = None,
+    rule: LinearityRule | None = None,
+) -> LogSummary:
+    """Every maneuver of one log, per wheel."""
+    rule = _estimator_rule(metadata.get("config_toml"), rule or LinearityRule())
+    diag = diagnostics or {}
+    lost = {w: int(v) for w, v in (diag.get("lost_frames") or {}).items()}
+    have_phase = any(r.get("phase") is not None for r in rows)
+    phases = debounce([r.get("phase") for r in rows] if have_phase else fallback.derive_phases(rows))
+    t0 = rows[0]["time_s"] if rows else None
+    cfg_latency = _config_latency(metadata.get("config_toml"))
+    maneuvers: list[ManeuverSummary] = []
+    for phase in PHASES:
+        prow = tuple(r for r, p in zip(rows, phases) if p == phase)
+        if len(prow) < MIN_MANEUVER_ROWS or not any(r.get(f"slip_{w}") is not None for r in prow for w in WHEELS):
+            continue
+        title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
+        lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
+        if lat:
+            srcs = [r["latency_source"] for r in prow if r.get("latency_source")]
+            latency = float(statistics.median(lat))
+            lat_src = f"estimates ({statistics.mode(srcs)})" if srcs else "estimates"
+        else:
+            latency, lat_src = cfg_latency, "config"
+        maneuvers.append(ManeuverSummary(
+            phase=phase, title=title, rows=prow,
+            t_start_s=prow[0]["time_s"] - t0, t_end_s=prow[-1]["time_s"] - t0,
+            speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
+            wheels={w: summarize_wheel(prow, w, rule, lost.get(w)) for w in WHEELS},
+        ))
+    return LogSummary(
+        path=path, name=name, labels=dict(labels), group=group_of(labels, group_by),
+        mode=metadata.get("mode", ""), estimates=len(rows), t0_s=t0, lost_frames=lost,
+        bad_sentences=diag.get("bad_sentences"), maneuvers=maneuvers,
+    )
+
+
+# ---- the table (summary.csv / summary.json) ----------------------------------------------------------------
+
+COLUMNS: tuple[str, ...] = (
+    "log", "labels", "group", "maneuver", "phase", "wheel", "t_start_s", "t_end_s", "speed_from_kmh",
+    "speed_to_kmh", "slip_samples", "mean_slip", "max_abs_slip", "linearity", "linear_end_slip",
+    "linear_end_fx_n", "peak_linear_fx_n", "peak_linear_fx_slip", "cx_line_n", "cx_line_points", "mean_re_m",
+    "r0_m", "peak_cx_n", "peak_cx_slip", "cx_fit_n", "cx_fit_conf", "cx_fit_source", "gps_latency_s",
+    "gps_latency_source", "lost_frames", "bad_sentences",
+)
+"""One row per log, maneuver and wheel. Slips are fractions, forces N, radii m, stiffness N per unit slip."""
+
+
+def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    for log in logs:
+        for m in log.maneuvers:
+            for w, ws in m.wheels.items():
+                lin = ws.linearity
+                out.append({
+                    "log": log.name, "labels": format_labels(log.labels), "group": log.group,
+                    "maneuver": m.title, "phase": m.phase, "wheel": w,
+                    "t_start_s": m.t_start_s, "t_end_s": m.t_end_s,
+                    "speed_from_kmh": m.speed_from_kmh, "speed_to_kmh": m.speed_to_kmh,
+                    "slip_samples": ws.slip_samples, "mean_slip": ws.mean_slip, "max_abs_slip": ws.max_abs_slip,
+                    "linearity": lin.verdict, "linear_end_slip": lin.end_slip, "linear_end_fx_n": lin.end_force_n,
+                    "peak_linear_fx_n": lin.peak_fx_n, "peak_linear_fx_slip": lin.peak_fx_slip,
+                    "cx_line_n": lin.line.cx_n if lin.line else None,
+                    "cx_line_points": lin.line.points if lin.line else 0,
+                    "mean_re_m": ws.mean_re_m, "r0_m": ws.r0_m,
+                    "peak_cx_n": ws.peak_cx_n, "peak_cx_slip": ws.peak_cx_slip,
+                    "cx_fit_n": ws.cx_fit_n, "cx_fit_conf": ws.cx_fit_conf, "cx_fit_source": ws.cx_fit_source,
+                    "gps_latency_s": m.gps_latency_s, "gps_latency_source": m.gps_latency_source,
+                    "lost_frames": ws.lost_frames, "bad_sentences": log.bad_sentences,
+                })
+    return out
+
+
+# ---- comparison across logs, grouped by labels -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class GroupWheel:
+    cx_fit_n: float | None
+    """Mean over the group's logs."""
+    peak_linear_fx_n: float | None
+    """Of largest |Fx| over the group's logs."""
+    peak_linear_fx_slip: float | None
+    linear_end_slip: float | None
+    """Smallest |end| over the logs; None: linear throughout in every log."""
+    mean_re_m: float | None
+
+
+@dataclass(frozen=True)
+class GroupSummary:
+    group: str
+    logs: tuple[str, ...]
+    titles: tuple[str, ...]
+    wheels: dict[str, GroupWheel]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    phase: str
+    groups: list[GroupSummary]
+
+
+def compare(logs: Sequence[LogSummary]) -> list[Comparison]:
+    """Per phase, the groups (by label) side by side, each aggregated over its logs."""
+    out: list[Comparison] = []
+    groups = list(dict.fromkeys(log.group for log in logs))
+    for phase in PHASES:
+        gs: list[GroupSummary] = []
+        for g in groups:
+            ms = [(log, m) for log in logs if log.group == g for m in log.maneuvers if m.phase == phase]
+            if not ms:
+                continue
+            wheels: dict[str, GroupWheel] = {}
+            for w in WHEELS:
+                ws = [m.wheels[w] for _, m in ms]
+                peaks = [x.linearity for x in ws if x.linearity.peak_fx_n is not None]
+                peak = max(peaks, key=lambda lin: abs(lin.peak_fx_n or 0.0), default=None)
+                ends = [x.linearity.end_slip for x in ws if x.linearity.end_slip is not None]
+                wheels[w] = GroupWheel(
+                    cx_fit_n=_mean([x.cx_fit_n for x in ws if x.cx_fit_n is not None]),
+                    peak_linear_fx_n=peak.peak_fx_n if peak else None,
+                    peak_linear_fx_slip=peak.peak_fx_slip if peak else None,
+                    linear_end_slip=min(ends, key=abs) if ends else None,
+                    mean_re_m=_mean([x.mean_re_m for x in ws if x.mean_re_m is not None]),
+                )
+            gs.append(GroupSummary(g, tuple(log.name for log, _ in ms), tuple(m.title for _, m in ms), wheels))
+        if gs:
+            out.append(Comparison(phase, gs))
+    return out
