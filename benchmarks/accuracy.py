@@ -103,7 +103,7 @@ def quiet(*argv: str) -> None:
         assert slipdaq(list(argv)) == 0, argv
 
 
-def metrics(rows: list[dict], truth_ts: dict, sc: Scenario, true_r0: dict[str, float]) -> dict[str, float]:
+def metrics(rows: list[dict], truth_ts: dict, sc: Scenario, true_r0: dict[str, float], fitted_cx: bool) -> dict:
     all_err = slip_error(rows, truth_ts)
     cal_err = slip_error(rows, truth_ts, only_calibrated=True)
     last = [r for r in rows if r.get("source") == "gps"][-1]
@@ -111,13 +111,13 @@ def metrics(rows: list[dict], truth_ts: dict, sc: Scenario, true_r0: dict[str, f
     cx_errs = []
     for w in ("FL", "FR"):
         truth_cx = linear_stiffness_truth(rows, truth_ts, w)
-        fitted = [r[f"cx_fit_{w}_n"] for r in rows if r.get(f"cx_fit_{w}_n") is not None]
-        if truth_cx and fitted:
-            cx_errs.append(abs(fitted[-1] / truth_cx - 1) * 100)
-        else:  # the uncompensated method has no fit: its per-window Fx/s median
+        if fitted_cx:  # slipdaq: the fitted Cx at the end of the run
+            values = [r[f"cx_fit_{w}_n"] for r in rows if r.get(f"cx_fit_{w}_n") is not None][-1:]
+        else:  # the study's method: Cx = Fx/s per window, its median
             per_window = [r[f"cx_{w}_n"] for r in rows if r.get(f"cx_{w}_n") is not None]
-            if truth_cx and per_window:
-                cx_errs.append(abs(float(np.median(per_window)) / truth_cx - 1) * 100)
+            values = [float(np.median(per_window))] if per_window else []
+        if truth_cx and values:
+            cx_errs.append(abs(values[0] / truth_cx - 1) * 100)
     lat = float(last.get("gps_latency_s") or 0.0)
     return {
         "slip_rms": all_err.rms_points, "slip_rms_cal": cal_err.rms_points, "r0_mm": r0_err,
@@ -145,7 +145,7 @@ def run(sc: Scenario, base: Config, folder: Path) -> tuple[dict, dict]:
         quiet("import", "--can", str(can_path), "--nmea", str(nmea_path), "--config", str(cfg_path), "-o", str(raw))
         quiet("replay", str(raw), "-o", str(out))
         quiet("export", str(out), "--csv", str(csv_path))
-        results[method] = metrics(read_csv(csv_path), ts, sc, true_r0)
+        results[method] = metrics(read_csv(csv_path), ts, sc, true_r0, fitted_cx=method == "slipdaq")
     return results["slipdaq"], results["uncompensated"]
 
 

@@ -7,13 +7,24 @@ import struct
 import cantools
 import pytest
 
-from slipdaq.decode.can_wheels import DbcError, WptDecoder
+from slipdaq.decode.can_wheels import DbcError, WheelDecoder
+from slipdaq.config import load_config
 from slipdaq.decode.nmea import KNOT_MPS, MAX_LINE_BYTES, NmeaDecoder, NmeaFramer
 from slipdaq.records import CanFrame, NmeaLine
 
 from conftest import ROOT
 
 DBC = (ROOT / "config" / "wpt.dbc").read_text()
+CFG = load_config(ROOT / "config" / "slipdaq.toml")
+
+
+def WptDecoder(dbc: str) -> WheelDecoder:  # noqa: N802  the default sources: WPT_<W>.PulseCount and Seq
+    return WheelDecoder(CFG, dbc)
+
+
+def one(samples):  # type: ignore[no-untyped-def]
+    assert len(samples) <= 1
+    return samples[0] if samples else None
 
 
 def frame(t: float, wheel_id: int, count: int, seq: int, dlc: int = 8) -> CanFrame:
@@ -35,7 +46,7 @@ def test_dbc_layout_is_the_public_contract() -> None:
 def test_count_wraps_at_2_pow_32() -> None:
     d = WptDecoder(DBC)
     counts = [2**32 - 3, 2**32 - 1, 1, 5]
-    samples = [d.decode(frame(i * 0.01, 0x310, c, i)) for i, c in enumerate(counts)]
+    samples = [one(d.decode(frame(i * 0.01, 0x310, c, i))) for i, c in enumerate(counts)]
     assert [s.count for s in samples] == [0, 2, 4, 8]  # type: ignore[union-attr]
     assert d.count_wraps["FL"] == 1 and d.lost_frames["FL"] == 0
 
@@ -51,9 +62,9 @@ def test_seq_gaps_are_lost_frames_including_seq_wrap() -> None:
 
 def test_unknown_id_extended_and_wrong_dlc() -> None:
     d = WptDecoder(DBC)
-    assert d.decode(frame(0.0, 0x123, 1, 0)) is None and not d.is_wheel_frame(frame(0.0, 0x123, 1, 0))
-    assert d.decode(CanFrame(0.0, 0x310, bytes(8), is_extended_id=True)) is None
-    assert d.decode(frame(0.0, 0x312, 1, 0, dlc=3)) is None
+    assert d.decode(frame(0.0, 0x123, 1, 0)) == [] and not d.is_wheel_frame(frame(0.0, 0x123, 1, 0))
+    assert d.decode(CanFrame(0.0, 0x310, bytes(8), is_extended_id=True)) == []
+    assert d.decode(frame(0.0, 0x312, 1, 0, dlc=3)) == []
     assert d.bad_frames == 1
 
 
@@ -61,9 +72,9 @@ def test_another_dbc_with_the_same_names_works() -> None:
     other = DBC.replace("BO_ 784 WPT_FL", "BO_ 1024 WPT_FL").replace("CM_ BO_ 784", "CM_ BO_ 1024").replace(
         "CM_ SG_ 784", "CM_ SG_ 1024")
     d = WptDecoder(other)
-    assert d.decode(frame(0.0, 0x310, 7, 0)) is None
-    s = d.decode(frame(0.0, 1024, 7, 0))
-    assert s is not None and s.wheel == "FL" and s.raw_count == 7
+    assert d.decode(frame(0.0, 0x310, 7, 0)) == []
+    s = one(d.decode(frame(0.0, 1024, 7, 0)))
+    assert s is not None and s.wheel == "FL" and s.raw == 7 and s.revolutions == 0.0
 
 
 def test_dbc_missing_signal_names_it() -> None:

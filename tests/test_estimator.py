@@ -77,7 +77,8 @@ def _run(params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_h
         for i, w in enumerate(WHEELS):
             revs = d * (1 + slip_of_w[w]) / (2 * math.pi * params.r_ref_m)
             count = start_count + math.floor(revs * params.pulses_per_rev)
-            events.append((t + i * 1e-5, 0, WheelSample(t + i * 1e-5, w, count, count, 0, 0)))
+            events.append((t + i * 1e-5, 0, WheelSample(t + i * 1e-5, w, count / params.pulses_per_rev, count,
+                                                         count, 0, 0)))
     delay_s = params.gps_latency_s if gps_delay_s is None else gps_delay_s
     for k in range(int(duration_s * gps_hz)):
         t = k / gps_hz

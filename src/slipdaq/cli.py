@@ -10,7 +10,7 @@ from pathlib import Path
 
 import slipdaq
 from slipdaq.config import Config, ConfigError, load_config
-from slipdaq.decode.can_wheels import DbcError, WptDecoder
+from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 
@@ -128,7 +128,7 @@ def _config(path: str | None) -> Config:
     """Load and check the config, its DBC included (one clear ConfigError naming file and key)."""
     cfg = load_config(path)
     try:
-        WptDecoder(cfg.load_dbc_text())
+        WheelDecoder(cfg)
     except DbcError as e:
         raise ConfigError(f"{cfg.source_path}: can.dbc ({cfg.resolve(cfg.can.dbc)}): {e}") from None
     return cfg

@@ -67,6 +67,36 @@ class WptConfig(_Section):
     pulses_per_rev: int = Field(1000, gt=0)
 
 
+SPEED_UNITS = ("km/h", "kph", "m/s", "mph", "rpm", "rad/s", "deg/s")
+
+
+class WheelSourceConfig(_Section):
+    """Where one wheel's motion comes from: a cumulative pulse count or a wheel-speed signal, by DBC names."""
+
+    kind: Literal["count", "speed"] = "count"
+    message: str = Field(min_length=1)
+    signal: str = Field(min_length=1)
+    seq_signal: str | None = None
+    """count: a rolling counter signal whose gaps are lost frames (optional)."""
+    pulses_per_rev: int | None = Field(None, gt=0)
+    """count: pulses per revolution (default wpt.pulses_per_rev)."""
+    unit: Literal["km/h", "kph", "m/s", "mph", "rpm", "rad/s", "deg/s"] | None = None
+    """speed: the signal's unit (default: the DBC's unit for the signal)."""
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> "WheelSourceConfig":
+        if self.kind == "speed" and (self.pulses_per_rev is not None or self.seq_signal is not None):
+            raise ValueError("pulses_per_rev and seq_signal are for kind = \"count\"")
+        if self.kind == "count" and self.unit is not None:
+            raise ValueError("unit is for kind = \"speed\"")
+        return self
+
+
+def default_wheel_source(wheel: str) -> WheelSourceConfig:
+    """The WPT contract: message WPT_<W>, signals PulseCount and Seq."""
+    return WheelSourceConfig(kind="count", message=f"WPT_{wheel}", signal="PulseCount", seq_signal="Seq")
+
+
 class CanConfig(_Section):
     interface: str = "socketcan"
     channel: str = "can0"
@@ -106,6 +136,8 @@ class LogConfig(_Section):
 
 
 class Config(_Section):
+    wheels: dict[Literal["FL", "FR", "RL", "RR"], WheelSourceConfig] = {}
+    """Per-wheel sources; a wheel not named here reads the WPT default (WPT_<W>.PulseCount, Seq)."""
     vehicle: VehicleConfig = VehicleConfig()
     tire: TireConfig = TireConfig()
     wpt: WptConfig = WptConfig()
@@ -132,6 +164,9 @@ class Config(_Section):
     def latency_fixed_s(self) -> float | None:
         """The configured GPS latency in seconds, or None for 'auto' (estimated online)."""
         return None if self.gps.latency_s == "auto" else float(self.gps.latency_s)
+
+    def wheel_source(self, wheel: str) -> WheelSourceConfig:
+        return self.wheels.get(wheel) or default_wheel_source(wheel)  # type: ignore[call-overload]
 
     def to_toml(self) -> str:
         """The effective config as TOML (what a log stores, so that replay runs with exactly these values)."""

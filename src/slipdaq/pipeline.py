@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 
 from slipdaq.config import Config
-from slipdaq.decode.can_wheels import WptDecoder
+from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.records import CanFrame, Diagnostics, NmeaLine, RawRecord
@@ -22,7 +22,7 @@ class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink]) -> None:
         self.config = config
         self.sinks = list(sinks)
-        self.wpt = WptDecoder(config.load_dbc_text())
+        self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.estimator = SlipEstimator(EstimatorParams.from_config(config))
         self.can_frames = 0
@@ -44,15 +44,14 @@ class Pipeline:
                 self.error_frames += 1
                 estimates = []
             else:
-                sample = self.wpt.decode(record)
-                if sample is None:
-                    if not self.wpt.is_wheel_frame(record):
-                        self.unknown_frames += 1
-                    estimates = []
-                else:
+                samples = self.wheels.decode(record)
+                if not samples and not self.wheels.is_wheel_frame(record):
+                    self.unknown_frames += 1
+                estimates = []
+                for sample in samples:
                     for s in sinks:
                         s.on_wheel(sample)
-                    estimates = self.estimator.add_wheel(sample)
+                    estimates += self.estimator.add_wheel(sample)
         else:
             fix = self.nmea.decode(record)
             if fix is None:
@@ -86,12 +85,13 @@ class Pipeline:
         return Diagnostics(
             time_s=self.last_time_s or 0.0,
             can_frames=self.can_frames,
-            wpt_frames=dict(self.wpt.frames),
-            lost_frames=dict(self.wpt.lost_frames),
-            count_wraps=dict(self.wpt.count_wraps),
+            wpt_frames=dict(self.wheels.frames),
+            lost_frames=dict(self.wheels.lost_frames),
+            count_wraps=dict(self.wheels.count_wraps),
+            counter_resets=dict(self.wheels.counter_resets),
             unknown_frames=self.unknown_frames,
             error_frames=self.error_frames,
-            bad_frames=self.wpt.bad_frames,
+            bad_frames=self.wheels.bad_frames,
             nmea_lines=self.nmea.lines,
             bad_sentences=self.nmea.bad_sentences,
             gps_fixes=self.nmea.fixes,

@@ -32,16 +32,19 @@ RawRecord = CanFrame | NmeaLine
 
 @dataclass(frozen=True, slots=True)
 class WheelSample:
-    """A decoded WPT frame: the unwrapped cumulative pulse count of one wheel."""
+    """One wheel's decoded sample: its cumulative revolutions since its first sample."""
 
     timestamp_s: float
     wheel: str
-    count: int
-    """Cumulative pulses since the first frame of this wheel, unwrapped across 2^32."""
-    raw_count: int
-    seq: int
+    revolutions: float
+    """Cumulative wheel revolutions: counts / pulses_per_rev (unwrapped), or the integral of a wheel-speed signal."""
+    count: int | None
+    """Count sources: cumulative pulses since the first frame, unwrapped across the counter's wrap."""
+    raw: float
+    """The signal as sent: the raw count, or the speed in the signal's unit."""
+    seq: int | None
     lost_frames: int
-    """Frames missing before this one, from the gap in Seq."""
+    """Frames missing before this one, from the gap in the sequence counter."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,8 +134,10 @@ class Diagnostics:
     time_s: float = 0.0
     can_frames: int = 0
     wpt_frames: dict[str, int] = field(default_factory=dict)
+    """Wheel samples decoded per wheel (WPT frames, or wheel-speed samples)."""
     lost_frames: dict[str, int] = field(default_factory=dict)
     count_wraps: dict[str, int] = field(default_factory=dict)
+    counter_resets: dict[str, int] = field(default_factory=dict)
     unknown_frames: int = 0
     error_frames: int = 0
     bad_frames: int = 0
@@ -150,6 +155,7 @@ class Diagnostics:
             "wpt_frames": dict(self.wpt_frames),
             "lost_frames": dict(self.lost_frames),
             "count_wraps": dict(self.count_wraps),
+            "counter_resets": dict(self.counter_resets),
             "unknown_frames": self.unknown_frames,
             "error_frames": self.error_frames,
             "bad_frames": self.bad_frames,

@@ -1,4 +1,6 @@
-"""GPS latency (fix time -> host arrival time), estimated two ways; UTC is used when plausible, else the wheels.
+"""GPS latency (fix time -> host arrival time), estimated two ways. UTC is used when plausible; the wheels' estimate
+when UTC is not plausible, or when both exist and disagree by more than 3 sigma + 20 ms (a host clock that is not
+really on UTC).
 
 - From UTC: arrival time minus the fix's own UTC time (RMC date + time). Right when the host clock is synchronised
   to UTC (NTP, PPS); it then includes the receiver's output delay and the serial transmission time.

@@ -2,7 +2,7 @@
 
 For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c (fix time t_c = arrival time - GPS latency):
   d_gps = integral of GPS speed (piecewise linear between fixes)
-  N     = (count(t1) - count(t0)) / pulses_per_rev          wheel revolutions (counts interpolated linearly)
+  N     = rev(t1) - rev(t0)                                  wheel revolutions (counts/ppr, interpolated linearly)
   d_wpt = r0 * 2*pi * N                                      distance by wheel revolutions, r0 calibrated per wheel
   s     = (d_wpt - d_gps) / d_gps                            SAE slip: > 0 driving, < 0 braking
   Re    = d_gps / (2*pi*N)                                   = V / omega
@@ -149,10 +149,11 @@ class SlipEstimator:
         wheels = lag.latency_s if lag.converged() else None
         if self.p.gps_latency_s is not None:
             return LatencyEstimate(self.p.gps_latency_s, "fixed", utc, wheels, lag.sigma_s)
+        if wheels is not None and (utc is None or abs(utc - wheels) > 3.0 * (lag.sigma_s or 0.0) + 0.02):
+            # measured alignment beats an assumption about the host clock when the two disagree
+            return LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
         if utc is not None:
             return LatencyEstimate(utc, "utc", utc, wheels, lag.sigma_s)
-        if wheels is not None:
-            return LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
         return LatencyEstimate(0.0, "none", utc, wheels, lag.sigma_s)
 
     # ---- input -------------------------------------------------------------------------------------
@@ -160,7 +161,7 @@ class SlipEstimator:
         ring = self._wheels[sample.wheel]
         if sample.timestamp_s < ring.last_time:
             return []  # out of order: keep the ring monotonic
-        ring.append(sample.timestamp_s, float(sample.count))
+        ring.append(sample.timestamp_s, sample.revolutions)
         if sample.timestamp_s - self._gps.last_time > self.p.gps_lost_after_s:
             return self._gps_lost()
         return self._drain() if self._pending else []
@@ -230,8 +231,8 @@ class SlipEstimator:
         ring = self._wheels[w]
         if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
             return None
-        c0, c1 = np.interp((t0, t1), ring.times, ring.values).tolist()
-        return TWO_PI * (c1 - c0) / self.p.pulses_per_rev
+        rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
+        return TWO_PI * (rev1 - rev0)
 
     def _grade_sin(self, fix_times: np.ndarray, speeds: np.ndarray, t_c: float, latency_s: float) -> float:
         """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
@@ -286,7 +287,7 @@ class SlipEstimator:
                 self._lag_prev = None
                 return
             arcs += np.interp(times, ring.times, ring.values)
-        arcs *= TWO_PI / self.p.pulses_per_rev / len(refs)
+        arcs *= TWO_PI / len(refs)
         prev, self._lag_prev = self._lag_prev, (arrival_s, speed_mps, arcs)
         if prev is None or accel is None:
             return

@@ -66,8 +66,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     }),
     TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}}),
     TOPIC_WPT: _obj("slipdaq.WheelSample", {
-        "timestamp_s": _NUM, "wheel": {"type": "string"}, "count": _INT, "raw_count": _INT, "seq": _INT,
-        "lost_frames": _INT,
+        "timestamp_s": _NUM, "wheel": {"type": "string"}, "revolutions": _NUM, "count": _INT_OR_NULL, "raw": _NUM,
+        "seq": _INT_OR_NULL, "lost_frames": _INT,
     }),
     TOPIC_GPS: _obj("slipdaq.GpsFix", {
         "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
@@ -78,7 +78,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_ESTIMATE: _obj("slipdaq.Estimate", _estimate_props()),
     TOPIC_DIAGNOSTICS: _obj("slipdaq.Diagnostics", {
         "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
-        "count_wraps": _per_wheel("wraps"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
+        "count_wraps": _per_wheel("wraps"),
+        "counter_resets": _per_wheel("resets"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
         "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "estimates": _INT,
         "estimator": _obj("estimator", {
             "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
@@ -166,8 +167,8 @@ class McapLogSink:
 
     def on_wheel(self, sample: WheelSample) -> None:
         self._write(TOPIC_WPT, sample.timestamp_s, {
-            "timestamp_s": sample.timestamp_s, "wheel": sample.wheel, "count": sample.count,
-            "raw_count": sample.raw_count, "seq": sample.seq, "lost_frames": sample.lost_frames,
+            "timestamp_s": sample.timestamp_s, "wheel": sample.wheel, "revolutions": sample.revolutions,
+            "count": sample.count, "raw": sample.raw, "seq": sample.seq, "lost_frames": sample.lost_frames,
         })
 
     def on_fix(self, fix: GpsFix) -> None:
