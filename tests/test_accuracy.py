@@ -167,10 +167,24 @@ def test_wheel_latency_finds_a_known_lag() -> None:
         a0, a1 = 0.1 * (k - 1) + tau_true, 0.1 * k + tau_true  # arrival = fix time + latency
         gps = dist(a1 - tau_true) - dist(a0 - tau_true) + rng.normal(0, 0.002)
         arcs = (dist(a1 - lag.taus_s) - dist(a0 - lag.taus_s)) / r
-        lag.add(gps, arcs)
+        lag.add(gps, arcs, informative=True)
     assert lag.converged()
     assert lag.latency_s == pytest.approx(tau_true, abs=0.005)
     assert lag.radius_m == pytest.approx(r, rel=1e-3)
+    steady = WheelLatency(max_latency_s=0.4)  # the same rows without speed change: no latency claimed
+    for _ in range(80):
+        steady.add(1.5 + rng.normal(0, 0.002), np.full_like(steady.taus_s, 1.5 / r), informative=False)
+    assert not steady.converged()
+
+
+def test_wheel_latency_not_fooled_by_braking(cfg) -> None:  # type: ignore[no-untyped-def]
+    """A brake run has no free-rolling speed change: the wheels' estimate must not take over from a good UTC one."""
+    from dataclasses import replace
+
+    for seed in (1, 4):
+        _, rows, truth, _, pipeline = drive(cfg, replace(SETTINGS, gps_latency_s=0.0, seed=seed), "brake", 14.0)
+        status = pipeline.estimator.status()
+        assert status["latency_source"] == "utc" and status["gps_latency_s"] == pytest.approx(0.0, abs=0.005)
 
 
 def test_radius_calibration_converges_and_tracks() -> None:

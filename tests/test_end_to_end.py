@@ -70,9 +70,9 @@ def test_live_estimates_follow_the_truth(live_log) -> None:  # type: ignore[no-u
     rows = list(iter_estimates(path))
     assert len(rows) >= 100 and result.estimates == len(rows)
     assert err.samples > 50
-    # Live timing adds noise: the in-process simulator and the daemon share one event loop, and a stall of it
-    # (a loaded CI machine) bunches frame timestamps. The deterministic accuracy check is the import test.
-    assert err.median_abs_points < 0.5 and err.p95_abs_points < 2.0
+    # Fix times come from the sentences' UTC (no read jitter) and frames carry their nominal time (as a hardware
+    # timestamp would): measured 0.04-0.05 points median, 0.14-0.17 p95 on a loaded 2-core machine.
+    assert err.median_abs_points < 0.2 and err.p95_abs_points < 1.0
     driving = [r for r in rows if r["accel_mps2"] and r["accel_mps2"] > 2 and r["slip_FL"] is not None]
     braking = [r for r in rows if r["accel_mps2"] and r["accel_mps2"] < -4 and r["slip_FL"] is not None]
     assert driving and braking

@@ -37,24 +37,37 @@ async def run_demo_async(
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel)
-    # sim time 0 half a second from now, when the daemon is reading: truth and records then share one clock
-    settings = replace(settings or SimSettings(), start_utc_s=time.time() + 0.5)
     truth: list[TruthSample] = []
+    started: list[SimSettings] = []
+    log_path = new_log_path(log_dir, "demo")
+
+    async def simulate(bus: can.BusABC) -> None:
+        """Start the drive once the daemon is reading: sim time 0 is then a wall time both sides share."""
+        while not log_path.exists():
+            await asyncio.sleep(0.02)
+        await asyncio.sleep(0.2)
+        run = replace(settings or SimSettings(), start_utc_s=time.time() + 0.1)
+        started.append(run)
+        events = generate(cfg, scenario, road, run, duration_s=duration_s)  # type: ignore[arg-type]
+        await play(events, bus=bus, nmea_write=gps.write, on_truth=truth.append, start_wall_s=run.start_utc_s,
+                   stamp_frames=True)
+
     try:
-        with open_bus(cfg) as daemon_bus, can.Bus(interface="virtual", channel=channel) as sim_bus:
-            events = generate(cfg, scenario, road, settings, duration_s=duration_s)  # type: ignore[arg-type]
+        # The simulator stamps each frame with its nominal time, as a CAN adapter's hardware timestamp would; the
+        # virtual bus would otherwise stamp it when sent, however late the shared event loop gets to it.
+        with open_bus(cfg) as daemon_bus, \
+                can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus:
             async with asyncio.TaskGroup() as tg:
-                sim = tg.create_task(play(events, bus=sim_bus, nmea_write=gps.write, on_truth=truth.append,
-                                          start_wall_s=settings.start_utc_s))
+                sim = tg.create_task(simulate(sim_bus))
                 result = await run_daemon(
-                    cfg, daemon_bus, new_log_path(log_dir, "demo"), duration_s=duration_s,
+                    cfg, daemon_bus, log_path, duration_s=duration_s,
                     status_stream=status_stream, status_every_s=status_every_s,
                     metadata={"demo_scenario": scenario, "demo_road": road} | labels_metadata(labels or {}),
                 )
                 sim.cancel()
     finally:
         gps.close()
-    error = slip_error(iter_estimates(result.log_path), truth_series(truth, settings.start_utc_s)) if truth else \
+    error = slip_error(iter_estimates(result.log_path), truth_series(truth, started[0].start_utc_s)) if truth else \
         SlipError(0, *[float("nan")] * 4)
     return result, error, cfg
 

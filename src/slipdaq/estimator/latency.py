@@ -7,8 +7,9 @@ really on UTC).
 - From the wheels: the lag tau that best aligns GPS distance between consecutive fixes with the distance rolled by
   the non-driven wheels while they roll freely: minimise sum_k (y_k - r * x_k(tau))^2 over a grid of tau, with
   y_k the GPS distance over fix interval k (trapezoid) and x_k(tau) = 2*pi*revolutions over the same interval of
-  arrival times shifted by -tau (r, the radius, is fitted per tau). Needs speed changes to be identifiable.
-  Least squares with exponential forgetting; uncertainty from the curvature of the residual at its minimum.
+  arrival times shifted by -tau (r, the radius, is fitted per tau). Needs speed changes to be identifiable: it
+  counts only after MIN_INFORMATIVE_ROWS rows taken while accelerating (a >= 0.5 m/s^2). Least squares with
+  exponential forgetting; uncertainty from the curvature of the residual at its minimum.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ class LatencyEstimate:
 
 
 class UtcLatency:
-    """Median of (arrival - fix UTC) over the last fixes; plausible only when small, positive and steady."""
+    """Median of (arrival - fix UTC) over the last fixes; plausible only when from -20 ms (taken as 0) to
+    max_latency_s, and steady (median absolute deviation <= 20 ms)."""
 
     def __init__(self, max_latency_s: float, history: int = 50) -> None:
         self.max_latency_s = max_latency_s
@@ -41,13 +43,21 @@ class UtcLatency:
         if fix_utc_s is not None:
             self._d.append(arrival_s - fix_utc_s)
 
+    def offset_s(self) -> float | None:
+        """Median of (arrival - fix UTC): host clock minus UTC plus latency, whatever the host clock."""
+        return float(np.median(np.fromiter(self._d, float))) if self._d else None
+
     def estimate(self) -> float | None:
         if len(self._d) < 5:
             return None
         d = np.fromiter(self._d, float)
         med = float(np.median(d))
         spread = float(np.median(np.abs(d - med)))
-        return med if 0.0 <= med <= self.max_latency_s and spread <= 0.02 else None
+        # a few ms below 0 is rounding (NMEA times to 0.01 s) or clock jitter around a latency near 0
+        return max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+
+
+MIN_INFORMATIVE_ROWS = 20
 
 
 class WheelLatency:
@@ -61,19 +71,22 @@ class WheelLatency:
         self._sxy = np.zeros_like(self.taus_s)
         self._sxx = np.zeros_like(self.taus_s)
         self.rows = 0
+        self.informative_rows = 0
         self._weight = 0.0
         self.latency_s: float | None = None
         self.sigma_s: float | None = None
         self.radius_m: float | None = None
 
-    def add(self, gps_distance_m: float, wheel_arc_m: np.ndarray) -> None:
-        """One fix interval: GPS distance, and 2*pi*revolutions of the reference wheels for each lag on the grid."""
+    def add(self, gps_distance_m: float, wheel_arc_m: np.ndarray, informative: bool = False) -> None:
+        """One fix interval: GPS distance, and 2*pi*revolutions of the reference wheels for each lag on the grid;
+        informative when taken while the speed changes."""
         lam = self.forgetting
         self._syy = lam * self._syy + gps_distance_m * gps_distance_m
         self._sxy = lam * self._sxy + gps_distance_m * wheel_arc_m
         self._sxx = lam * self._sxx + wheel_arc_m * wheel_arc_m
         self._weight = lam * self._weight + 1.0
         self.rows += 1
+        self.informative_rows += informative
         if self.rows >= 20 and self.rows % 5 == 0:
             self._solve()
 
@@ -96,4 +109,7 @@ class WheelLatency:
         self.radius_m = float(self._sxy[j] / self._sxx[j])
 
     def converged(self, sigma_max_s: float = 0.01) -> bool:
-        return self.latency_s is not None and self.sigma_s is not None and self.sigma_s <= sigma_max_s
+        return (
+            self.informative_rows >= MIN_INFORMATIVE_ROWS
+            and self.latency_s is not None and self.sigma_s is not None and self.sigma_s <= sigma_max_s
+        )

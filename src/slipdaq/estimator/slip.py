@@ -1,6 +1,8 @@
 """Windowed longitudinal slip, effective rolling radius Re, force Fx and stiffness Cx (docs/method.md).
 
-For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c (fix time t_c = arrival time - GPS latency):
+For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c, at its fix time t_c = arrival time - GPS latency, where
+the arrival time of a fix with a UTC time is that time plus the median (arrival - UTC) of recent fixes: the
+receiver's own clock, free of the jitter with which sentences are read:
   d_gps = integral of GPS speed (piecewise linear between fixes)
   N     = rev(t1) - rev(t0)                                  wheel revolutions (counts/ppr, interpolated linearly)
   d_wpt = r0 * 2*pi * N                                      distance by wheel revolutions, r0 calibrated per wheel
@@ -32,6 +34,8 @@ from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
 TWO_PI = 2.0 * math.pi
 G_MPS2 = 9.81
 WHEEL_ONLY_STEP_S = 0.1
+LAG_GUARD_ROWS = 5
+"""A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,23 +131,35 @@ class SlipEstimator:
     def __init__(self, params: EstimatorParams) -> None:
         self.p = params
         self._gps = SeriesRing(256)  # arrival time -> speed
+        self._gps_utc = SeriesRing(256)  # arrival time -> the fix's UTC time (NaN without one); kept in step
         self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
         self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
         self._utc = UtcLatency(params.max_latency_s)
         self._lag = WheelLatency(params.max_latency_s)
         self._lag_prev: tuple[float, float, np.ndarray] | None = None
+        self._lag_queue: deque[tuple[float, np.ndarray, bool]] = deque()
+        self._lag_blocked_until_s = -math.inf
         self._radius = {w: RadiusCalibration() for w in WHEELS}
         self._stiffness = {w: StiffnessFit() for w in WHEELS}
         self._driven = driven_wheels(params.driven_axle)
         self._reference = tuple(w for w in WHEELS if w not in self._driven)
         self._next_wheel_only_s: float | None = None
         self._last_center_s = -math.inf
+        self._latency: LatencyEstimate | None = None
+        self._utc_offset_s: float | None = None
         self.rejected_fixes = 0
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
     def latency(self) -> LatencyEstimate:
+        """The GPS latency in use (cached; it changes only when a fix or an estimate comes)."""
+        if self._latency is None:
+            self._latency = self._current_latency()
+            self._utc_offset_s = self._utc.offset_s()
+        return self._latency
+
+    def _current_latency(self) -> LatencyEstimate:
         utc = self._utc.estimate()
         lag = self._lag
         wheels = lag.latency_s if lag.converged() else None
@@ -176,6 +192,8 @@ class SlipEstimator:
             return []
         self._utc.add(a, fix.fix_time_utc_s)
         self._gps.append(a, fix.speed_mps)
+        self._gps_utc.append(a, fix.fix_time_utc_s if fix.fix_time_utc_s is not None else math.nan)
+        self._latency = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
         self._pending.append(a)
@@ -186,9 +204,16 @@ class SlipEstimator:
     def _reporting(self, since_s: float) -> list[SeriesRing]:
         return [r for r in self._wheels.values() if len(r) and r.last_time >= since_s]
 
+    def _smooth_arrival(self, arrival_s: float) -> float:
+        """One fix's arrival time without read jitter (see _smooth_arrivals)."""
+        if self._utc_offset_s is None:
+            return arrival_s
+        utc = self._gps_utc.values[int(np.searchsorted(self._gps_utc.times, arrival_s))]
+        return arrival_s if math.isnan(utc) else float(utc) + self._utc_offset_s
+
     def _ready(self, arrival_s: float, latency_s: float) -> bool:
         half = 0.5 * self.p.window_s
-        t1 = arrival_s - latency_s + half
+        t1 = self._smooth_arrival(arrival_s) - latency_s + half
         gps_last = self._gps.last_time - latency_s
         if gps_last < t1:
             return False
@@ -204,15 +229,26 @@ class SlipEstimator:
             if not self._ready(self._pending[0], lat.latency_s):
                 break
             out.append(self._estimate(self._pending.popleft(), lat))
+            self._latency = None  # the estimate may have moved the wheels' latency fit
         first = self._pending[0] if self._pending else self._gps.last_time
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
         self._gps.drop_before = keep
+        self._gps_utc.drop_before = keep
         self._alt.drop_before = keep
         for r in self._wheels.values():
             r.drop_before = keep
         return out
 
     # ---- helpers ------------------------------------------------------------------------------------
+    def _smooth_arrivals(self) -> np.ndarray:
+        """Arrival times with the read jitter taken out: UTC + median(arrival - UTC) where the fix has a UTC time."""
+        arrivals = self._gps.times
+        offset = self._utc_offset_s
+        if offset is None:
+            return arrivals
+        utc = self._gps_utc.values
+        return np.where(np.isnan(utc), arrivals, utc + offset)
+
     def _gps_covers(self, fix_times: np.ndarray, t0: float, t1: float) -> bool:
         if len(fix_times) < 2 or fix_times[0] > t0 or fix_times[-1] < t1:
             return False
@@ -292,20 +328,32 @@ class SlipEstimator:
         if prev is None or accel is None:
             return
         a_prev, v_prev, arcs_prev = prev
-        free = accel >= -self.p.phase_accel_mps2 if self._reference else abs(accel) <= self.p.phase_accel_mps2
-        if free and min(v_prev, speed_mps) >= self.p.r0_min_speed_mps and arrival_s - a_prev <= 0.3:
-            lag.add(0.5 * (v_prev + speed_mps) * (arrival_s - a_prev), arcs - arcs_prev)
+        thr = self.p.phase_accel_mps2
+        free = accel >= -thr if self._reference else abs(accel) <= thr
+        if not free:  # the reference wheels are braked: drop the rows just before, skip the rows just after
+            self._lag_queue.clear()
+            self._lag_blocked_until_s = arrival_s + self.p.max_latency_s + self.p.window_s
+            return
+        if arrival_s < self._lag_blocked_until_s:
+            return
+        if min(v_prev, speed_mps) >= self.p.r0_min_speed_mps and arrival_s - a_prev <= 0.3:
+            row = (0.5 * (v_prev + speed_mps) * (arrival_s - a_prev), arcs - arcs_prev, accel >= 0.5)
+            self._lag_queue.append(row)
+        while len(self._lag_queue) > LAG_GUARD_ROWS:  # a row counts once the next rows show no braking
+            lag.add(*self._lag_queue.popleft())
 
     # ---- the estimate -------------------------------------------------------------------------------
     def _estimate(self, arrival_s: float, lat: LatencyEstimate) -> Estimate:
         p = self.p
-        t_c = arrival_s - lat.latency_s
+        smooth = self._smooth_arrivals()
+        i = int(np.searchsorted(self._gps.times, arrival_s))
+        fix_times, speeds = smooth - lat.latency_s, self._gps.values
+        t_c = float(fix_times[i])
         t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
-        fix_times, speeds = self._gps.times - lat.latency_s, self._gps.values
-        speed_c = float(np.interp(t_c, fix_times, speeds))
+        speed_c = float(speeds[i])
         accel = self._accel(fix_times, speeds, t_c)
         if p.gps_latency_s is None:
-            self._update_lag(arrival_s, float(np.interp(arrival_s, self._gps.times, speeds)), accel)
+            self._update_lag(float(smooth[i]), speed_c, accel)
         d_gps = integrate_speed_m(fix_times, speeds, t0, t1) if self._gps_covers(fix_times, t0, t1) else None
         speed = d_gps / p.window_s if d_gps is not None else speed_c
         force = None

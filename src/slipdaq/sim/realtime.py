@@ -42,9 +42,10 @@ async def _write_line(nmea_write: Callable[[bytes], object], data: bytes) -> Non
             await asyncio.sleep(RETRY_S)
 
 
-async def _send_frame(bus: can.BusABC, frame: CanFrame) -> None:
+async def _send_frame(bus: can.BusABC, frame: CanFrame, timestamp_s: float = 0.0) -> None:
     """bus.send without blocking the loop; a CanOperationError (e.g. transmit buffer full) is retried briefly."""
-    msg = can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=frame.is_extended_id)
+    msg = can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=frame.is_extended_id,
+                      timestamp=timestamp_s)
     waited_s = 0.0
     while True:
         try:
@@ -65,11 +66,15 @@ async def play(
     duration_s: float | None = None,
     on_truth: Callable[[TruthSample], None] | None = None,
     start_wall_s: float | None = None,
+    stamp_frames: bool = False,
 ) -> int:
     """Send each event at its time_s after the start; stop at duration_s (sim time) or when events run out.
 
     NMEA lines are written as line + CRLF, one write per line. Cancellation propagates. Returns the CAN frames sent.
     With start_wall_s, sim time 0 is that wall-clock time (time.time()), else the moment play() starts.
+    stamp_frames (with start_wall_s) gives each CAN message its nominal wall-clock time as its timestamp, as a CAN
+    adapter's hardware timestamp would; a bus that keeps it (python-can's virtual bus with preserve_timestamps=True)
+    then carries it to the reader however late the event loop sends it.
     """
     loop = asyncio.get_running_loop()
     start = loop.time()
@@ -91,7 +96,8 @@ async def play(
         since_yield += 1
         record = event.record
         if isinstance(record, CanFrame):
-            await _send_frame(bus, record)
+            stamp = start_wall_s + event.time_s if stamp_frames and start_wall_s is not None else 0.0
+            await _send_frame(bus, record, stamp)
             frames_sent += 1
         elif isinstance(record, NmeaLine):
             await _write_line(nmea_write, (record.line + "\r\n").encode("ascii"))
