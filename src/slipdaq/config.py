@@ -109,6 +109,8 @@ class GpsConfig(_Section):
     port: str = "/dev/ttyUSB0"
     baudrate: int = Field(115200, gt=0)
     latency_s: Literal["auto"] | float = "auto"
+    velocity: Literal["nmea", "ubx"] = "nmea"
+    """Which messages give the GPS velocity: NMEA sentences, or u-blox UBX NAV-PVT (with its speed accuracy)."""
 
     @field_validator("latency_s")
     @classmethod

@@ -11,8 +11,9 @@ from collections.abc import Iterable, Sequence
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
+from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
-from slipdaq.records import CanFrame, Diagnostics, NmeaLine, RawRecord
+from slipdaq.records import CanFrame, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame
 from slipdaq.sinks import Sink
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -24,6 +25,8 @@ class Pipeline:
         self.sinks = list(sinks)
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
+        self.ubx = UbxDecoder()
+        self._velocity_from = NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         self.estimator = SlipEstimator(EstimatorParams.from_config(config))
         self.can_frames = 0
         self.unknown_frames = 0
@@ -53,9 +56,9 @@ class Pipeline:
                         s.on_wheel(sample)
                     estimates += self.estimator.add_wheel(sample)
         else:
-            fix = self.nmea.decode(record)
-            if fix is None:
-                estimates = []
+            fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
+            if fix is None or not isinstance(record, self._velocity_from):
+                estimates = []  # gps.velocity names the other protocol: decoded and counted only
             else:
                 for s in sinks:
                     s.on_fix(fix)
@@ -94,7 +97,9 @@ class Pipeline:
             bad_frames=self.wheels.bad_frames,
             nmea_lines=self.nmea.lines,
             bad_sentences=self.nmea.bad_sentences,
-            gps_fixes=self.nmea.fixes,
+            gps_fixes=self.nmea.fixes + self.ubx.fixes,
+            ubx_frames=self.ubx.frames,
+            bad_ubx_frames=self.ubx.bad_frames,
             estimates=self.estimates,
             estimator=self.estimator.status(),
         )

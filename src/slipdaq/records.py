@@ -27,7 +27,15 @@ class NmeaLine:
     line: str
 
 
-RawRecord = CanFrame | NmeaLine
+@dataclass(frozen=True, slots=True)
+class UbxFrame:
+    """One raw u-blox UBX frame (sync bytes to checksum) from the GPS serial port, with its host receive time."""
+
+    timestamp_s: float
+    data: bytes
+
+
+RawRecord = CanFrame | NmeaLine | UbxFrame
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,6 +72,8 @@ class GpsFix:
     fix_quality: int | None = None
     satellites: int | None = None
     sentence: str = "RMC"
+    speed_accuracy_mps: float | None = None
+    """The receiver's own 1-sigma speed accuracy estimate, where it gives one (UBX NAV-PVT sAcc)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,6 +154,8 @@ class Diagnostics:
     nmea_lines: int = 0
     bad_sentences: int = 0
     gps_fixes: int = 0
+    ubx_frames: int = 0
+    bad_ubx_frames: int = 0
     estimates: int = 0
     estimator: dict[str, object] = field(default_factory=dict)
     """Calibration state: latency by each method, r0 and its standard error, fitted Cx, per wheel."""
@@ -162,6 +174,8 @@ class Diagnostics:
             "nmea_lines": self.nmea_lines,
             "bad_sentences": self.bad_sentences,
             "gps_fixes": self.gps_fixes,
+            "ubx_frames": self.ubx_frames,
+            "bad_ubx_frames": self.bad_ubx_frames,
             "estimates": self.estimates,
             "estimator": dict(self.estimator),
         }

@@ -29,16 +29,17 @@ class RadiusCalibration:
     windows: float = 0.0
     converged: bool = False
 
-    def add(self, gps_distance_m: float, arc_m: float) -> None:
-        """One free-rolling window: GPS distance and 2*pi*revolutions."""
+    def add(self, gps_distance_m: float, arc_m: float, weight: float = 1.0) -> None:
+        """One free-rolling window: GPS distance and 2*pi*revolutions; weight from the GPS's stated accuracy."""
         if arc_m <= 0 or gps_distance_m <= 0:
             return
         lam = math.exp(-gps_distance_m / self.track_distance_m) if self.converged else 1.0
         re = gps_distance_m / arc_m
-        self.gps_m = lam * self.gps_m + gps_distance_m
-        self.arc_m = lam * self.arc_m + arc_m
-        self.sum_w_re = lam * self.sum_w_re + gps_distance_m * re
-        self.sum_w_re2 = lam * self.sum_w_re2 + gps_distance_m * re * re
+        w = weight * gps_distance_m
+        self.gps_m = lam * self.gps_m + w
+        self.arc_m = lam * self.arc_m + weight * arc_m
+        self.sum_w_re = lam * self.sum_w_re + w * re
+        self.sum_w_re2 = lam * self.sum_w_re2 + w * re * re
         self.windows = lam * self.windows + 1.0
         if not self.converged:
             se = self.standard_error_m

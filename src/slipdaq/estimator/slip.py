@@ -34,6 +34,8 @@ from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
 TWO_PI = 2.0 * math.pi
 G_MPS2 = 9.81
 WHEEL_ONLY_STEP_S = 0.1
+REFERENCE_SPEED_ACCURACY_MPS = 0.05
+"""A window whose fixes state this speed accuracy (1 sigma) has weight 1 in the r0 and Cx fits; weight ~ 1/sigma^2."""
 LAG_GUARD_ROWS = 5
 """A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
 
@@ -132,6 +134,7 @@ class SlipEstimator:
         self.p = params
         self._gps = SeriesRing(256)  # arrival time -> speed
         self._gps_utc = SeriesRing(256)  # arrival time -> the fix's UTC time (NaN without one); kept in step
+        self._gps_acc = SeriesRing(256)  # arrival time -> the receiver's speed accuracy (NaN without one); in step
         self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
         self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
@@ -193,6 +196,7 @@ class SlipEstimator:
         self._utc.add(a, fix.fix_time_utc_s)
         self._gps.append(a, fix.speed_mps)
         self._gps_utc.append(a, fix.fix_time_utc_s if fix.fix_time_utc_s is not None else math.nan)
+        self._gps_acc.append(a, fix.speed_accuracy_mps if fix.speed_accuracy_mps is not None else math.nan)
         self._latency = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
@@ -234,6 +238,7 @@ class SlipEstimator:
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
         self._gps.drop_before = keep
         self._gps_utc.drop_before = keep
+        self._gps_acc.drop_before = keep
         self._alt.drop_before = keep
         for r in self._wheels.values():
             r.drop_before = keep
@@ -281,6 +286,16 @@ class SlipEstimator:
         climb = float(np.interp(t_c, alt_t, self._alt.values) - np.interp(t_a, alt_t, self._alt.values))
         dist = integrate_speed_m(fix_times, speeds, t_a, t_c)
         return max(-0.3, min(0.3, climb / dist)) if dist > 5.0 else 0.0
+
+    def _weight(self, fix_times: np.ndarray, t0: float, t1: float) -> float:
+        """(reference / stated speed accuracy)^2 over the window's fixes, within 0.1..10; 1 without a stated one."""
+        i0, i1 = np.searchsorted(fix_times, (t0, t1))
+        acc = self._gps_acc.values[i0 : i1 + 1]
+        acc = acc[~np.isnan(acc)]
+        if acc.size == 0:
+            return 1.0
+        sigma = max(float(np.mean(acc)), 1e-3)
+        return min(max((REFERENCE_SPEED_ACCURACY_MPS / sigma) ** 2, 0.1), 10.0)
 
     def _force(self, accel: float, speed: float, sin_grade: float) -> float:
         """Fx = M*a + f_rr*M*g*cos + rho/2*CdA*v^2 + M*g*sin (each term off unless configured)."""
@@ -361,15 +376,16 @@ class SlipEstimator:
             force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
         arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
+        weight = self._weight(fix_times, t0, t1)
         if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
             # While accelerating, the GPS latency must be known; at steady speed it does not matter.
             steady = abs(accel) <= p.phase_accel_mps2
             for w in WHEELS:
                 arc = arcs[w]
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
-                    self._radius[w].add(d_gps, arc)
+                    self._radius[w].add(d_gps, arc, weight)
         r0 = {w: self._r0(w) for w in WHEELS}
-        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed) for w in WHEELS}
+        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight) for w in WHEELS}
         wheels = self._with_reference_slip(wheels, arcs, r0)
         self._last_center_s = t_c
         return Estimate(
@@ -380,7 +396,7 @@ class SlipEstimator:
 
     def _wheel(
         self, w: str, arc: float | None, r0: tuple[float, str], d_gps: float | None, force: float | None,
-        speed: float,
+        speed: float, weight: float = 1.0,
     ) -> WheelEstimate:
         p = self.p
         r0_m, r0_source = r0
@@ -398,7 +414,7 @@ class SlipEstimator:
         if force is not None and force != 0 and p.cx_slip_min <= abs(slip) <= p.cx_slip_max and force / slip > 0:
             cx = force / slip
         if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
-            fit.add(force, arc / d_gps)
+            fit.add(force, arc / d_gps, weight)
         return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, None, fit.cx_n,
                              fit.confidence if fit.cx_n is not None else None)
 

@@ -32,14 +32,14 @@ class StiffnessFit:
         self.confidence = 0.0
         self.radius_m: float | None = None
 
-    def add(self, force_n: float, arc_per_metre: float) -> None:
-        """One window: the tire's force and q = 2*pi*N / d_gps."""
+    def add(self, force_n: float, arc_per_metre: float, weight: float = 1.0) -> None:
+        """One window: the tire's force and q = 2*pi*N / d_gps; weight from the GPS's stated accuracy."""
         x = np.array([force_n / 1000.0, 1.0])
         q = arc_per_metre
         lam = self.forgetting
-        self._a = lam * self._a + np.outer(x, x)
-        self._b = lam * self._b + x * q
-        self._yy = lam * self._yy + q * q
+        self._a = lam * self._a + weight * np.outer(x, x)
+        self._b = lam * self._b + weight * x * q
+        self._yy = lam * self._yy + weight * q * q
         self._w = lam * self._w + 1.0
         self.windows += 1
         if self.windows >= self.min_windows:

@@ -21,7 +21,7 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config import Config
-from slipdaq.records import CanFrame, NmeaLine
+from slipdaq.records import CanFrame, NmeaLine, UbxFrame
 from slipdaq.sim.vehicle import Road, Scenario, TruthSample, VehicleSim
 
 TRUTH_RATE_HZ = 100.0
@@ -52,6 +52,8 @@ class SimSettings:
     """Largest model integration step."""
     start_utc_s: float = 1_767_225_600.0
     """Wall-clock time of sim time 0 (2026-01-01T00:00:00Z)."""
+    gps_protocol: str = "nmea"
+    """What the receiver sends each epoch: "nmea" (RMC, GGA, VTG), "ubx" (UBX NAV-PVT) or "both"."""
     host_clock_offset_s: float = 0.0
     """Host clock minus true UTC: added to every record's timestamp (the NMEA UTC fields stay true)."""
     origin_lat_deg: float = 52.0
@@ -63,7 +65,7 @@ class SimSettings:
 class SimEvent:
     time_s: float
     """Seconds since the simulation start at which the record arrives (or the truth holds)."""
-    record: CanFrame | NmeaLine | None
+    record: CanFrame | NmeaLine | UbxFrame | None
     truth: TruthSample | None
 
 
@@ -160,6 +162,24 @@ def gps_epoch_lines(truth: TruthSample, speed_mps: float, settings: SimSettings)
     ]
 
 
+def nav_pvt_frame(truth: TruthSample, speed_mps: float, settings: SimSettings) -> bytes:
+    """A UBX NAV-PVT frame for a fix at truth.time_s: ground speed to 1 mm/s, its accuracy = the noise's sigma."""
+    from pyubx2 import GET, UBXMessage
+
+    utc_s = settings.start_utc_s + truth.time_s
+    seconds = math.floor(utc_s)
+    t = datetime.fromtimestamp(seconds, UTC)
+    lat, lon = position_deg(truth.distance_m, settings)
+    msg = UBXMessage(
+        "NAV", "NAV-PVT", GET, iTOW=int(round((utc_s % 604800) * 1000)), year=t.year, month=t.month, day=t.day,
+        hour=t.hour, min=t.minute, second=t.second, validDate=1, validTime=1, fullyResolved=1,
+        nano=int(round((utc_s - seconds) * 1e9)), fixType=3, gnssFixOk=1, numSV=12, lat=lat, lon=lon,
+        hMSL=100000, gSpeed=int(round(speed_mps * 1000)), sAcc=max(int(round(settings.gps_noise_mps * 1000)), 1),
+        headMot=settings.heading_deg % 360.0,
+    )
+    return bytes(msg.serialize())
+
+
 class _Jitter:
     """Uniform [0, jitter_s) delays from a seeded generator, drawn in blocks."""
 
@@ -200,7 +220,7 @@ def generate(
     pending: list[tuple[float, int, SimEvent]] = []
     order = itertools.count()
 
-    def push(time_s: float, record: CanFrame | NmeaLine | None, truth: TruthSample | None = None) -> None:
+    def push(time_s: float, record: CanFrame | NmeaLine | UbxFrame | None, truth: TruthSample | None = None) -> None:
         heapq.heappush(pending, (time_s, next(order), SimEvent(time_s, record, truth)))
 
     n_slot = n_truth = n_gps = 0
@@ -224,8 +244,11 @@ def generate(
         if t_gps == t:
             speed_mps = max(0.0, sim.state.speed_mps + float(noise_rng.normal(0.0, settings.gps_noise_mps)))
             arrival_s = t + settings.gps_latency_s
-            for line in gps_epoch_lines(sim.state, speed_mps, settings):
-                push(arrival_s, NmeaLine(host_t0_s + arrival_s, line))
+            if settings.gps_protocol in ("ubx", "both"):
+                push(arrival_s, UbxFrame(host_t0_s + arrival_s, nav_pvt_frame(sim.state, speed_mps, settings)))
+            if settings.gps_protocol in ("nmea", "both"):
+                for line in gps_epoch_lines(sim.state, speed_mps, settings):
+                    push(arrival_s, NmeaLine(host_t0_s + arrival_s, line))
             n_gps += 1
             t_gps = _instant(n_gps, settings.gps_rate_hz)
         if t_truth == t:

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 
 import can
 
-from slipdaq.records import CanFrame, NmeaLine
+from slipdaq.records import CanFrame, NmeaLine, UbxFrame
 from slipdaq.sim.emit import SimEvent
 from slipdaq.sim.vehicle import TruthSample
 
@@ -101,6 +101,8 @@ async def play(
             frames_sent += 1
         elif isinstance(record, NmeaLine):
             await _write_line(nmea_write, (record.line + "\r\n").encode("ascii"))
+        elif isinstance(record, UbxFrame):
+            await _write_line(nmea_write, record.data)
         elif event.truth is not None and on_truth is not None:
             on_truth(event.truth)
     return frames_sent
