@@ -1,0 +1,319 @@
+"""Cross-process live rig for benchmarks/perf.py: a SocketCAN-like python-can bus over loopback UDP, a paced sender
+process and the `slipdaq run` child. Nothing here is imported by src/.
+
+Why: python-can's virtual bus only works inside one process, so the sender's CPU would count as the daemon's, and
+there is no vcan on this machine (no kernel module). This bus carries one CAN frame per UDP datagram on 127.0.0.1
+(nothing leaves the host), exposes the socket's fileno() and a `socket` attribute, so slipdaq's CanBusSource reads it
+exactly as it reads SocketCAN: from the asyncio loop (loop.add_reader), up to 256 recv() calls per wake-up, and
+daemon.open_bus asks it for the large SO_RCVBUF as on a car. The sender stamps each frame with time.time() right
+before sendto(), standing in for the kernel's receive timestamp of SocketCAN.
+
+    python benchmarks/perf_bus.py daemon --config CFG --duration S --log-dir D [--probe OUT.json]
+        registers the interface name `slipdaq_bench_udp`, then runs slipdaq.cli.main(["run", ...]) (the code of
+        `slipdaq run`, unchanged); with --probe it also records time.time() after each estimate is handed to the
+        MCAP writer (20 calls/s: negligible).
+    python benchmarks/perf_bus.py proto-daemon --config CFG --log-dir D [--probe OUT.json] [--tick-ms T]
+        the redesign's live path (benchmarks/perf_proto.py) on the same bus and GPS source, for comparison.
+    python benchmarks/perf_bus.py sender --port P --nmea-fd FD --wpt-rate-hz R --gps-rate-hz G --duration S
+        generates the simulated drive (sim time 0 = --start-wall), waits for that time, then sends the CAN frames to
+        127.0.0.1:P and writes the NMEA lines to the pseudo-terminal's master FD at their times; prints its counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import select
+import socket
+import struct
+import sys
+import time
+from pathlib import Path
+
+import can
+
+INTERFACE = "slipdaq_bench_udp"
+FRAME = struct.Struct("<dIBB8s")
+"""timestamp (time.time() at send), arbitration id, flags (1 extended, 2 error), dlc, 8 data bytes."""
+
+
+def parse_channel(channel: str) -> tuple[str, int]:
+    host, _, port = str(channel).rpartition(":")
+    if host not in ("127.0.0.1", "localhost"):
+        raise ValueError(f"{INTERFACE}: channel must be 127.0.0.1:PORT (loopback only), got {channel!r}")
+    return "127.0.0.1", int(port)
+
+
+class LoopbackUdpBus(can.BusABC):
+    """Receive-only python-can bus: one CAN frame per datagram on 127.0.0.1:PORT (channel "127.0.0.1:PORT")."""
+
+    def __init__(self, channel: str, can_filters=None, **kwargs: object) -> None:
+        self._addr = parse_channel(channel)
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind(self._addr)
+        self.socket.setblocking(False)
+        self.channel_info = f"loopback udp {channel}"
+        self._channel = str(channel)
+        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            data = self.socket.recv(64)
+        except BlockingIOError:
+            if timeout == 0:
+                return None, False
+            ready, _, _ = select.select([self.socket], [], [], timeout)
+            if not ready:
+                return None, False
+            data = self.socket.recv(64)
+        ts, aid, flags, dlc, payload = FRAME.unpack(data)
+        msg = can.Message(timestamp=ts, arbitration_id=aid, is_extended_id=bool(flags & 1),
+                          is_error_frame=bool(flags & 2), dlc=dlc, data=payload[:dlc], channel=self._channel)
+        return msg, False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise can.CanOperationError(f"{INTERFACE} is receive-only")
+
+    def fileno(self) -> int:
+        return self.socket.fileno()
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self.socket.close()
+
+
+def register() -> None:
+    """Make `interface = "slipdaq_bench_udp"` known to can.Bus (python-can looks interfaces up in BACKENDS)."""
+    here = str(Path(__file__).resolve().parent)
+    if here not in sys.path:
+        sys.path.insert(0, here)
+    import can.interfaces
+    import can.util
+
+    can.interfaces.BACKENDS[INTERFACE] = ("perf_bus", "LoopbackUdpBus")
+    valid = frozenset(can.interfaces.BACKENDS)
+    can.interfaces.VALID_INTERFACES = valid
+    can.util.VALID_INTERFACES = valid  # load_config checks this copy
+
+
+# ---- the daemon child -------------------------------------------------------------------------------------------
+def daemon_main(args: argparse.Namespace) -> int:
+    register()
+    probe: list[list[float]] = []
+    if args.probe:
+        from slipdaq.sinks.mcap_log import McapLogSink
+
+        original = McapLogSink.on_estimate
+
+        def on_estimate(self, estimate, log_time_s):  # type: ignore[no-untyped-def]
+            original(self, estimate, log_time_s)
+            probe.append([time.time(), estimate.time_s])
+
+        McapLogSink.on_estimate = on_estimate  # type: ignore[method-assign]
+    from slipdaq.cli import main
+
+    argv = ["run", "--config", args.config, "--log-dir", args.log_dir]
+    if args.duration:
+        argv += ["--duration", str(args.duration)]
+    try:
+        return main(argv)
+    finally:
+        if args.probe:
+            Path(args.probe).write_text(json.dumps(probe))
+
+
+# ---- the prototype's live loop -----------------------------------------------------------------------------------
+def proto_daemon_main(args: argparse.Namespace) -> int:
+    """The redesign's live path (perf_proto.FastPipeline) on the same bus, GPS source and sender as `slipdaq run`.
+
+    tick_ms 0: read the socket when the loop says it is readable (as CanBusSource does with SocketCAN);
+    tick_ms > 0: drain it every tick_ms milliseconds instead (fewer wake-ups, a few frames each).
+    Probe rows: [write time, time_s, window_s, gps_latency_s, latency_source, source, released-by timestamp,
+    frames processed before it].
+    """
+    import asyncio
+    import signal as sig
+
+    register()
+    from perf_proto import BatchLog, FastPipeline
+
+    from slipdaq.config import load_config
+    from slipdaq.daemon import open_bus
+    from slipdaq.sources.serial_gps import SerialGpsSource
+
+    cfg = load_config(args.config)
+    log_dir = Path(args.log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    path = log_dir / "proto-live.mcap"
+    bus = open_bus(cfg)
+    fp = FastPipeline(cfg, BatchLog(path, cfg, "live"))
+    rows: list[list[object]] = []
+    emit = fp._emit
+
+    def probed_emit(estimates, t):  # type: ignore[no-untyped-def]
+        emit(estimates, t)
+        now = time.time()
+        for e in estimates:
+            rows.append([now, e.time_s, e.window_s, e.gps_latency_s, e.latency_source, e.source, t, fp.can_index])
+
+    fp._emit = probed_emit  # type: ignore[method-assign]
+    recv = bus.recv
+
+    def drain() -> None:
+        msgs = []
+        for _ in range(256):
+            m = recv(timeout=0)
+            if m is None:
+                break
+            msgs.append(m)
+        if msgs:
+            fp.process_msgs(msgs)
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        stop = asyncio.Event()
+        loop.add_signal_handler(sig.SIGTERM, stop.set)
+        loop.add_signal_handler(sig.SIGINT, stop.set)
+        gps = SerialGpsSource(cfg.gps.port, cfg.gps.baudrate)
+        tasks = [asyncio.create_task(gps.run(fp.process_nmea))]
+
+        async def flusher() -> None:  # as the live sink: the file is readable up to the last second
+            while True:
+                await asyncio.sleep(1.0)
+                fp.log.can.flush()
+                fp.log.wheels.flush()
+                fp.log._w.flush()
+
+        tasks.append(asyncio.create_task(flusher()))
+        if args.tick_ms > 0:
+            async def ticker() -> None:
+                while True:
+                    await asyncio.sleep(args.tick_ms / 1000.0)
+                    drain()
+
+            tasks.append(asyncio.create_task(ticker()))
+        else:
+            loop.add_reader(bus.fileno(), drain)
+        await stop.wait()
+        if args.tick_ms <= 0:
+            loop.remove_reader(bus.fileno())
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    try:
+        asyncio.run(main())
+    finally:
+        fp.finish()
+        bus.shutdown()
+        if args.probe:
+            Path(args.probe).write_text(json.dumps(rows))
+    return 0
+
+
+# ---- the sender -------------------------------------------------------------------------------------------------
+def build_schedule(wpt_rate_hz: float, gps_rate_hz: float, duration_s: float, gps_latency_s: float,
+                   start_utc_s: float) -> tuple[list[float], list[object]]:
+    """(times since start, payloads): bytes-tuple (id, flags, dlc, data8) for CAN, bytes for an NMEA line."""
+    from dataclasses import replace
+
+    from slipdaq.config import load_config, packaged_config_path
+    from slipdaq.records import CanFrame, NmeaLine
+    from slipdaq.sim.emit import SimSettings, generate
+
+    cfg = load_config(packaged_config_path())
+    settings = replace(SimSettings(), wpt_rate_hz=wpt_rate_hz, gps_rate_hz=gps_rate_hz, gps_latency_s=gps_latency_s,
+                       start_utc_s=start_utc_s)
+    times: list[float] = []
+    payloads: list[object] = []
+    for ev in generate(cfg, "cycle", "paved", settings, duration_s=duration_s):  # type: ignore[arg-type]
+        r = ev.record
+        if isinstance(r, CanFrame):
+            times.append(ev.time_s)
+            payloads.append((r.arbitration_id, int(r.is_extended_id) | 2 * int(r.is_error_frame), len(r.data),
+                             bytes(r.data).ljust(8, b"\0")))
+        elif isinstance(r, NmeaLine):
+            times.append(ev.time_s)
+            payloads.append((r.line + "\r\n").encode("ascii"))
+    return times, payloads
+
+
+def sender_main(args: argparse.Namespace) -> int:
+    # sim time 0 = --start-wall (the parent rounds it to 10 ms, so the NMEA UTC fields, in hundredths, are exact)
+    start = args.start_wall
+    times, payloads = build_schedule(args.wpt_rate_hz, args.gps_rate_hz, args.duration, args.gps_latency_s, start)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    addr = ("127.0.0.1", args.port)
+    nmea_fd = args.nmea_fd
+    ready_margin_s = start - time.time()  # < 0: generating took longer than the lead; the run is late by that much
+    if ready_margin_s < 0:
+        start = time.time() + 0.5
+    print(f"start {start!r}", flush=True)  # the parent times its CPU samples from this
+    pack = FRAME.pack
+    now = time.time
+    sleep = time.sleep
+    n = len(times)
+    i = 0
+    frames = lines = 0
+    max_late_s = 0.0
+    late_over_1ms = 0
+    while i < n:
+        t_due = start + times[i]
+        t = now()
+        if t_due > t + 0.0003:
+            sleep(min(t_due - t, 0.002) - 0.0001)
+            continue
+        late = t - t_due
+        if late > max_late_s:
+            max_late_s = late
+        if late > 0.001:
+            late_over_1ms += 1
+        p = payloads[i]
+        if isinstance(p, tuple):
+            aid, flags, dlc, data = p
+            sock.sendto(pack(now(), aid, flags, dlc, data), addr)
+            frames += 1
+        else:
+            data = p
+            while data:
+                try:
+                    k = os.write(nmea_fd, data)
+                    data = data[k:]
+                except BlockingIOError:
+                    sleep(0.0005)
+            lines += 1
+        i += 1
+    print(json.dumps({"frames": frames, "nmea_lines": lines, "max_late_s": max_late_s,
+                      "late_over_1ms": late_over_1ms, "ready_margin_s": ready_margin_s,
+                      "start_wall": start}), flush=True)
+    return 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    d = sub.add_parser("daemon")
+    d.add_argument("--config", required=True)
+    d.add_argument("--log-dir", required=True)
+    d.add_argument("--duration", type=float)
+    d.add_argument("--probe")
+    d = sub.add_parser("proto-daemon")
+    d.add_argument("--config", required=True)
+    d.add_argument("--log-dir", required=True)
+    d.add_argument("--probe")
+    d.add_argument("--tick-ms", type=float, default=0.0)
+    s = sub.add_parser("sender")
+    s.add_argument("--port", type=int, required=True)
+    s.add_argument("--nmea-fd", type=int, required=True)
+    s.add_argument("--wpt-rate-hz", type=float, required=True)
+    s.add_argument("--gps-rate-hz", type=float, default=20.0)
+    s.add_argument("--gps-latency-s", type=float, default=0.0)
+    s.add_argument("--duration", type=float, required=True)
+    s.add_argument("--start-wall", type=float, required=True, help="time.time() of sim time 0")
+    args = ap.parse_args()
+    return {"daemon": daemon_main, "proto-daemon": proto_daemon_main, "sender": sender_main}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
