@@ -100,3 +100,24 @@ def test_sim_frame_helper_round_trip(cfg) -> None:  # type: ignore[no-untyped-de
     frame = nav_pvt_frame(sim.state, 12.345, SETTINGS)
     fix = UbxDecoder().decode(UbxFrame(0.0, frame))
     assert fix is not None and fix.speed_mps == pytest.approx(12.345)
+
+
+def test_ubx_frames_logged_raw_and_replayed_identically(cfg, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import os
+
+    from slipdaq.cli import main
+    from slipdaq.offline import process_to_log
+    from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records
+
+    ubx_cfg = cfg.with_overrides(gps={"velocity": "ubx"})
+    records = [e.record for e in generate(ubx_cfg, "cycle", "paved", replace(SETTINGS, gps_protocol="both"), 12.0)
+               if e.record is not None]
+    log = tmp_path / "ubx.mcap"
+    with open(os.devnull, "w") as quiet:
+        process_to_log(ubx_cfg, records, log, "import", stream=quiet)
+    raw = list(iter_raw_records(log))
+    assert [r for r in raw if isinstance(r, UbxFrame)] == [r for r in records if isinstance(r, UbxFrame)]
+    out = tmp_path / "replayed.mcap"
+    assert main(["replay", str(log), "-o", str(out)]) == 0
+    est = list(iter_estimates(log))
+    assert len(est) > 50 and list(iter_estimates(out)) == est

@@ -121,6 +121,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the report (created)")
     p.add_argument("--group-by", action="append", metavar="KEY",
                    help="compare logs grouped by this label (repeatable; default: every label but maneuver)")
+
+    p = sub.add_parser("recover", help="a log that was not finished (killed, power loss), or a rotated run's "
+                       "segments -> one finished log",
+                       description="Read everything that is whole in the input logs, up to the last complete chunk "
+                       "of each (a daemon killed with SIGKILL or a power loss leaves a log without its summary, "
+                       "perhaps with a torn tail), and write it as one finished MCAP file with summary and indexes. "
+                       "Several inputs (the segments of a rotated run, in order) are joined into one log, which "
+                       "then replays like the live run. The inputs are not changed.")
+    p.add_argument("logs", nargs="+", metavar="IN.mcap", help="the log, or the segments of one run in order")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
     return parser
 
 
@@ -144,6 +154,13 @@ def cmd_run(args: argparse.Namespace) -> int:
                                         metadata=_labels_meta(args) or None))
     print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "
           f"{result.estimates} estimates, {result.lost_frames} lost frames, {result.bad_sentences} bad sentences)")
+    segments = getattr(result, "log_segments", None) or []
+    if len(segments) > 1:
+        print(f"log segments: {' '.join(str(p) for p in segments)}")
+    log_error = getattr(result, "log_error", None)
+    if log_error:
+        print(f"slipdaq: the log is incomplete: {log_error}", file=sys.stderr)
+        return EXIT_FAIL
     return EXIT_OK
 
 
@@ -176,27 +193,60 @@ def cmd_import(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _unfinished_note(path: str, scanned: object) -> None:
+    """One line on stderr when a log was read without its summary (the daemon was killed or lost power)."""
+    if getattr(scanned, "has_summary", True):
+        return
+    why = getattr(scanned, "stopped_because", "") or "no summary"
+    print(f"slipdaq: note: {path} was not finished (killed or power loss?): read up to its last complete chunk "
+          f"({getattr(scanned, 'read_bytes', 0)} of {getattr(scanned, 'size_bytes', 0)} bytes; {why}); "
+          f"`slipdaq recover {path} -o FIXED.mcap` writes a finished copy", file=sys.stderr)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.offline import process_to_log
     from slipdaq.report.labels import LABEL_PREFIX
-    from slipdaq.sources.mcap_log import config_from_log, iter_raw_records, raw_record_count, read_metadata
+    from slipdaq.sources.mcap_log import (
+        ScanResult, config_from_log, iter_raw_records, raw_record_count, read_metadata,
+    )
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
     total = raw_record_count(args.log)
     labels = {k: v for k, v in read_metadata(args.log).items() if k.startswith(LABEL_PREFIX)}  # kept
-    p = process_to_log(cfg, iter_raw_records(args.log), Path(args.output), "replay",
+    scanned = ScanResult(Path(args.log))
+    p = process_to_log(cfg, iter_raw_records(args.log, scanned), Path(args.output), "replay",
                        metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
+    _unfinished_note(args.log, scanned)
     print(f"replayed {p.can_frames + p.nmea.lines} records -> {args.output} ({p.estimates} estimates)")
     return EXIT_OK
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from slipdaq.sinks.csv_export import write_csv
-    from slipdaq.sources.mcap_log import iter_estimates, read_metadata
+    from slipdaq.sources.mcap_log import ScanResult, iter_estimates, read_metadata
 
     read_metadata(args.log)
-    n = write_csv(iter_estimates(args.log), args.csv)
+    scanned = ScanResult(Path(args.log))
+    n = write_csv(iter_estimates(args.log, scanned), args.csv)
+    _unfinished_note(args.log, scanned)
     print(f"{n} estimates -> {args.csv}")
+    return EXIT_OK
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    import datetime as dt
+
+    from slipdaq.recover import recover
+
+    report = recover(args.logs, args.output)
+    for r in report.inputs:
+        last = "" if r.last_log_time_ns is None else \
+            f", last message {dt.datetime.fromtimestamp(r.last_log_time_ns / 1e9, dt.timezone.utc):%Y-%m-%d %H:%M:%S.%f} UTC"
+        state = "finished" if r.has_summary else "not finished"
+        why = f"; {r.stopped_because}" if r.stopped_because else ""
+        print(f"{r.path}: {state}, {r.messages} messages read ({r.read_bytes} of {r.size_bytes} bytes{why}){last}")
+    counts = ", ".join(f"{t} {n}" for t, n in sorted(report.topics.items()))
+    print(f"recovered {report.messages} messages -> {report.output} ({counts})")
     return EXIT_OK
 
 
@@ -209,7 +259,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 COMMANDS = {
     "run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo, "import": cmd_import,
-    "replay": cmd_replay, "export": cmd_export, "report": cmd_report,
+    "replay": cmd_replay, "export": cmd_export, "report": cmd_report, "recover": cmd_recover,
 }
 
 

@@ -135,6 +135,8 @@ class EstimatorConfig(_Section):
 class LogConfig(_Section):
     dir: str = "logs"
     chunk_size_bytes: int = Field(1024 * 1024, gt=0)
+    rotate_size_bytes: int | None = Field(None, ge=1_000_000, description="start a new log file at this size")
+    rotate_duration_s: float | None = Field(None, ge=10, description="start a new log file after this long")
 
 
 class Config(_Section):
@@ -233,4 +235,6 @@ def load_config(path: str | Path | None = None) -> Config:
         text = p.read_text(encoding="utf-8")
     except OSError as e:
         raise ConfigError(f"{p}: cannot read config: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {e.start}): save the config as UTF-8") from None
     return parse_config(text, p.resolve())

@@ -150,7 +150,8 @@ class WheelDecoder:
                 delta -= modulus
             dt = t - src.last_t
             limit = MAX_REV_PER_S if delta >= 0 else MAX_REVERSE_REV_PER_S
-            if abs(delta) > src.pulses_per_rev * (limit * max(dt, 0.0) + 0.1):
+            reset = abs(delta) > src.pulses_per_rev * (limit * max(dt, 0.0) + 0.1)
+            if reset:
                 self.counter_resets[w] += 1  # a new segment: continue at the last rate
                 delta = round(src.last_rate * max(dt, 0.0))
             else:
@@ -159,7 +160,8 @@ class WheelDecoder:
                 if dt > 0:
                     src.last_rate = delta / dt
             src.count += delta
-            if seq is not None and src.last_seq is not None and src.seq_signal is not None:
+            # a node reset restarts its Seq too: the reset frame starts a new Seq sequence, not a gap
+            if seq is not None and src.last_seq is not None and src.seq_signal is not None and not reset:
                 lost = (seq - src.last_seq - 1) % (1 << src.seq_signal.length)
                 self.lost_frames[w] += lost
         src.last_raw, src.last_seq, src.last_t = raw, seq, t

@@ -18,7 +18,9 @@ from rich.table import Table
 from rich.text import Text
 
 from slipdaq import WHEELS
+from slipdaq.decode.can_errors import error_classes
 from slipdaq.records import Estimate, GpsFix, RawRecord, WheelSample
+from slipdaq.sources.events import SourceEvent
 
 
 @dataclass
@@ -28,9 +30,20 @@ class SourceStatus:
     can: str = ""
     gps_port: str = ""
     gps_connected: Callable[[], bool] = lambda: True
-    log_path: str = ""
+    log_path: str | Callable[[], str] = ""
+    """The log file being written (a callable: it changes when the log rotates)."""
     log_size_bytes: Callable[[], int] = lambda: 0
     can_reader_errors: Callable[[], int] = lambda: 0
+    gps_status: Callable[[], dict[str, object]] | None = None
+    """SerialGpsSource.status: state, gaps, the diagnostic line (unplugged, wrong baud rate?, silent)."""
+    log_status: Callable[[], dict[str, object]] | None = None
+    """McapLogSink.log_status: segments, write failures (disk full), dropped messages."""
+
+    def log_path_now(self) -> str:
+        return self.log_path() if callable(self.log_path) else self.log_path
+
+
+EVENTS_SHOWN = 3
 
 
 @dataclass
@@ -44,12 +57,23 @@ class StatusSink:
     nmea_lines: int = 0
     wheel_frames: dict[str, int] = field(default_factory=lambda: {w: 0 for w in WHEELS})
     diagnostics: dict[str, object] = field(default_factory=dict)
+    can_errors: dict[str, int] = field(default_factory=dict)
+    """Error frames by class (bus_off, restarted, controller, rx_overflow, ...)."""
+    events: list[SourceEvent] = field(default_factory=list)
+    """The latest source and log events (GPS unplugged and back, disk full, ...), newest last."""
 
     def on_raw(self, record: RawRecord) -> None:
         if hasattr(record, "arbitration_id"):
             self.can_frames += 1
+            if record.is_error_frame:  # type: ignore[union-attr]
+                for c in error_classes(record):  # type: ignore[arg-type]
+                    self.can_errors[c] = self.can_errors.get(c, 0) + 1
         else:
             self.nmea_lines += 1
+
+    def on_source_event(self, event: SourceEvent) -> None:
+        self.events.append(event)
+        del self.events[:-EVENTS_SHOWN]
 
     def on_wheel(self, sample: WheelSample) -> None:
         self.wheel_frames[sample.wheel] += 1
@@ -120,17 +144,63 @@ def render(s: StatusSink, rates: _Rates) -> Group:
         f"quality {f.fix_quality if f.fix_quality is not None else '—'}  sats {f.satellites if f.satellites is not None else '—'}"
     )
     connected = s.sources.gps_connected()
+    gps_problem, log_problem = gps_diagnostic(s), log_diagnostic(s)
     lines = [
-        Text(f"GPS   {s.sources.gps_port}: {gps}" + ("" if connected else "  [DISCONNECTED]"),
+        Text(f"GPS   {s.sources.gps_port}: {gps}" + ("" if connected else "  [DISCONNECTED]") + gps_gaps(s),
              style="" if connected else "bold red"),
+    ]
+    if gps_problem:
+        lines.append(Text(f"      {gps_problem}", style="bold red"))
+    lines += [
         Text(f"accel {_fmt(e.accel_mps2 if e else None, '+.2f')} m/s²   Fx {_fmt(e.force_n if e else None, '+.0f')} N"),
         Text(f"CAN   {s.sources.can}: {rates.can_fps:7.0f} frames/s, {s.can_frames} frames, "
-             f"unknown {d.get('unknown_frames', 0)}, errors {d.get('error_frames', 0)}, "
-             f"reader errors {s.sources.can_reader_errors()}"),
+             f"unknown {d.get('unknown_frames', 0)}, errors {d.get('error_frames', 0)}{can_error_text(s)}, "
+             f"reader errors {s.sources.can_reader_errors()}",
+             style="bold red" if s.can_errors.get("bus_off") else ""),
         Text(f"NMEA  {rates.nmea_lps:5.1f} lines/s, {s.nmea_lines} lines, bad sentences {d.get('bad_sentences', 0)}"),
-        Text(f"log   {s.sources.log_path} ({_size(s.sources.log_size_bytes())})"),
+        Text(f"log   {s.sources.log_path_now()} ({_size(s.sources.log_size_bytes())})"
+             + (f"  {log_problem}" if log_problem else ""), style="bold red" if log_problem else ""),
     ]
+    lines += [Text(f"event {_event_text(ev)}", style="dim") for ev in s.events]
     return Group(wheels, *lines)
+
+
+def gps_diagnostic(s: StatusSink) -> str | None:
+    """The GPS problem in one line (unplugged, wrong baud rate?, silent), or None."""
+    st = s.sources.gps_status() if s.sources.gps_status else {}
+    text = st.get("gps_error")
+    return str(text) if text else None
+
+
+def gps_gaps(s: StatusSink) -> str:
+    st = s.sources.gps_status() if s.sources.gps_status else {}
+    gap, gaps, last = st.get("gps_gap_s"), st.get("gps_gaps", 0), st.get("gps_last_gap_s")
+    if gap is not None:
+        return f"  gap {gap:.1f} s (gap {gaps})"
+    if gaps:
+        return f"  ({gaps} gap{'s' if gaps != 1 else ''}, last {last:.1f} s)" if last is not None else f"  ({gaps} gaps)"
+    return ""
+
+
+def log_diagnostic(s: StatusSink) -> str | None:
+    st = s.sources.log_status() if s.sources.log_status else {}
+    err = st.get("log_error")
+    if err:
+        return f"{err}; estimating goes on; {st.get('log_dropped_messages', 0)} messages not logged"
+    if st.get("log_dropped_messages"):
+        return f"{st.get('log_dropped_messages')} messages not logged after {st.get('log_write_failures')} write failure(s)"
+    return None
+
+
+def can_error_text(s: StatusSink) -> str:
+    shown = [f"{k.replace('_', '-')} {v}" for k, v in s.can_errors.items()
+             if k in ("bus_off", "restarted", "rx_overflow", "tx_passive", "rx_passive")]
+    return f" ({', '.join(shown)})" if shown else ""
+
+
+def _event_text(ev: SourceEvent) -> str:
+    t = time.strftime("%H:%M:%S", time.gmtime(ev.time_s))
+    return f"{t} {ev.source} {ev.event}: {ev.detail}"
 
 
 def status_line(s: StatusSink, rates: _Rates) -> str:
@@ -141,11 +211,14 @@ def status_line(s: StatusSink, rates: _Rates) -> str:
     )
     lost = sum(d.get("lost_frames", {}).values()) if isinstance(d.get("lost_frames"), dict) else 0  # type: ignore[union-attr]
     gps = "—" if s.fix is None else f"{s.fix.speed_mps:.2f}"
+    gps_problem, log_problem = gps_diagnostic(s), log_diagnostic(s)
     return (
-        f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'} | slip {slips} | "
-        f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}) | "
+        f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'}{gps_gaps(s)}"
+        f"{f' [{gps_problem}]' if gps_problem else ''} | slip {slips} | "
+        f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}{can_error_text(s)}) | "
         f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)} | "
-        f"log {s.sources.log_path} {_size(s.sources.log_size_bytes())}"
+        f"log {s.sources.log_path_now()} {_size(s.sources.log_size_bytes())}"
+        f"{f' [{log_problem}]' if log_problem else ''}"
     )
 
 

@@ -1,0 +1,243 @@
+"""Soak: the live daemon under a long, full-rate drive — 4 wheels x 1 kHz WPT frames on python-can's virtual bus and
+20 Hz NMEA (RMC, GGA, VTG: 60 lines/s) on a real pseudo-terminal, simulator and daemon in one process (the virtual
+bus only works inside one). Checks what docs/reliability.md promises:
+
+- no frame lost: every frame the simulator sent is in the log (counted per wheel), Seq has no gap, lost_frames = 0;
+- memory: the resident set grows by less than 5 MB after the first minute (the first 20 % of a short run);
+- the daemon keeps up: the virtual bus's receive queue (the frames not yet read) stays small;
+- replay: the log replays to the same estimates, every field of every one, bit for bit.
+
+    .venv/bin/python benchmarks/soak.py [--duration 600] [--wpt-rate-hz 1000] [--gps-rate-hz 20] [--log-dir D]
+
+Prints one line per sample (elapsed, RSS, CAN frames, backlog) and a JSON summary; exit status 1 when a check fails.
+tests/test_reliability_soak.py runs a short version (run_soak).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import io
+import json
+import os
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TextIO
+
+import can
+
+from slipdaq.config import Config
+from slipdaq.daemon import new_log_path, open_bus, run_daemon
+from slipdaq.demo import demo_config
+from slipdaq.offline import process_to_log
+from slipdaq.records import CanFrame
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.realtime import play
+from slipdaq.simulate import PtyGps
+from slipdaq.sources.mcap_log import config_from_log, iter_estimates, iter_raw_records
+
+RSS_LIMIT_BYTES = 5 * 1024 * 1024
+
+
+def rss_bytes() -> int:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+@dataclass
+class SoakResult:
+    duration_s: float
+    wpt_rate_hz: float
+    gps_rate_hz: float
+    log_path: str
+    log_bytes: int
+    frames_sent: int
+    frames_logged: int
+    frames_lost: int
+    seq_gaps: int
+    nmea_lines_sent: int
+    nmea_lines_logged: int
+    estimates: int
+    rss_start_bytes: int
+    rss_after_warmup_bytes: int
+    rss_end_bytes: int
+    rss_growth_after_warmup_bytes: int
+    rss_max_bytes: int
+    warmup_s: float
+    backlog_max_frames: int
+    backlog_end_frames: int
+    drive_wall_s: float
+    """Wall time the simulator took to send the drive: about duration_s when the process keeps up with the rate
+    (simulator and daemon share one event loop, so a daemon that cannot keep up slows the sender down instead of
+    losing frames)."""
+    cpu_s: float
+    replay_equal: bool
+    replay_s: float
+    samples: list[tuple[float, int, int, int]] = field(default_factory=list)
+    """(elapsed s, RSS bytes, CAN frames sent so far, frames waiting in the daemon's receive queue)."""
+
+    @property
+    def ok(self) -> bool:
+        return (self.frames_lost == 0 and self.seq_gaps == 0 and self.frames_logged == self.frames_sent
+                and self.rss_growth_after_warmup_bytes < RSS_LIMIT_BYTES and self.replay_equal
+                and self.nmea_lines_logged == self.nmea_lines_sent)
+
+    def summary(self) -> dict[str, object]:
+        d = asdict(self)
+        d.pop("samples")
+        d["ok"] = self.ok
+        return d
+
+
+class _CountingPty(PtyGps):
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines = 0
+
+    def write(self, data: bytes) -> None:  # type: ignore[override]
+        super().write(data)
+        self.lines += data.count(b"\n")
+
+
+async def _soak(
+    duration_s: float, log_dir: Path, wpt_rate_hz: float, gps_rate_hz: float, sample_every_s: float,
+    warmup_s: float, out: TextIO | None,
+) -> tuple[SoakResult, Config]:
+    gps = _CountingPty()
+    channel = f"slipdaq-soak-{os.getpid()}-{id(gps)}"
+    cfg = demo_config(gps.path, channel)
+    settings = SimSettings(wpt_rate_hz=wpt_rate_hz, gps_rate_hz=gps_rate_hz, start_utc_s=time.time() + 0.5)
+    samples: list[tuple[float, int, int, int]] = []
+    sent = {"frames": 0}
+    timing = {"drive_wall_s": 0.0}
+    stop = asyncio.Event()
+    try:
+        with open_bus(cfg) as daemon_bus, can.Bus(interface="virtual", channel=channel) as sim_bus:
+            queue = getattr(daemon_bus, "queue", None)
+
+            def backlog() -> int:
+                return queue.qsize() if queue is not None else 0
+
+            class CountingBus:  # counts what the simulator sends
+                def send(self, msg: can.Message, timeout: float | None = None) -> None:
+                    sim_bus.send(msg, timeout)
+                    sent["frames"] += 1
+
+            async def sampler(t0: float) -> None:
+                while not stop.is_set():
+                    samples.append((time.monotonic() - t0, rss_bytes(), sent["frames"], backlog()))
+                    if out is not None:
+                        e, r, n, b = samples[-1]
+                        print(f"soak: {e:6.0f} s  RSS {r / 1e6:7.1f} MB  frames {n:9d}  backlog {b:6d}", file=out,
+                              flush=True)
+                    try:
+                        await asyncio.wait_for(stop.wait(), sample_every_s)
+                    except TimeoutError:
+                        pass
+
+            async def drive() -> None:
+                events = generate(cfg, "cycle", "paved", settings, duration_s=duration_s)
+                t = time.monotonic() + max(0.0, settings.start_utc_s - time.time())  # when sim time 0 comes
+                await play(events, bus=CountingBus(), nmea_write=gps.write,  # type: ignore[arg-type]
+                           start_wall_s=settings.start_utc_s)
+                timing["drive_wall_s"] = time.monotonic() - t
+                # let the daemon read what is queued (it never should be much), then stop it
+                deadline = time.monotonic() + 10.0
+                while backlog() and time.monotonic() < deadline:
+                    await asyncio.sleep(0.05)
+                await asyncio.sleep(0.5)
+                stop.set()
+
+            cpu0 = time.process_time()
+            t0 = time.monotonic()
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(sampler(t0))
+                tg.create_task(drive())
+                result = await run_daemon(cfg, daemon_bus, new_log_path(log_dir, "soak"), status_stream=io.StringIO(),
+                                          status_every_s=60.0, stop=stop, metadata={"soak": "1"})
+            cpu = time.process_time() - cpu0
+            samples.append((time.monotonic() - t0, rss_bytes(), sent["frames"], backlog()))
+            backlog_end = backlog()
+    finally:
+        gps.close()
+    return _check(result, samples, sent["frames"], gps.lines, duration_s, wpt_rate_hz, gps_rate_hz, warmup_s,
+                  backlog_end, cpu, timing["drive_wall_s"]), cfg
+
+
+def _check(result, samples, frames_sent, lines_sent, duration_s, wpt_rate_hz, gps_rate_hz, warmup_s, backlog_end,
+           cpu, drive_wall_s) -> SoakResult:  # type: ignore[no-untyped-def]
+    path = result.log_path
+    last_seq: dict[int, int] = {}
+    seq_gaps = frames = lines = 0
+    for r in iter_raw_records(path):
+        if isinstance(r, CanFrame):
+            frames += 1
+            s = r.data[7]
+            if r.arbitration_id in last_seq and (s - last_seq[r.arbitration_id]) % 256 != 1:
+                seq_gaps += 1
+            last_seq[r.arbitration_id] = s
+        else:
+            lines += 1
+    t = time.monotonic()
+    replay = path.with_name(path.stem + "-replay.mcap")
+    process_to_log(config_from_log(path), iter_raw_records(path), replay, "replay", stream=io.StringIO())
+    replayed = list(iter_estimates(replay))
+    live = list(iter_estimates(path))
+    replay_s = time.monotonic() - t
+    after = [s for s in samples if s[0] >= warmup_s] or samples[-1:]
+    rss_warm = after[0][1]
+    return SoakResult(
+        duration_s=duration_s, wpt_rate_hz=wpt_rate_hz, gps_rate_hz=gps_rate_hz, log_path=str(path),
+        log_bytes=path.stat().st_size, frames_sent=frames_sent, frames_logged=frames,
+        frames_lost=result.lost_frames + max(frames_sent - frames, 0), seq_gaps=seq_gaps,
+        nmea_lines_sent=lines_sent, nmea_lines_logged=lines, estimates=len(live),
+        rss_start_bytes=samples[0][1], rss_after_warmup_bytes=rss_warm, rss_end_bytes=samples[-1][1],
+        rss_growth_after_warmup_bytes=max(s[1] for s in after) - rss_warm, rss_max_bytes=max(s[1] for s in samples),
+        warmup_s=warmup_s, backlog_max_frames=max(s[3] for s in samples), backlog_end_frames=backlog_end,
+        drive_wall_s=drive_wall_s, cpu_s=cpu, replay_equal=replayed == live and len(live) > 0, replay_s=replay_s, samples=samples,
+    )
+
+
+def run_soak(
+    duration_s: float, log_dir: Path, *, wpt_rate_hz: float = 1000.0, gps_rate_hz: float = 20.0,
+    sample_every_s: float = 5.0, warmup_s: float | None = None, out: TextIO | None = None,
+) -> SoakResult:
+    """warmup_s: RSS growth is measured after this (default: 60 s, or a fifth of a shorter run)."""
+    warm = warmup_s if warmup_s is not None else min(60.0, duration_s / 5)
+    result, _ = asyncio.run(_soak(duration_s, log_dir, wpt_rate_hz, gps_rate_hz, sample_every_s, warm, out))
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--duration", type=float, default=600.0, help="seconds of driving (default 600)")
+    p.add_argument("--wpt-rate-hz", type=float, default=1000.0)
+    p.add_argument("--gps-rate-hz", type=float, default=20.0)
+    p.add_argument("--sample-every", type=float, default=10.0, help="RSS sample period, s")
+    p.add_argument("--log-dir", help="where the log goes (default: a temporary directory, deleted)")
+    p.add_argument("--json", help="write the summary and the samples here")
+    a = p.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        log_dir = Path(a.log_dir) if a.log_dir else Path(tmp)
+        r = run_soak(a.duration, log_dir, wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz,
+                     sample_every_s=a.sample_every, out=sys.stdout)
+        s = r.summary()
+    print(json.dumps(s, indent=1))
+    if a.json:
+        Path(a.json).write_text(json.dumps(s | {"samples": r.samples}, indent=1))
+    print(f"soak: {'OK' if r.ok else 'FAILED'}: {r.frames_logged}/{r.frames_sent} frames logged, "
+          f"{r.frames_lost} lost, {r.seq_gaps} Seq gaps, RSS +{r.rss_growth_after_warmup_bytes / 1e6:.2f} MB after "
+          f"{r.warmup_s:.0f} s (max {r.rss_max_bytes / 1e6:.1f} MB), backlog max {r.backlog_max_frames} frames, "
+          f"drive sent in {r.drive_wall_s:.0f} s of wall time (real time: {r.duration_s:.0f} s), CPU {r.cpu_s:.0f} s, "
+          f"replay equal: {r.replay_equal}")
+    return 0 if r.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
