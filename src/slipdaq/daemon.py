@@ -17,6 +17,8 @@ from typing import TextIO
 import can
 
 from slipdaq.config import Config, ConfigError
+from slipdaq.decode.nmea import NmeaFramer
+from slipdaq.decode.ubx import GpsFramer
 from slipdaq.pipeline import Pipeline
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
@@ -80,7 +82,9 @@ async def run_daemon(
     stop = stop or asyncio.Event()
     sink = McapLogSink(log_path, config, mode="live", metadata=metadata, flush_every_s=1.0)
     can_source = CanBusSource(bus)
-    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate)
+    # u-blox velocity: the port carries UBX frames among NMEA lines
+    framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
+    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, framer=framer)
     status = StatusSink(SourceStatus(
         can=f"{config.can.interface}:{config.can.channel}",
         gps_port=config.gps.port,

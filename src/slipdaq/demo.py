@@ -89,7 +89,8 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
         f"next:\n"
         f"  slipdaq replay {result.log_path} -o replayed.mcap\n"
-        f"  slipdaq export {result.log_path} --csv estimates.csv",
+        f"  slipdaq export {result.log_path} --csv estimates.csv\n"
+        f"  slipdaq report {result.log_path} -o report",
         file=out, flush=True,
     )
     return 0

@@ -87,7 +87,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
         "course_deg": _NUM_OR_NULL, "latitude_deg": _NUM_OR_NULL, "longitude_deg": _NUM_OR_NULL,
         "altitude_m": _NUM_OR_NULL, "fix_quality": _INT_OR_NULL, "satellites": _INT_OR_NULL,
-        "sentence": {"type": "string"},
+        "sentence": {"type": "string"}, "speed_accuracy_mps": _NUM_OR_NULL,
     }),
     TOPIC_ESTIMATE: _obj("slipdaq.Estimate", _estimate_props()),
     TOPIC_DIAGNOSTICS: _obj("slipdaq.Diagnostics", {
