@@ -23,13 +23,13 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import can
 import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.cli import main as slipdaq
 from slipdaq.config import Config, load_config
 from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import linear_stiffness_truth, slip_error, truth_series
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,18 +68,8 @@ QUICK = [SCENARIOS[0], SCENARIOS[1], SCENARIOS[11]]
 
 def write_logs(cfg: Config, sc: Scenario, settings: SimSettings, folder: Path) -> tuple[Path, Path, list]:
     can_path, nmea_path = folder / "drive.log", folder / "drive.nmea"
-    truth = []
-    with can.Logger(str(can_path)) as writer, open(nmea_path, "w") as nmea:
-        for ev in generate(cfg, sc.scenario, sc.road, settings, sc.duration_s, r0_offset_m=sc.r0_offset_m):
-            r = ev.record
-            if ev.truth is not None:
-                truth.append(ev.truth)
-            elif hasattr(r, "arbitration_id"):
-                writer(can.Message(timestamp=r.timestamp_s, arbitration_id=r.arbitration_id, data=r.data,
-                                   is_extended_id=False, channel="can0"))
-            elif r is not None:
-                nmea.write(f"({r.timestamp_s:.6f}) {r.line}\n")
-    return can_path, nmea_path, truth
+    events = generate(cfg, sc.scenario, sc.road, settings, sc.duration_s, r0_offset_m=sc.r0_offset_m)
+    return can_path, nmea_path, write_drive_logs(events, can_path, nmea_path)
 
 
 def read_csv(path: Path) -> list[dict]:

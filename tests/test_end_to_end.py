@@ -14,13 +14,13 @@ import sys
 import time
 from pathlib import Path
 
-import can
 import pytest
 from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.demo import run_demo_async
 from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import slip_error, truth_series
 from slipdaq.sinks.csv_export import COLUMNS
 from slipdaq.sinks.mcap_log import RAW_TOPICS, SCHEMAS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_GPS, TOPIC_NMEA
@@ -116,19 +116,9 @@ def test_export_csv_columns_and_values(live_log, tmp_path: Path) -> None:  # typ
 
 def _write_import_files(cfg, tmp_path: Path, duration_s: float, latency_s: float = 0.0):  # type: ignore[no-untyped-def]
     settings = SimSettings(gps_latency_s=latency_s, can_jitter_s=0.0005, seed=3)
-    truth = []
     can_path, nmea_path = tmp_path / "drive.log", tmp_path / "drive.nmea"
-    with can.Logger(str(can_path)) as writer, open(nmea_path, "w") as nmea:
-        nmea.write("# comment lines and blank lines are skipped\n\n")
-        for ev in generate(cfg, "cycle", "paved", settings, duration_s=duration_s):
-            r = ev.record
-            if ev.truth is not None:
-                truth.append(ev.truth)
-            elif hasattr(r, "arbitration_id"):
-                writer(can.Message(timestamp=r.timestamp_s, arbitration_id=r.arbitration_id, data=r.data,
-                                   is_extended_id=False, channel="vcan0"))
-            elif r is not None:
-                nmea.write(f"({r.timestamp_s:.6f}) {r.line}\n")
+    truth = write_drive_logs(generate(cfg, "cycle", "paved", settings, duration_s=duration_s), can_path, nmea_path,
+                             nmea_header="# comment lines and blank lines are skipped\n\n", channel="vcan0")
     return can_path, nmea_path, truth, settings
 
 
