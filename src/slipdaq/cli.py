@@ -217,7 +217,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     p = process_to_log(cfg, iter_raw_records(args.log, scanned), Path(args.output), "replay",
                        metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
     _unfinished_note(args.log, scanned)
-    print(f"replayed {p.can_frames + p.nmea.lines} records -> {args.output} ({p.estimates} estimates)")
+    print(f"replayed {p.can_frames + p.nmea.lines + p.ubx.frames} records -> {args.output} ({p.estimates} estimates)")
     return EXIT_OK
 
 
