@@ -93,6 +93,16 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
     paths: dict[str, Path] = {}
     titles = dict(PLOTS)
 
+    def done(fig, ax, key: str, ylabel: str, any_data: bool, xlabel: str = SLIP_LABEL,  # type: ignore[no-untyped-def]
+             extra: list[Line2D] | None = None) -> None:
+        """Axis labels, legend or 'no data', title; save as DIR/<phase>-<key>.png."""
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        _finish(ax, any_data, extra=extra)
+        _title(fig, titles[key], m.title, log)
+        paths[key] = out_dir / f"{m.phase}-{key}.png"
+        _save(fig, paths[key])
+
     # slip against time
     fig, ax = _figure()
     any_data = False
@@ -110,12 +120,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         st = WHEEL_STYLE[w]
         ax.plot(ts, ss, color=st["color"], marker=st["marker"], markersize=3.5, linewidth=1.0, label=w)
     ax.axhline(0.0, color="#888888", linewidth=0.8)
-    ax.set_xlabel("time since log start [s]")
-    ax.set_ylabel(SLIP_LABEL)
-    _finish(ax, any_data)
-    _title(fig, titles["slip-time"], m.title, log)
-    paths["slip-time"] = out_dir / f"{m.phase}-slip-time.png"
-    _save(fig, paths["slip-time"])
+    done(fig, ax, "slip-time", SLIP_LABEL, any_data, xlabel="time since log start [s]")
 
     # speed against slip
     fig, ax = _figure()
@@ -124,12 +129,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         xs, ys = _pairs(rows, f"slip_{w}", "speed_mps", 100.0, 3.6)
         any_data |= bool(xs)
         _scatter(ax, w, xs, ys)
-    ax.set_xlabel(SLIP_LABEL)
-    ax.set_ylabel("GPS speed V [km/h]")
-    _finish(ax, any_data)
-    _title(fig, titles["speed-slip"], m.title, log)
-    paths["speed-slip"] = out_dir / f"{m.phase}-speed-slip.png"
-    _save(fig, paths["speed-slip"])
+    done(fig, ax, "speed-slip", "GPS speed V [km/h]", any_data)
 
     # Fx against slip, with the linear region's line and the end of linearity
     fig, ax = _figure()
@@ -143,18 +143,13 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         _draw_line_and_end(ax, w, lin, xs)
     ax.axhline(0.0, color="#888888", linewidth=0.8)
     ax.axvline(0.0, color="#888888", linewidth=0.8)
-    ax.set_xlabel(SLIP_LABEL)
-    ax.set_ylabel("tire force Fx [N]")
     extra = [Line2D([], [], color="#444444", linestyle="--", label="fitted line Fx = Cx·s (linear region)")]
     if any(m.wheels[w].linearity.end_slip is not None for w in WHEELS):
         extra.append(Line2D([], [], color="#444444", marker="X", markersize=10, linestyle="none",
                             label="end of linearity"))
     extra.append(Line2D([], [], color="#444444", marker="*", markersize=11, linestyle="none",
                         markerfacecolor="none", label="peak linear Fx"))
-    _finish(ax, any_data, extra=extra)
-    _title(fig, titles["fx-slip"], m.title, log)
-    paths["fx-slip"] = out_dir / f"{m.phase}-fx-slip.png"
-    _save(fig, paths["fx-slip"])
+    done(fig, ax, "fx-slip", "tire force Fx [N]", any_data, extra=extra)
 
     # Re against slip
     fig, ax = _figure()
@@ -168,12 +163,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
             r0s.add(round(m.wheels[w].r0_m * 1000.0, 3))
     for r0 in sorted(r0s):
         ax.axhline(r0, color="#555555", linestyle=":", linewidth=1.2, label=f"r0 = {r0:.1f} mm")
-    ax.set_xlabel(SLIP_LABEL)
-    ax.set_ylabel("effective rolling radius Re [mm]")
-    _finish(ax, any_data)
-    _title(fig, titles["re-slip"], m.title, log)
-    paths["re-slip"] = out_dir / f"{m.phase}-re-slip.png"
-    _save(fig, paths["re-slip"])
+    done(fig, ax, "re-slip", "effective rolling radius Re [mm]", any_data)
 
     # Cx against slip
     fig, ax = _figure()
@@ -189,12 +179,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
                        label=f"{w} fitted Cx {ws.cx_fit_n / 1000:.1f} kN{conf}")
         if ws.linearity.end_slip is not None:
             ax.axvline(ws.linearity.end_slip * 100, color=WHEEL_STYLE[w]["color"], linestyle=":", linewidth=1.2)
-    ax.set_xlabel(SLIP_LABEL)
-    ax.set_ylabel("stiffness Cx = Fx/s [kN per unit slip]")
-    _finish(ax, any_data)
-    _title(fig, titles["cx-slip"], m.title, log)
-    paths["cx-slip"] = out_dir / f"{m.phase}-cx-slip.png"
-    _save(fig, paths["cx-slip"])
+    done(fig, ax, "cx-slip", "stiffness Cx = Fx/s [kN per unit slip]", any_data)
     return paths
 
 
