@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import inspect
 import math
 import os
 import pty
@@ -25,28 +24,6 @@ from slipdaq.records import CanFrame, NmeaLine, RawRecord
 from slipdaq.sim.emit import SimSettings, generate
 
 from conftest import CONFIG, ROOT
-
-# ---- the daemon.py changes asked for in docs/reliability.md, detected so that their tests switch on by themselves ----
-
-
-def daemon_wired() -> bool:
-    """daemon.py passes the GPS source's and the log's status to the live view and the events to the log."""
-    import slipdaq.daemon
-
-    src = inspect.getsource(slipdaq.daemon)
-    return "gps_status=" in src and "on_source_event" in src
-
-
-def daemon_uses_steady_clock() -> bool:
-    import slipdaq.daemon
-
-    return "SteadyClock" in inspect.getsource(slipdaq.daemon)
-
-
-needs_daemon_wiring = pytest.mark.xfail(
-    not daemon_wired(), strict=True,
-    reason="needs the daemon.py change in docs/reliability.md (GPS and log status, events)")
-
 
 # ---- records ----
 

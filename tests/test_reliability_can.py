@@ -207,8 +207,6 @@ class _RaisingBus:
         return can.Message(timestamp=time.time(), arbitration_id=0x310, data=struct.pack("<I3xB", self.n, self.n % 256))
 
 
-@pytest.mark.xfail(strict=True, reason="needs the can_bus.py change in docs/reliability.md: the reader thread drops "
-                   "the frames it had already read into a batch when recv raises")
 def test_a_raising_reader_does_not_stop_the_can_source() -> None:
     """python-can's Notifier stops for good when a reader raises; CanBusSource goes on: every frame arrives, in
     order, and each error is counted (and starts an outage that the next frame ends)."""
@@ -256,8 +254,6 @@ class _SocketBus:
         return can.Message(timestamp=time.time(), arbitration_id=0x310, data=struct.pack("<I3xB", n, n % 256))
 
 
-@pytest.mark.xfail(strict=True, reason="needs the can_bus.py change in docs/reliability.md: on the loop, any "
-                   "exception from recv is counted as a reader error (only can.CanError is now)")
 def test_a_reader_raising_any_error_on_the_loop_is_counted() -> None:
     bus = _SocketBus()
     src = CanBusSource(bus)  # type: ignore[arg-type]

@@ -30,7 +30,7 @@ from slipdaq.sources.events import SourceEvent
 from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, iter_topic
 from slipdaq.sources.serial_gps import LineQuality, SerialGpsSource, valid_sentence
 
-from reliability_support import ReplugGps, gps_lines, needs_daemon_wiring, nmea, uart_misread
+from reliability_support import ReplugGps, gps_lines, nmea, uart_misread
 
 RMC = nmea("GPRMC,120000.00,A,5200.00000,N,01000.00000,E,20.000,90.0,010126,,,A")
 
@@ -207,7 +207,6 @@ def test_gps_gap_during_a_live_run(tmp_path: Path) -> None:
     assert "DISCONNECTED" in status.getvalue()
 
 
-@needs_daemon_wiring
 def test_gps_gap_on_the_diagnostics_topics_and_in_the_live_view(tmp_path: Path) -> None:
     """A live run whose GPS port does not exist for its first second, then appears: /diagnostics carries the GPS
     state (gps_connected, gps_state, gps_error), /diagnostics/events the disconnection and the connection, and the

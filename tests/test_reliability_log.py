@@ -314,6 +314,25 @@ def test_log_dir_not_writable_is_one_clear_error(tmp_path: Path, capsys) -> None
 
 # ---- rotation ----
 
+def test_slipdaq_run_rotates_by_the_config(tmp_path: Path) -> None:
+    """`slipdaq run` with log.rotate_duration_s = 10: after 10 s it goes on in NAME_002.mcap, says so at exit, and the
+    segments hold every NMEA line written, once each, in order."""
+    d = DaemonProcess(tmp_path)
+    try:
+        d.start("rotate_duration_s = 10\n")
+        d.write_lines(gps_lines(12.0, rate_hz=10.0), 30.0)  # 360 lines (10 Hz x 3 sentences) in ~12 s
+        out, err = d.signal(signal.SIGTERM)
+    finally:
+        d.close()
+    assert d.proc is not None and d.proc.returncode == 0, err
+    segments = d.logs()
+    assert len(segments) == 2 and segments == run_segments(segments[0])
+    assert f"log segments: {segments[0]} {segments[1]}" in out
+    lines = [r.line for seg in segments for r in iter_raw_records(seg) if isinstance(r, NmeaLine)]
+    assert lines == [line for _, line in d.written]
+    assert all(is_finished(seg) for seg in segments) and read_metadata(segments[1])["segment"] == "2"
+
+
 @pytest.mark.parametrize("policy", [RotationPolicy(max_bytes=50_000), RotationPolicy(max_s=1.5)],
                          ids=["size", "duration"])
 def test_rotation_loses_no_message_at_a_boundary(tmp_path: Path, policy: RotationPolicy) -> None:

@@ -4,7 +4,10 @@ wall time at the start, then monotonic), so windows are not corrupted; the log r
 from __future__ import annotations
 
 import asyncio
+import os
 from pathlib import Path
+
+import can
 
 import pytest
 
@@ -13,12 +16,13 @@ from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.mcap_log import TOPIC_EVENTS, McapLogSink, estimate_to_dict
+from slipdaq.sources.can_bus import CanBusSource
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.mcap_log import iter_topic
 from slipdaq.sources.serial_gps import SerialGpsSource
 
 from conftest import CONFIG
-from reliability_support import daemon_uses_steady_clock, gps_lines, sim_records
+from reliability_support import gps_lines, sim_records
 
 
 class HostClock:
@@ -129,14 +133,38 @@ def test_a_host_clock_step_is_recorded_in_the_log(tmp_path: Path) -> None:
     assert "+1.500 s" in events[0]["detail"] and events[0]["counters"]["steps"] == 1
 
 
-@pytest.mark.xfail(not daemon_uses_steady_clock(), strict=True,
-                   reason="needs the daemon.py and can_bus.py changes in docs/reliability.md (one SteadyClock for "
-                   "both sources)")
-def test_daemon_stamps_both_sources_with_one_steady_clock() -> None:
-    import inspect
+@pytest.mark.parametrize("step_s", [-2.0, 1.5])
+def test_can_source_stamps_frames_with_the_steady_clock(step_s: float) -> None:
+    """Frames stamped by the bus with the host wall clock (as SocketCAN's kernel stamps are) go through CanBusSource
+    with stamp=SteadyClock: a host clock step mid-stream leaves their spacing as it was, and before the step the bus's
+    stamps are kept exactly."""
+    h = HostClock()
+    clock = SteadyClock(h.wall, h.monotonic)
+    channel = f"slipdaq-step-{os.getpid()}-{step_s}"
+    got: list[CanFrame] = []
+    sent: list[float] = []
 
-    import slipdaq.daemon
-    import slipdaq.sources.can_bus
+    async def run() -> None:
+        with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as rx, \
+                can.Bus(interface="virtual", channel=channel) as tx:
+            task = asyncio.create_task(CanBusSource(rx, stamp=clock).run(got.append))
+            for k in range(60):
+                h.mono += 0.01
+                if k == 30:
+                    h.offset += step_s  # NTP steps the host clock
+                sent.append(h.wall())
+                tx.send(can.Message(timestamp=sent[-1], arbitration_id=0x310, data=bytes(8), is_extended_id=False))
+                for _ in range(2000):  # read before the clocks move on, as a reader keeping up does
+                    if len(got) > k:
+                        break
+                    await asyncio.sleep(0.001)
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
 
-    assert "SteadyClock" in inspect.getsource(slipdaq.daemon)
-    assert "from_wall" in inspect.getsource(slipdaq.sources.can_bus)
+    asyncio.run(run())
+    times = [f.timestamp_s for f in got]
+    assert len(times) == 60
+    assert times[:30] == sent[:30]
+    assert all(b - a == pytest.approx(0.01, abs=1e-6) for a, b in zip(times, times[1:]))
+    assert sent[30] - sent[29] == pytest.approx(0.01 + step_s, abs=1e-6)  # what the host clock did

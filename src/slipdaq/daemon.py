@@ -10,7 +10,8 @@ import contextlib
 import datetime as dt
 import signal
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
@@ -21,8 +22,11 @@ from slipdaq.decode.nmea import NmeaFramer
 from slipdaq.decode.ubx import GpsFramer
 from slipdaq.pipeline import Pipeline
 from slipdaq.sinks.mcap_log import McapLogSink
+from slipdaq.sinks.rotation import RotationPolicy
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
-from slipdaq.sources.can_bus import CanBusSource, set_receive_buffer
+from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
+from slipdaq.sources.clock import SteadyClock
+from slipdaq.sources.events import EventFanout, SourceEvent
 from slipdaq.sources.serial_gps import SerialGpsSource
 
 
@@ -39,6 +43,10 @@ class RunResult:
     lost_frames: int
     bad_sentences: int
     duration_s: float
+    log_segments: list[Path] = field(default_factory=list)
+    """Every file the log was written to, in order (more than one when it rotated)."""
+    log_error: str | None = None
+    """Set when the log could not be written to the end (disk full): what failed."""
 
 
 def open_bus(config: Config, **overrides: object) -> can.BusABC:
@@ -54,6 +62,36 @@ def open_bus(config: Config, **overrides: object) -> can.BusABC:
         raise OSError(f"cannot open CAN {kwargs['interface']} channel {kwargs['channel']}: {e}") from None
     set_receive_buffer(bus, config.can.receive_buffer_bytes)
     return bus
+
+
+class _LiveLogSink(McapLogSink):
+    """The MCAP sink of a live run: every diagnostics record also carries the sources' and the log's state."""
+
+    def __init__(
+        self, path: Path, config: Config, metadata: dict[str, str], *,
+        clock: SteadyClock, on_event: Callable[[SourceEvent], None],
+    ) -> None:
+        super().__init__(
+            path, config, mode="live", metadata=metadata, flush_every_s=1.0, clock=clock, on_event=on_event,
+            rotation=RotationPolicy(config.log.rotate_size_bytes, config.log.rotate_duration_s),
+        )
+        self.extra: list[Callable[[], dict[str, object]]] = []
+        """The sources' status() functions, merged into each diagnostics record."""
+
+    def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
+        merged = dict(diagnostics)
+        for status in self.extra:
+            merged |= status()
+        super().on_diagnostics(merged | self.log_status(), log_time_s)
+
+
+def can_metadata(config: Config, bus: can.BusABC) -> dict[str, str]:
+    """The receive buffer the kernel gave the daemon's CAN socket (SocketCAN), for the log's metadata."""
+    got = receive_buffer_bytes(bus)
+    if got is None:
+        return {}
+    return {"can_receive_buffer_bytes": str(got),
+            "can_receive_buffer_requested_bytes": str(config.can.receive_buffer_bytes)}
 
 
 def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
@@ -80,19 +118,35 @@ async def run_daemon(
     """Acquire until the duration ends, `stop` is set, or SIGINT/SIGTERM; the MCAP log is finished in every case."""
     loop = asyncio.get_running_loop()
     stop = stop or asyncio.Event()
-    sink = McapLogSink(log_path, config, mode="live", metadata=metadata, flush_every_s=1.0)
-    can_source = CanBusSource(bus)
-    # u-blox velocity: the port carries UBX frames among NMEA lines
-    framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
-    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, framer=framer)
+    can_name = f"{config.can.interface}:{config.can.channel}"
+
+    def report(text: str) -> None:  # events between status lines (sys.stdout looked up now: a live view wraps it)
+        print(f"slipdaq: {can_name}: {text}", file=status_stream or sys.stdout, flush=True)
+
+    clock = SteadyClock()  # one clock for both sources and the log: windows never see a host clock step
+    can_meta = can_metadata(config, bus)
+    if can_meta and int(can_meta["can_receive_buffer_bytes"]) < config.can.receive_buffer_bytes:
+        print(f"slipdaq: warning: the CAN socket's receive buffer is {can_meta['can_receive_buffer_bytes']} bytes, "
+              f"can.receive_buffer_bytes asks {config.can.receive_buffer_bytes} (SO_RCVBUFFORCE needs "
+              f"CAP_NET_ADMIN, else net.core.rmem_max caps it): bursts may be dropped", file=sys.stderr, flush=True)
+    # the view's callables are looked up when it draws, after the sources below exist
     status = StatusSink(SourceStatus(
-        can=f"{config.can.interface}:{config.can.channel}",
+        can=can_name,
         gps_port=config.gps.port,
         gps_connected=lambda: gps_source.connected,
-        log_path=str(log_path),
+        log_path=lambda: str(sink.path),
         log_size_bytes=lambda: sink.size_bytes,
         can_reader_errors=lambda: can_source.reader_errors,
+        gps_status=lambda: gps_source.status(),
+        log_status=lambda: sink.log_status(),
     ))
+    sink = _LiveLogSink(log_path, config, can_meta | (metadata or {}), clock=clock, on_event=status.on_source_event)
+    events = EventFanout([sink, status])  # source events -> /diagnostics/events and the view
+    can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events)
+    # u-blox velocity: the port carries UBX frames among NMEA lines
+    framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
+    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events, framer=framer)
+    sink.extra += [can_source.status, gps_source.status]
     pipeline = Pipeline(config, [sink, status])
     installed: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -125,5 +179,5 @@ async def run_daemon(
     d = pipeline.diagnostics()
     return RunResult(
         log_path, d.can_frames, d.nmea_lines, d.estimates, sum(d.lost_frames.values()), d.bad_sentences,
-        loop.time() - started,
+        loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import signal
 import sys
 from collections.abc import Iterator
@@ -59,8 +60,10 @@ def main(argv: list[str] | None = None) -> int:
         assert task is not None
         for sig in (signal.SIGINT, signal.SIGTERM):
             asyncio.get_running_loop().add_signal_handler(sig, task.cancel)
+        events = timed_events(a.log, a.speed)
+        first = next(events, None)  # opened and its first chunk read before play() starts the clock: no late burst
         try:
-            return await play(timed_events(a.log, a.speed), bus=bus, nmea_write=write)
+            return await play(itertools.chain([first] if first else [], events), bus=bus, nmea_write=write)
         except asyncio.CancelledError:
             return -1
 

@@ -119,8 +119,11 @@ LIVE_DIAGNOSTICS: dict[str, Any] = {
     # the log itself (McapLogSink.log_status)
     "log_path": _TEXT, "log_segments": _INT, "log_write_failures": _INT, "log_dropped_messages": _INT,
     "log_error": _TEXT_OR_NULL,
+    # the CAN reader (sources.can_bus.CanBusSource.status)
+    "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
+    "can_last_outage_s": _NUM_OR_NULL,
 }
-"""Keys a live run adds to /diagnostics (besides the CAN reader's), all optional."""
+"""Keys a live run adds to /diagnostics, all optional."""
 SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
 SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
     "time_s": _NUM, "source": {"type": "string", "enum": ["gps", "can", "log", "clock"]}, "event": _TEXT,

@@ -198,6 +198,11 @@ def can_error_text(s: StatusSink) -> str:
     return f" ({', '.join(shown)})" if shown else ""
 
 
+def reader_errors(s: StatusSink) -> str:
+    n = s.sources.can_reader_errors()
+    return f", reader errors {n}" if n else ""
+
+
 def _event_text(ev: SourceEvent) -> str:
     t = time.strftime("%H:%M:%S", time.gmtime(ev.time_s))
     return f"{t} {ev.source} {ev.event}: {ev.detail}"
@@ -215,7 +220,7 @@ def status_line(s: StatusSink, rates: _Rates) -> str:
     return (
         f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'}{gps_gaps(s)}"
         f"{f' [{gps_problem}]' if gps_problem else ''} | slip {slips} | "
-        f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}{can_error_text(s)}) | "
+        f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}{can_error_text(s)}{reader_errors(s)}) | "
         f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)} | "
         f"log {s.sources.log_path_now()} {_size(s.sources.log_size_bytes())}"
         f"{f' [{log_problem}]' if log_problem else ''}"

@@ -2,24 +2,42 @@
 
 A bus with a file descriptor (SocketCAN) is read from the loop itself (loop.add_reader, no thread);
 any other bus is read by one thread that hands frames to the loop in batches and is joined on exit.
-A reader that raises is reported and restarted, never silently stopped.
+A reader that raises is reported and restarted, never silently stopped. A receive error (e.g. ENETDOWN when the
+SocketCAN link goes down) starts an outage, which ends with the next frame received; both are reported (`report`)
+and counted (`status()`, logged with the diagnostics).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import platform
 import socket
+import sys
 import threading
+import time
 from collections.abc import Callable
 
 import can
 
 from slipdaq.records import CanFrame
+from slipdaq.sources.clock import STEP_THRESHOLD_S, SteadyClock
+from slipdaq.sources.events import EventHandler, SourceEvent
 
 log = logging.getLogger(__name__)
 
 BATCH = 256
+"""Most frames read per wake-up of the loop."""
+BATCH_BUDGET_S = 0.01
+"""Longest a wake-up reads frames (SocketCAN) before the loop serves its other readers: the GPS port's lines are
+stamped when they are read, so a CAN backlog being drained must not hold them back (256 frames through the
+pipeline take ~80 ms on a PC, over a second in the emulated test VM)."""
+
+SO_RCVBUFFORCE: int | None = getattr(socket, "SO_RCVBUFFORCE", None) or (
+    33 if sys.platform == "linux" and not platform.machine().startswith(("alpha", "parisc", "sparc")) else None
+)
+"""Python's socket module does not define SO_RCVBUFFORCE (Linux, root or CAP_NET_ADMIN: SO_RCVBUF above
+net.core.rmem_max); 33 is its value in Linux's asm-generic/socket.h, used by every architecture but these three."""
 
 
 def to_frame(msg: can.Message) -> CanFrame:
@@ -31,7 +49,7 @@ def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:
     sock = getattr(bus, "socket", None)
     if not isinstance(sock, socket.socket) or size_bytes <= 0:
         return None
-    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+    for opt in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
         if opt is None:
             continue
         try:
@@ -42,14 +60,65 @@ def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:
     return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
 
 
-class CanBusSource:
-    """Reads a python-can bus until cancelled; `emit` gets each CanFrame on the loop, in arrival order."""
+def receive_buffer_bytes(bus: can.BusABC) -> int | None:
+    """The SO_RCVBUF the kernel holds for a socket-based bus (Linux reports twice the size asked for), else None."""
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    try:
+        return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    except OSError:
+        return None
 
-    def __init__(self, bus: can.BusABC) -> None:
+
+class CanBusSource:
+    """Reads a python-can bus until cancelled; `emit` gets each CanFrame on the loop, in arrival order.
+
+    `report` gets one line when an outage starts (the first receive error after a frame) and one when it ends, on
+    the loop, and `on_event` a SourceEvent ("down", then "up" with the gap); `clock` measures the outage (monotonic
+    seconds). The outage ends with the first frame received after the error: stamped after it (python-can stamps
+    are epoch seconds), or read after the socket was found empty (SocketCAN reports ENETDOWN before the frames still
+    queued from before the link went down).
+
+    `stamp` (the run's SteadyClock) brings the frames' wall-clock stamps (the kernel's receive time on SocketCAN)
+    into the log's clock, which a host clock step does not move; the frames are kept in order (a frame stamped
+    before a step and read after it gets the previous frame's time). Without it the bus's stamps are kept as they are.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        report: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        stamp: SteadyClock | None = None,
+        on_event: EventHandler | None = None,
+    ) -> None:
         self.bus = bus
+        self.stamp = stamp
+        self.on_event = on_event
+        self._last_t = float("-inf")
+        self._wall_offset_s = 0.0
         self.frames = 0
         self.reader_errors = 0
         self.last_error: str | None = None
+        self.outages = 0
+        self.outage_since: float | None = None
+        """clock() at the error that started the current outage; None while frames arrive."""
+        self.last_outage_s: float | None = None
+        """Error to next frame, of the last outage that ended."""
+        self._outage_wall_s = 0.0
+        self._drained = False
+        self._report = report
+        self._clock = clock
+
+    def status(self) -> dict[str, object]:
+        """The reader's state for the diagnostics record."""
+        return {
+            "can_reader_errors": self.reader_errors, "can_outages": self.outages,
+            "can_receiving": self.outage_since is None, "can_last_error": self.last_error,
+            "can_last_outage_s": self.last_outage_s,
+        }
 
     def _fileno(self) -> int | None:
         try:
@@ -65,24 +134,93 @@ class CanBusSource:
         else:
             await self._run_in_thread(emit)
 
+    def _frames(self, msgs: list[can.Message]) -> list[CanFrame]:
+        """The frames of one read, in the log's clock and in order (see the class's docstring)."""
+        st = self.stamp
+        if st is None:
+            return [to_frame(m) for m in msgs]
+        now = st()
+        offset = st.offset_s()  # host wall clock - log clock, read once per batch
+        if abs(offset - self._wall_offset_s) > STEP_THRESHOLD_S:
+            self._wall_offset_s = offset  # the host clock stepped
+        offset = self._wall_offset_s  # else exactly the last step's: the kernel's stamps kept to the ns, not jittered
+        last = self._last_t
+        latest = now + STEP_THRESHOLD_S  # a stamp from before a step back, converted after it, is not in the future
+        out = []
+        for m in msgs:
+            t = m.timestamp - offset
+            t = now if t > latest else t
+            t = last if t < last else t
+            last = t
+            out.append(CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame))
+        self._last_t = last
+        return out
+
+    def _source_event(self, event: str, detail: str, gap_s: float | None = None) -> None:
+        if self.on_event is None:
+            return
+        t = self.stamp() if self.stamp is not None else time.time()
+        try:
+            self.on_event(SourceEvent(t, "can", event, detail, gap_s,
+                                      {"reader_errors": self.reader_errors, "outages": self.outages}))
+        except Exception:  # a sink that fails must not stop the CAN source
+            log.exception("CAN event handler failed")
+
     def _error(self, e: Exception) -> None:
         self.reader_errors += 1
         self.last_error = f"{type(e).__name__}: {e}"
         log.warning("CAN reader error (%s), continuing", self.last_error)
+        self._drained = False
+        if self.outage_since is None:
+            self.outage_since = self._clock()
+            self._outage_wall_s = time.time()
+            self.outages += 1
+            if self._report is not None:
+                self._report(f"CAN receive error ({self.last_error}): no CAN frames until it clears, "
+                             f"logging continues (outage {self.outages})")
+            self._source_event("down", self.last_error)
+        else:
+            self._source_event("reader_error", self.last_error)
+
+    def _during_outage(self, msg: can.Message) -> None:
+        """A frame during an outage: the outage ends if the frame came after the error."""
+        assert self.outage_since is not None
+        if not self._drained and msg.timestamp < self._outage_wall_s:
+            return  # queued before the error
+        self.last_outage_s = self._clock() - self.outage_since
+        self.outage_since = None
+        if self._report is not None:
+            self._report(f"CAN receiving again after {self.last_outage_s:.2f} s "
+                         f"(outage {self.outages}; first frame stamped {msg.timestamp:.6f})")
+        self._source_event("up", f"receiving again (outage {self.outages})", self.last_outage_s)
+
+    def _deliver(self, msgs: list[can.Message], emit: Callable[[CanFrame], None]) -> None:
+        if not msgs:
+            return
+        self.frames += len(msgs)
+        for f in self._frames(msgs):
+            emit(f)
 
     async def _run_on_loop(self, fd: int, emit: Callable[[CanFrame], None]) -> None:
         loop = asyncio.get_running_loop()
 
         def readable() -> None:
+            deadline = time.monotonic() + BATCH_BUDGET_S
+            msgs: list[can.Message] = []
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
-                        return
-                    self.frames += 1
-                    emit(to_frame(msg))
-            except can.CanError as e:
+                        self._drained = True
+                        break
+                    if self.outage_since is not None:
+                        self._during_outage(msg)
+                    msgs.append(msg)
+                    if time.monotonic() > deadline:
+                        break  # the rest on the next wake-up (level-triggered: the socket is still readable)
+            except Exception as e:  # any error: counted, the frames read before it delivered, reading goes on
                 self._error(e)
+            self._deliver(msgs, emit)
 
         loop.add_reader(fd, readable)
         try:
@@ -96,21 +234,28 @@ class CanBusSource:
 
         def deliver(batch: list[can.Message]) -> None:
             for msg in batch:
-                self.frames += 1
-                emit(to_frame(msg))
+                if self.outage_since is not None:
+                    self._during_outage(msg)
+            self._deliver(batch, emit)
 
         def reader() -> None:
             while not stop.is_set():
+                batch: list[can.Message] = []
+                error: Exception | None = None
                 try:
                     msg = self.bus.recv(timeout=0.05)
                     if msg is None:
+                        self._drained = True
                         continue
-                    batch = [msg]
+                    batch.append(msg)
                     while len(batch) < BATCH and (msg := self.bus.recv(timeout=0)) is not None:
                         batch.append(msg)
-                    loop.call_soon_threadsafe(deliver, batch)
                 except Exception as e:  # keep reading: a raising reader must not stop the source
-                    loop.call_soon_threadsafe(self._error, e)
+                    error = e
+                if batch:  # what was read before an error is delivered, in order, before the error
+                    loop.call_soon_threadsafe(deliver, batch)
+                if error is not None:
+                    loop.call_soon_threadsafe(self._error, error)
                     stop.wait(0.1)
 
         thread = threading.Thread(target=reader, name="slipdaq-can-reader", daemon=True)
