@@ -463,3 +463,41 @@ def test_play_retries_writes_that_would_block(cfg: Config) -> None:
     lines = [e.record.line for e in generate(cfg, "cycle", "paved", settings, 0.6) if isinstance(e.record, NmeaLine)]
     assert would_block > 0
     assert received.decode("ascii").split("\r\n")[:-1] == lines
+
+
+class _LinkDownBus(can.BusABC):
+    """A virtual bus whose link is down for frames 10-19: send raises ENETDOWN there, as SocketCAN does."""
+
+    def __init__(self, channel: str) -> None:
+        self.inner = can.Bus(interface="virtual", channel=channel)
+        self.calls = 0
+        super().__init__(channel)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.calls += 1
+        if 10 <= self.calls < 20:
+            raise can.CanOperationError("Failed to transmit: Network is down", error_code=100)
+        self.inner.send(msg)
+
+    def _recv_internal(self, timeout):  # type: ignore[no-untyped-def]
+        return None, False
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+        super().shutdown()
+
+
+def test_play_goes_on_when_the_link_is_down() -> None:
+    """Frames the bus refuses (link down) go to on_refused at once, without the 0.5 s retry, and the rest are sent."""
+    channel = f"slipdaq-linkdown-{os.getpid()}"
+    events = [SimEvent(0.0, CanFrame(0.0, 0x310, bytes(8)), None) for _ in range(30)]
+    refused: list[can.CanError] = []
+    with _LinkDownBus(channel) as bus, can.Bus(interface="virtual", channel=channel) as rx:
+        sent = asyncio.run(play(iter(events), bus=bus, nmea_write=lambda b: len(b), on_refused=refused.append))
+        got = 0
+        while rx.recv(timeout=0.1) is not None:
+            got += 1
+    assert sent == got == 20 and len(refused) == 10
+    assert all(getattr(e, "error_code", None) == 100 for e in refused)
+    with _LinkDownBus(channel + "-b") as bus, pytest.raises(can.CanOperationError):
+        asyncio.run(play(iter(events), bus=bus, nmea_write=lambda b: len(b)))  # without on_refused: raised

@@ -81,7 +81,6 @@ def serial_writer(port: str, baudrate: int) -> tuple[Callable[[bytes], object], 
 
 
 def run_simulate(cfg: Config, opts: SimOptions, out=sys.stdout) -> int:
-    settings = replace(opts.settings, start_utc_s=time.time())
     pty_gps: PtyGps | None = None
     if opts.gps_port:
         write, close = serial_writer(opts.gps_port, cfg.gps.baudrate)
@@ -92,16 +91,34 @@ def run_simulate(cfg: Config, opts: SimOptions, out=sys.stdout) -> int:
         where = pty_gps.path + (f" (linked at {opts.gps_link})" if opts.gps_link else "")
     print(f"simulate: {opts.scenario} on {opts.road}; WPT frames on {cfg.can.interface}:{cfg.can.channel}, "
           f"NMEA on {where}", file=out, flush=True)
+    refused = Refused(out)
     try:
         with open_bus(cfg) as bus:
-            frames = asyncio.run(_play(cfg, opts, settings, bus, write))
+            # the drive's UTC starts now, after the bus is open: the NMEA's UTC is its send time (GPS latency 0)
+            settings = replace(opts.settings, start_utc_s=time.time())
+            frames = asyncio.run(_play(cfg, opts, settings, bus, write, refused))
     finally:
         close()
-    print(f"simulate: sent {frames} CAN frames", file=out, flush=True)
+    print(f"simulate: sent {frames} CAN frames" + (f", {refused.count} refused by the bus" if refused.count else ""),
+          file=out, flush=True)
     return 0
 
 
-async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write) -> int:  # type: ignore[no-untyped-def]
+class Refused:
+    """Counts the frames the bus refused (its link down); the first refusal is printed."""
+
+    def __init__(self, out) -> None:  # type: ignore[no-untyped-def]
+        self.out = out
+        self.count = 0
+
+    def __call__(self, e: Exception) -> None:
+        self.count += 1
+        if self.count == 1:
+            print(f"simulate: the bus refused a frame ({e}); going on, refused frames are counted",
+                  file=self.out, flush=True)
+
+
+async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write, on_refused) -> int:  # type: ignore[no-untyped-def]
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     assert task is not None
@@ -111,7 +128,7 @@ async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write
     sent = 0
     try:
         sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s,
-                          start_wall_s=settings.start_utc_s)
+                          start_wall_s=settings.start_utc_s, on_refused=on_refused)
     except asyncio.CancelledError:
         pass
     return sent

@@ -7,6 +7,7 @@ sent without sleeping, so 400+ frames/s do not cost one sleep each.
 from __future__ import annotations
 
 import asyncio
+import errno
 import time
 from collections.abc import Callable, Iterator
 
@@ -24,6 +25,8 @@ RETRY_S = 0.001
 """Pause before retrying a write that would block (EAGAIN) or a full CAN transmit queue."""
 CAN_RETRY_LIMIT_S = 0.5
 """How long a full CAN transmit queue is retried before its error is raised."""
+LINK_DOWN_ERRNOS = (errno.ENETDOWN, errno.ENODEV, errno.ENXIO)
+"""Send errors that retrying cannot cure (the interface is down or gone): raised at once."""
 
 
 async def _write_line(nmea_write: Callable[[bytes], object], data: bytes) -> None:
@@ -51,8 +54,8 @@ async def _send_frame(bus: can.BusABC, frame: CanFrame, timestamp_s: float = 0.0
         try:
             bus.send(msg)
             return
-        except can.CanOperationError:
-            if waited_s >= CAN_RETRY_LIMIT_S:
+        except can.CanOperationError as e:
+            if waited_s >= CAN_RETRY_LIMIT_S or getattr(e, "error_code", None) in LINK_DOWN_ERRNOS:
                 raise
             await asyncio.sleep(RETRY_S)
             waited_s += RETRY_S
@@ -67,6 +70,7 @@ async def play(
     on_truth: Callable[[TruthSample], None] | None = None,
     start_wall_s: float | None = None,
     stamp_frames: bool = False,
+    on_refused: Callable[[can.CanError], None] | None = None,
 ) -> int:
     """Send each event at its time_s after the start; stop at duration_s (sim time) or when events run out.
 
@@ -75,6 +79,8 @@ async def play(
     stamp_frames (with start_wall_s) gives each CAN message its nominal wall-clock time as its timestamp, as a CAN
     adapter's hardware timestamp would; a bus that keeps it (python-can's virtual bus with preserve_timestamps=True)
     then carries it to the reader however late the event loop sends it.
+    on_refused: a frame the bus refuses (link down, transmit queue full for CAN_RETRY_LIMIT_S) goes to it and the
+    play goes on; without it the error is raised.
     """
     loop = asyncio.get_running_loop()
     start = loop.time()
@@ -97,7 +103,13 @@ async def play(
         record = event.record
         if isinstance(record, CanFrame):
             stamp = start_wall_s + event.time_s if stamp_frames and start_wall_s is not None else 0.0
-            await _send_frame(bus, record, stamp)
+            try:
+                await _send_frame(bus, record, stamp)
+            except can.CanOperationError as e:
+                if on_refused is None:
+                    raise
+                on_refused(e)
+                continue
             frames_sent += 1
         elif isinstance(record, NmeaLine):
             await _write_line(nmea_write, (record.line + "\r\n").encode("ascii"))
