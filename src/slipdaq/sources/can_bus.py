@@ -134,27 +134,28 @@ class CanBusSource:
         else:
             await self._run_in_thread(emit)
 
-    def _frames(self, msgs: list[can.Message]) -> list[CanFrame]:
-        """The frames of one read, in the log's clock and in order (see the class's docstring)."""
+    def _stamper(self) -> Callable[[can.Message], CanFrame]:
+        """msg -> CanFrame in the log's clock, in order (see the class's docstring); made once per read."""
         st = self.stamp
         if st is None:
-            return [to_frame(m) for m in msgs]
+            return to_frame
         now = st()
-        offset = st.offset_s()  # host wall clock - log clock, read once per batch
+        offset = st.offset_s()  # host wall clock - log clock
         if abs(offset - self._wall_offset_s) > STEP_THRESHOLD_S:
             self._wall_offset_s = offset  # the host clock stepped
         offset = self._wall_offset_s  # else exactly the last step's: the kernel's stamps kept to the ns, not jittered
-        last = self._last_t
         latest = now + STEP_THRESHOLD_S  # a stamp from before a step back, converted after it, is not in the future
-        out = []
-        for m in msgs:
+
+        def frame(m: can.Message) -> CanFrame:
             t = m.timestamp - offset
-            t = now if t > latest else t
-            t = last if t < last else t
-            last = t
-            out.append(CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame))
-        self._last_t = last
-        return out
+            if t > latest:
+                t = now
+            if t < self._last_t:
+                t = self._last_t
+            self._last_t = t
+            return CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
+
+        return frame
 
     def _source_event(self, event: str, detail: str, gap_s: float | None = None) -> None:
         if self.on_event is None:
@@ -195,32 +196,31 @@ class CanBusSource:
         self._source_event("up", f"receiving again (outage {self.outages})", self.last_outage_s)
 
     def _deliver(self, msgs: list[can.Message], emit: Callable[[CanFrame], None]) -> None:
-        if not msgs:
-            return
         self.frames += len(msgs)
-        for f in self._frames(msgs):
-            emit(f)
+        stamp = self._stamper()
+        for m in msgs:
+            emit(stamp(m))
 
     async def _run_on_loop(self, fd: int, emit: Callable[[CanFrame], None]) -> None:
         loop = asyncio.get_running_loop()
 
         def readable() -> None:
             deadline = time.monotonic() + BATCH_BUDGET_S
-            msgs: list[can.Message] = []
+            stamp = self._stamper()
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
                         self._drained = True
-                        break
+                        return
                     if self.outage_since is not None:
                         self._during_outage(msg)
-                    msgs.append(msg)
+                    self.frames += 1
+                    emit(stamp(msg))
                     if time.monotonic() > deadline:
-                        break  # the rest on the next wake-up (level-triggered: the socket is still readable)
-            except Exception as e:  # any error: counted, the frames read before it delivered, reading goes on
+                        return  # the rest on the next wake-up (level-triggered: the socket is still readable)
+            except Exception as e:  # any error: counted, reading goes on (the frames before it are delivered)
                 self._error(e)
-            self._deliver(msgs, emit)
 
         loop.add_reader(fd, readable)
         try:
