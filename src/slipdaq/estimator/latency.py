@@ -33,28 +33,60 @@ class LatencyEstimate:
 
 class UtcLatency:
     """Median of (arrival - fix UTC) over the last fixes; plausible only when from -20 ms (taken as 0) to
-    max_latency_s, and steady (median absolute deviation <= 20 ms)."""
+    max_latency_s, and steady (median absolute deviation <= 20 ms).
+
+    Both medians are kept until the next add (they are asked for several times per fix) and taken on Python floats,
+    which gives the float64 result np.median gives (the middle value, or the mean of the two middle values).
+    """
 
     def __init__(self, max_latency_s: float, history: int = 50) -> None:
         self.max_latency_s = max_latency_s
         self._d: deque[float] = deque(maxlen=history)
+        self._offset_s: float | None = None
+        self._estimate_s: float | None = None
+        self._fresh = True  # the cached medians are those of _d
 
     def add(self, arrival_s: float, fix_utc_s: float | None) -> None:
         if fix_utc_s is not None:
             self._d.append(arrival_s - fix_utc_s)
+            self._fresh = False
 
     def offset_s(self) -> float | None:
         """Median of (arrival - fix UTC): host clock minus UTC plus latency, whatever the host clock."""
-        return float(np.median(np.fromiter(self._d, float))) if self._d else None
+        if not self._fresh:
+            self._update()
+        return self._offset_s
 
     def estimate(self) -> float | None:
-        if len(self._d) < 5:
-            return None
-        d = np.fromiter(self._d, float)
-        med = float(np.median(d))
-        spread = float(np.median(np.abs(d - med)))
+        if not self._fresh:
+            self._update()
+        return self._estimate_s
+
+    def _update(self) -> None:
+        self._fresh = True
+        d = [float(x) for x in self._d]
+        if not d:
+            self._offset_s = self._estimate_s = None
+            return
+        med = _median(d)
+        self._offset_s = med
+        if len(d) < 5:
+            self._estimate_s = None
+            return
+        spread = _median([abs(x - med) for x in d])
         # a few ms below 0 is rounding (NMEA times to 0.01 s) or clock jitter around a latency near 0
-        return max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+        self._estimate_s = max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+
+
+def _median(values: list[float]) -> float:
+    """np.median of a non-empty list of floats, bit for bit (NaN in, NaN out)."""
+    total = sum(values)
+    if total != total and any(x != x for x in values):
+        return math.nan  # sorted() does not order NaN; np.median gives NaN
+    s = sorted(values)
+    h = len(s) // 2
+    # np.median is the mean of the middle value(s), a sum that starts from 0.0 (so -0.0 comes out as 0.0)
+    return 0.0 + s[h] if len(s) % 2 else (0.0 + s[h - 1] + s[h]) / 2.0
 
 
 MIN_INFORMATIVE_ROWS = 20
