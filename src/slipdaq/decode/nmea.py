@@ -39,6 +39,7 @@ import datetime as dt
 import math
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import pynmea2
 
@@ -129,6 +130,7 @@ def _int(text: str) -> int | None:
     return int(text) if text.isascii() and text.isdigit() else None
 
 
+@lru_cache(maxsize=64)  # RMC and GGA of one epoch carry the same time, every RMC the same date
 def _tod(text: str) -> float | None:
     """`hhmmss[.sss]` -> seconds of the UTC day, rounded to the microsecond."""
     m = _TOD_RE.fullmatch(text)
@@ -140,6 +142,7 @@ def _tod(text: str) -> float | None:
     return round(h * 3600 + mi * 60 + s, 6)
 
 
+@lru_cache(maxsize=64)
 def _ddmmyy(text: str) -> dt.date | None:
     if len(text) != 6 or not (text.isascii() and text.isdigit()):
         return None

@@ -33,6 +33,11 @@ from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
 
+try:  # np.interp's compiled core: what np.interp calls for real values, without its checks of the arguments' types
+    from numpy._core.multiarray import interp as _interp
+except ImportError:  # another numpy layout: np.interp itself
+    _interp = np.interp
+
 TWO_PI = 2.0 * math.pi
 G_MPS2 = 9.81
 WHEEL_ONLY_STEP_S = 0.1
@@ -341,9 +346,8 @@ class SlipEstimator:
         ring = self._wheels[w]
         if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
             return None
-        times, revs = ring.times, ring.values
-        j0, j1 = np.searchsorted(times, (t0, t1), side="right").tolist()
-        return TWO_PI * (_interp_at(t1, j1 - 1, times, revs) - _interp_at(t0, j0 - 1, times, revs))
+        rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
+        return TWO_PI * (rev1 - rev0)
 
     def _grade_sin(self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float) -> float:
         """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
@@ -380,17 +384,25 @@ class SlipEstimator:
         )
 
     def _r0(self, w: str) -> tuple[float, str]:
+        return self._r0_all()[w]
+
+    def _r0_all(self) -> dict[str, tuple[float, str]]:
+        """(r0, source) per wheel: its calibration when usable, else the usable ones' mean, else the reference."""
         p = self.p
         base = "configured" if p.r_ref_configured else "tire_size"
         if not p.calibrate_r0:
-            return p.r_ref_m, base
-        cal = self._radius[w]
-        if cal.radius_m is not None and cal.usable:
-            return cal.radius_m, "calibrated" if cal.converged else "calibrating"
-        others = [c.radius_m for c in self._radius.values() if c.radius_m is not None and c.usable]
-        if others:
-            return sum(others) / len(others), "other_wheels"
-        return p.r_ref_m, base
+            return {w: (p.r_ref_m, base) for w in self._radius}
+        usable = {}  # wheel -> (radius, converged) of the usable calibrations, in wheel order
+        for w, cal in self._radius.items():
+            radius = cal.radius_m
+            if radius is not None and cal.usable:
+                usable[w] = (radius, cal.converged)
+        others = [r for r, _ in usable.values()]
+        fallback = (sum(others) / len(others), "other_wheels") if others else (p.r_ref_m, base)
+        return {
+            w: ((u[0], "calibrated" if u[1] else "calibrating") if (u := usable.get(w)) is not None else fallback)
+            for w in self._radius
+        }
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""
@@ -402,13 +414,19 @@ class SlipEstimator:
         refs = self._reference or WHEELS
         lag = self._lag
         times = arrival_s - lag.taus_s
-        arcs = np.zeros_like(times)
+        first_needed_s = (arrival_s - lag.max_tau_s) - 0.5  # = times[-1] - 0.5
+        arcs: np.ndarray | None = None
         for w in refs:
             ring = self._wheels[w]
-            if len(ring) < 2 or ring.first_time > times[-1] - 0.5:
+            if len(ring) < 2 or ring.first_time > first_needed_s:
                 self._lag_prev = None
                 return
-            arcs += np.interp(times, ring.times, ring.values)
+            revs = _interp(times, ring.times, ring.values)
+            if arcs is None:
+                arcs = revs + 0.0  # as zeros + revs
+            else:
+                arcs += revs
+        assert arcs is not None
         arcs *= TWO_PI / len(refs)
         prev, self._lag_prev = self._lag_prev, (arrival_s, speed_mps, arcs)
         if prev is None or accel is None:
@@ -432,7 +450,7 @@ class SlipEstimator:
     def _estimate(self, arrival_s: float, lat: LatencyEstimate) -> Estimate:
         p = self.p
         smooth = self._smooth_arrivals()
-        i = int(np.searchsorted(self._gps.times, arrival_s))
+        i = int(self._gps.times.searchsorted(arrival_s))
         latency_s = lat.latency_s
         fix_times, speeds = (smooth - latency_s).tolist(), self._gps.values.tolist()
         t_c = fix_times[i]
@@ -456,7 +474,7 @@ class SlipEstimator:
                 arc = arcs[w]
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
                     self._radius[w].add(d_gps, arc, weight)
-        r0 = {w: self._r0(w) for w in WHEELS}
+        r0 = self._r0_all()
         wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight) for w in WHEELS}
         wheels = self._with_reference_slip(wheels, arcs, r0)
         self._last_center_s = t_c
@@ -541,7 +559,7 @@ class SlipEstimator:
         p = self.p
         half = 0.5 * p.window_s
         refs = self._reference or WHEELS
-        r0 = {w: self._r0(w) for w in WHEELS}
+        r0 = self._r0_all()
 
         def ref_distance(a: float, b: float) -> float | None:
             ds = [r0[w][0] * arc for w in refs if (arc := self._arc_m(w, a, b)) is not None]
