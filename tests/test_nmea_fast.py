@@ -143,8 +143,8 @@ def test_generated_sentences_make_fixes() -> None:
     assert sum(fixes) > 50
 
 
-@given(st.lists(FIELD, max_size=16), TALKERS.filter(lambda t: t[0] not in "Pp"), TYPES.filter(lambda t: t[2] not in "Qq"),
-       st.booleans())
+@given(st.lists(FIELD, max_size=16), TALKERS.filter(lambda t: t[0] not in "Pp"),
+       TYPES.filter(lambda t: t[2] not in "Qq"), st.booleans())
 def test_plain_sentences_take_the_fast_path(fields: list[str], talker: str, kind: str, lower: bool) -> None:
     """A sentence in the plain form is decided by the fast path (so the comparisons above test it)."""
     body = f"{talker}{kind}," + ",".join(fields)

@@ -183,7 +183,9 @@ class _Gga:
 
 # ---- the fast path: what pynmea2.parse(line, check=True) gives for a talker sentence in the plain form ----
 
-_PLAIN_RE = re.compile(r"\$([A-OQ-Za-oq-z0-9_][A-Za-z0-9_])([A-Za-z0-9_]{2}[A-PR-Za-pr-z0-9_]),([^*]*)\*([0-9A-Fa-f]{2})")
+_PLAIN_RE = re.compile(
+    r"\$([A-OQ-Za-oq-z0-9_][A-Za-z0-9_])([A-Za-z0-9_]{2}[A-PR-Za-pr-z0-9_]),([^*]*)\*([0-9A-Fa-f]{2})"
+)
 """`$` + talker (not P..., pynmea2's proprietary form) + type (not ..Q, its query form) + `,` data `*HH`."""
 _PLAIN_TALKER_TYPES = frozenset(
     name for name, cls in pynmea2.TalkerSentence.sentence_types.items()
@@ -309,7 +311,9 @@ class NmeaDecoder:
             return msg  # type: ignore[return-value]
         return None
 
-    def _dispatch(self, msg: tuple[str, str, list[str]] | pynmea2.NMEASentence | str, timestamp_s: float) -> GpsFix | None:
+    def _dispatch(
+        self, msg: tuple[str, str, list[str]] | pynmea2.NMEASentence | str, timestamp_s: float,
+    ) -> GpsFix | None:
         if type(msg) is tuple:
             talker, kind, data = msg
         elif isinstance(msg, pynmea2.TalkerSentence):

@@ -114,7 +114,11 @@ def slip_from_distances(d_wpt_m: float, d_gps_m: float) -> float:
 
 def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1: float) -> float:
     """Integral of the piecewise-linear speed over [t0, t1] (trapezoids on the fixes plus both ends)."""
-    return _integrate_speed_m(np.asarray(times_s, float).tolist(), np.asarray(speeds_mps, float).tolist(), t0, t1)
+    i0 = int(np.searchsorted(times_s, t0, side="right"))
+    i1 = int(np.searchsorted(times_s, t1, side="left"))
+    t = np.concatenate(([t0], times_s[i0:i1], [t1]))
+    v = np.interp(t, times_s, speeds_mps)
+    return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
 
 
 # ---- numpy's results on Python floats: the per-epoch maths works on a few values, where numpy's call overhead is
@@ -178,8 +182,10 @@ def _np_sum(a: Sequence[float]) -> float:
     return 0.0 + res
 
 
-def _integrate_speed_m(times_s: list[float], speeds_mps: list[float], t0: float, t1: float) -> float:
-    """integrate_speed_m on lists."""
+def _integrate_speed_m(times_s: list[float], speeds_mps: list[float], t0: float, t1: float, ordered: bool) -> float:
+    """integrate_speed_m on lists; ordered: times_s is non-decreasing (else np.interp's search decides: numpy)."""
+    if not ordered:
+        return integrate_speed_m(np.array(times_s), np.array(speeds_mps), t0, t1)
     i0 = bisect_right(times_s, t0)
     i1 = bisect_left(times_s, t1)
     t = [t0, *times_s[i0:i1], t1]
@@ -349,7 +355,9 @@ class SlipEstimator:
         rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
         return TWO_PI * (rev1 - rev0)
 
-    def _grade_sin(self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float) -> float:
+    def _grade_sin(
+        self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float, ordered: bool = True,
+    ) -> float:
         """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
         if not self.p.grade_from_altitude or len(self._alt) < 2:
             return 0.0
@@ -358,7 +366,7 @@ class SlipEstimator:
         if alt_t[0] > t_a or alt_t[-1] < t_c or not self._gps_covers(fix_times, t_a, t_c):
             return 0.0
         climb = float(np.interp(t_c, alt_t, self._alt.values) - np.interp(t_a, alt_t, self._alt.values))
-        dist = _integrate_speed_m(fix_times, speeds, t_a, t_c)
+        dist = _integrate_speed_m(fix_times, speeds, t_a, t_c, ordered)
         return max(-0.3, min(0.3, climb / dist)) if dist > 5.0 else 0.0
 
     def _weight(self, fix_times: list[float], t0: float, t1: float) -> float:
@@ -452,18 +460,21 @@ class SlipEstimator:
         smooth = self._smooth_arrivals()
         i = int(self._gps.times.searchsorted(arrival_s))
         latency_s = lat.latency_s
-        fix_times, speeds = (smooth - latency_s).tolist(), self._gps.values.tolist()
+        fix_arr = smooth - latency_s
+        ordered = bool((fix_arr[1:] >= fix_arr[:-1]).all())  # False too with NaN
+        fix_times, speeds = fix_arr.tolist(), self._gps.values.tolist()
         t_c = fix_times[i]
         t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
         speed_c = speeds[i]
         accel = self._accel(fix_times, speeds, t_c)
         if p.gps_latency_s is None:
             self._update_lag(float(smooth[i]), speed_c, accel)
-        d_gps = _integrate_speed_m(fix_times, speeds, t0, t1) if self._gps_covers(fix_times, t0, t1) else None
+        covered = self._gps_covers(fix_times, t0, t1)
+        d_gps = _integrate_speed_m(fix_times, speeds, t0, t1, ordered) if covered else None
         speed = d_gps / p.window_s if d_gps is not None else speed_c
         force = None
         if accel is not None:
-            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s))
+            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s, ordered))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
         arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
         weight = self._weight(fix_times, t0, t1)
