@@ -28,15 +28,18 @@ tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
   in an RMC or ZDA, carried across midnight (of the day before, the same day or the day after, the one whose time is
   nearest the time that date was seen at); with no date known yet it is None. VTG fixes have no time (None). Dates are
   taken as sent: no GPS week-rollover correction (gpsd applies one; see rst39 in tests/test_nmea_receivers.py).
+- Speed of decoding: a talker sentence in the plain form (`$` + 5 ASCII word characters + `,` ... `*HH`) is split and
+  its checksum checked here; anything else goes through pynmea2. Both give the same result for every line
+  (tests/test_nmea_fast.py compares them).
 """
 
 from __future__ import annotations
 
-import calendar
 import datetime as dt
 import math
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import pynmea2
 
@@ -127,6 +130,7 @@ def _int(text: str) -> int | None:
     return int(text) if text.isascii() and text.isdigit() else None
 
 
+@lru_cache(maxsize=64)  # RMC and GGA of one epoch carry the same time, every RMC the same date
 def _tod(text: str) -> float | None:
     """`hhmmss[.sss]` -> seconds of the UTC day, rounded to the microsecond."""
     m = _TOD_RE.fullmatch(text)
@@ -138,11 +142,13 @@ def _tod(text: str) -> float | None:
     return round(h * 3600 + mi * 60 + s, 6)
 
 
+@lru_cache(maxsize=64)
 def _ddmmyy(text: str) -> dt.date | None:
     if len(text) != 6 or not (text.isascii() and text.isdigit()):
         return None
-    try:
-        return dt.datetime.strptime(text, "%d%m%y").date()  # 69-99 -> 19xx, 00-68 -> 20xx
+    yy = int(text[4:])
+    try:  # as strptime's %d%m%y: 69-99 -> 19xx, 00-68 -> 20xx
+        return dt.date(1900 + yy if yy >= 69 else 2000 + yy, int(text[2:4]), int(text[:2]))
     except ValueError:
         return None
 
@@ -159,8 +165,11 @@ def _degrees(value: str, hemisphere: str, limit: float) -> float | None:
     return -deg if hemisphere.upper() in ("S", "W") else deg
 
 
+_EPOCH_ORDINAL = dt.date(1970, 1, 1).toordinal()
+
+
 def _utc(date: dt.date, tod: float) -> float:
-    return calendar.timegm(date.timetuple()) + tod
+    return (date.toordinal() - _EPOCH_ORDINAL) * 86400 + tod  # = calendar.timegm(date.timetuple()) + tod
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,6 +179,51 @@ class _Gga:
     quality: int | None
     satellites: int | None
     altitude_m: float | None
+
+
+# ---- the fast path: what pynmea2.parse(line, check=True) gives for a talker sentence in the plain form ----
+
+_PLAIN_RE = re.compile(
+    r"\$([A-OQ-Za-oq-z0-9_][A-Za-z0-9_])([A-Za-z0-9_]{2}[A-PR-Za-pr-z0-9_]),([^*]*)\*([0-9A-Fa-f]{2})"
+)
+"""`$` + talker (not P..., pynmea2's proprietary form) + type (not ..Q, its query form) + `,` data `*HH`."""
+_PLAIN_TALKER_TYPES = frozenset(
+    name for name, cls in pynmea2.TalkerSentence.sentence_types.items()
+    if cls.__init__ is pynmea2.TalkerSentence.__init__
+)
+"""Types pynmea2 builds without a constructor of their own (every one today): a checked sentence is that object."""
+_BAD = object()
+_UNKNOWN = "unknown"
+
+
+def _xor_checksum(text: str) -> int:
+    """XOR of the characters' code points, as pynmea2 computes the checksum."""
+    if not text.isascii():
+        x = 0
+        for ch in text:
+            x ^= ord(ch)
+        return x
+    x = int.from_bytes(text.encode("ascii"), "little")
+    k, bits = 8, 8 * len(text)
+    while k < bits:  # fold: byte 0 becomes the XOR of all bytes
+        x ^= x >> k
+        k <<= 1
+    return x & 0xFF
+
+
+def _parse_plain(candidate: str) -> tuple[str, str, list[str]] | str | object | None:
+    """(talker, type, fields), _UNKNOWN or _BAD as pynmea2 would decide; None when this form is not handled here."""
+    m = _PLAIN_RE.fullmatch(candidate)
+    if m is None:
+        return None
+    if _xor_checksum(candidate[1:-3]) != int(m[4], 16):
+        return _BAD  # pynmea2: ChecksumError
+    kind = m[2].upper()
+    if kind in _PLAIN_TALKER_TYPES:
+        return m[1].upper(), kind, m[3].split(",")
+    if kind in pynmea2.TalkerSentence.sentence_types:
+        return None  # a type with its own constructor (none today): pynmea2 decides
+    return _UNKNOWN  # pynmea2: SentenceTypeError
 
 
 _INVALID_GGA_QUALITY = (0, 6)  # 0 = no fix, 6 = estimated (dead reckoning)
@@ -188,7 +242,9 @@ class NmeaDecoder:
     VTG_ONLY_AFTER_S = 1.5
     """VTG gives the speed only when no RMC has come for this long (no double counting)."""
 
-    def __init__(self) -> None:
+    def __init__(self, fast_path: bool = True) -> None:
+        """fast_path=False sends every sentence through pynmea2 (the reference the fast path is tested against)."""
+        self._fast_path = fast_path
         self.lines = 0
         self.sentences = 0
         self.bad_sentences = 0
@@ -233,30 +289,40 @@ class NmeaDecoder:
             self.bad_sentences += 1
             return None
 
-    def _parse(self, text: str) -> pynmea2.NMEASentence | str | None:
-        """The sentence, "unknown" for a good sentence of a type pynmea2 does not know, or None when bad."""
+    def _parse(self, text: str) -> tuple[str, str, list[str]] | pynmea2.NMEASentence | str | None:
+        """(talker, type, fields) or the pynmea2 sentence; "unknown" for a good sentence of a type pynmea2 does not
+        know; None when bad."""
         candidates = [text]
         cut = text.rfind("$")
         if cut > 0:  # noise before the sentence, or a sentence whose line end was lost
             candidates.append(text[cut:])
         for i, candidate in enumerate(candidates):
-            try:
-                msg = pynmea2.parse(candidate, check=True)
-            except pynmea2.SentenceTypeError:  # checksum was good (checked first), the type is unknown to pynmea2
-                msg = "unknown"
-            except Exception:  # pynmea2 raises ParseError/ChecksumError, and odd ones on odd input
+            msg = _parse_plain(candidate) if self._fast_path else None
+            if msg is _BAD:
                 continue
+            if msg is None:
+                try:
+                    msg = pynmea2.parse(candidate, check=True)
+                except pynmea2.SentenceTypeError:  # checksum was good (checked first), the type is unknown to pynmea2
+                    msg = _UNKNOWN
+                except Exception:  # pynmea2 raises ParseError/ChecksumError, and odd ones on odd input
+                    continue
             self.resynced_lines += i > 0
-            return msg
+            return msg  # type: ignore[return-value]
         return None
 
-    def _dispatch(self, msg: pynmea2.NMEASentence | str, timestamp_s: float) -> GpsFix | None:
-        if not isinstance(msg, pynmea2.TalkerSentence):
+    def _dispatch(
+        self, msg: tuple[str, str, list[str]] | pynmea2.NMEASentence | str, timestamp_s: float,
+    ) -> GpsFix | None:
+        if type(msg) is tuple:
+            talker, kind, data = msg
+        elif isinstance(msg, pynmea2.TalkerSentence):
+            kind = str(getattr(msg, "sentence_type", "")).upper()
+            talker = str(getattr(msg, "talker", "")).upper()
+            data = [str(x) for x in msg.data]
+        else:
             self.unused_sentences += 1
             return None
-        kind = str(getattr(msg, "sentence_type", "")).upper()
-        talker = str(getattr(msg, "talker", "")).upper()
-        data = [str(x) for x in msg.data]
         if kind == "RMC":
             return self._rmc(talker, data, timestamp_s)
         if kind == "VTG":

@@ -15,6 +15,7 @@ really on UTC).
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, insort
 from collections import deque
 from dataclasses import dataclass
 
@@ -33,28 +34,91 @@ class LatencyEstimate:
 
 class UtcLatency:
     """Median of (arrival - fix UTC) over the last fixes; plausible only when from -20 ms (taken as 0) to
-    max_latency_s, and steady (median absolute deviation <= 20 ms)."""
+    max_latency_s, and steady (median absolute deviation <= 20 ms).
+
+    The values are also kept sorted (NaN counted apart), so the medians cost a few steps per fix, and are kept until
+    the next add; they are the float64 results np.median gives (the middle value, or the mean of the middle two).
+    """
 
     def __init__(self, max_latency_s: float, history: int = 50) -> None:
         self.max_latency_s = max_latency_s
         self._d: deque[float] = deque(maxlen=history)
+        self._sorted: list[float] = []  # the values of _d but NaN, in order
+        self._nans = 0
+        self._offset_s: float | None = None
+        self._estimate_s: float | None = None
+        self._fresh = True  # the cached medians are those of _d
 
     def add(self, arrival_s: float, fix_utc_s: float | None) -> None:
-        if fix_utc_s is not None:
-            self._d.append(arrival_s - fix_utc_s)
+        if fix_utc_s is None:
+            return
+        x = float(arrival_s - fix_utc_s)
+        d = self._d
+        if d.maxlen is not None and len(d) == d.maxlen:
+            if not d:
+                return
+            old = d[0]
+            if old != old:
+                self._nans -= 1
+            else:
+                del self._sorted[bisect_left(self._sorted, old)]
+        d.append(x)
+        if x != x:
+            self._nans += 1
+        else:
+            insort(self._sorted, x)
+        self._fresh = False
 
     def offset_s(self) -> float | None:
         """Median of (arrival - fix UTC): host clock minus UTC plus latency, whatever the host clock."""
-        return float(np.median(np.fromiter(self._d, float))) if self._d else None
+        if not self._fresh:
+            self._update()
+        return self._offset_s
 
     def estimate(self) -> float | None:
+        if not self._fresh:
+            self._update()
+        return self._estimate_s
+
+    def _update(self) -> None:
+        self._fresh = True
+        s = self._sorted
+        if not self._d:
+            self._offset_s = self._estimate_s = None
+            return
+        med = math.nan if self._nans else _median_sorted(s)
+        self._offset_s = med
         if len(self._d) < 5:
-            return None
-        d = np.fromiter(self._d, float)
-        med = float(np.median(d))
-        spread = float(np.median(np.abs(d - med)))
+            self._estimate_s = None
+            return
+        spread = math.nan if self._nans else _median_abs_deviation(s, med)
         # a few ms below 0 is rounding (NMEA times to 0.01 s) or clock jitter around a latency near 0
-        return max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+        self._estimate_s = max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+
+
+def _median_sorted(s: list[float]) -> float:
+    """np.median of sorted values without NaN: the mean of the middle one or two as numpy takes it, a sum from 0.0
+    (so -0.0 comes out as 0.0)."""
+    h = len(s) // 2
+    return 0.0 + s[h] if len(s) % 2 else (0.0 + s[h - 1] + s[h]) / 2.0
+
+
+def _median_abs_deviation(s: list[float], med: float) -> float:
+    """np.median(np.abs(s - med)) for sorted s without NaN: the deviations taken in order from med outwards."""
+    if not math.isfinite(med):
+        return math.nan  # inf - inf among the deviations
+    n = len(s)
+    j = bisect_left(s, med)
+    i = j - 1
+    below = dev = 0.0
+    for _ in range(n // 2 + 1):
+        if i >= 0 and (j >= n or med - s[i] <= s[j] - med):
+            below, dev = dev, abs(s[i] - med)
+            i -= 1
+        else:
+            below, dev = dev, abs(s[j] - med)
+            j += 1
+    return 0.0 + dev if n % 2 else (0.0 + below + dev) / 2.0
 
 
 MIN_INFORMATIVE_ROWS = 20
@@ -65,6 +129,7 @@ class WheelLatency:
 
     def __init__(self, max_latency_s: float, step_s: float = 0.005, forgetting: float = 0.998) -> None:
         self.taus_s = np.arange(0.0, max_latency_s + 0.5 * step_s, step_s)
+        self.max_tau_s = float(self.taus_s[-1])
         self.step_s = step_s
         self.forgetting = forgetting
         self._syy = 0.0

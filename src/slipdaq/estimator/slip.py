@@ -18,7 +18,9 @@ the order records are given. No clock, no I/O.
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +32,11 @@ from slipdaq.estimator.radius import RadiusCalibration
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
+
+try:  # np.interp's compiled core: what np.interp calls for real values, without its checks of the arguments' types
+    from numpy._core.multiarray import interp as _interp
+except ImportError:  # another numpy layout: np.interp itself
+    _interp = np.interp
 
 TWO_PI = 2.0 * math.pi
 G_MPS2 = 9.81
@@ -112,6 +119,78 @@ def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1
     t = np.concatenate(([t0], times_s[i0:i1], [t1]))
     v = np.interp(t, times_s, speeds_mps)
     return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
+
+
+# ---- numpy's results on Python floats: the per-epoch maths works on a few values, where numpy's call overhead is
+# most of the cost. Each gives the float64 result its numpy counterpart gives, bit for bit, on sorted times.
+
+def _interp_at(x: float, j: int, xp: Sequence[float], fp: Sequence[float]) -> float:
+    """np.interp(x, xp, fp), given j = (number of xp <= x) - 1 (xp sorted)."""
+    n = len(xp)
+    if j < 0:
+        return float(fp[0])
+    if j >= n - 1:
+        return float(fp[n - 1])
+    x0 = float(xp[j])
+    if x0 == x:
+        return float(fp[j])
+    x1, y0, y1 = float(xp[j + 1]), float(fp[j]), float(fp[j + 1])
+    slope = (y1 - y0) / (x1 - x0)
+    v = slope * (x - x0) + y0
+    if v != v:  # numpy: NaN one way, try the other
+        v = slope * (x - x1) + y1
+        if v != v and y0 == y1:
+            v = y0
+    return v
+
+
+def _div(a: float, b: float) -> float:
+    """a / b with numpy's float64 result for b == 0 (inf or nan) instead of ZeroDivisionError."""
+    if b != 0.0:
+        return a / b
+    if a == 0.0 or a != a:
+        return math.nan
+    return math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def _np_sum(a: Sequence[float]) -> float:
+    """np.sum of a float64 vector: pairwise summation with eight accumulators, from 0.0."""
+    n = len(a)
+    if n < 8:
+        res = 0.0
+        for x in a:
+            res += x
+        return res
+    if n > 128:
+        half = n // 2
+        half -= half % 8
+        return 0.0 + (_np_sum(a[:half]) + _np_sum(a[half:]))
+    r0, r1, r2, r3, r4, r5, r6, r7 = a[:8]
+    m = n - n % 8
+    for i in range(8, m, 8):
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(m, n):
+        res += a[i]
+    return 0.0 + res
+
+
+def _integrate_speed_m(times_s: list[float], speeds_mps: list[float], t0: float, t1: float, ordered: bool) -> float:
+    """integrate_speed_m on lists; ordered: times_s is non-decreasing (else np.interp's search decides: numpy)."""
+    if not ordered:
+        return integrate_speed_m(np.array(times_s), np.array(speeds_mps), t0, t1)
+    i0 = bisect_right(times_s, t0)
+    i1 = bisect_left(times_s, t1)
+    t = [t0, *times_s[i0:i1], t1]
+    v = [_interp_at(x, bisect_right(times_s, x) - 1, times_s, speeds_mps) for x in t]
+    return _np_sum([(t[k + 1] - t[k]) * (v[k + 1] + v[k]) for k in range(len(t) - 1)]) * 0.5
 
 
 def phase_of(speed_mps: float, accel_mps2: float | None, threshold_mps2: float, standstill_mps: float) -> str:
@@ -254,28 +333,31 @@ class SlipEstimator:
         utc = self._gps_utc.values
         return np.where(np.isnan(utc), arrivals, utc + offset)
 
-    def _gps_covers(self, fix_times: np.ndarray, t0: float, t1: float) -> bool:
+    def _gps_covers(self, fix_times: list[float], t0: float, t1: float) -> bool:
         if len(fix_times) < 2 or fix_times[0] > t0 or fix_times[-1] < t1:
             return False
-        i0 = max(int(np.searchsorted(fix_times, t0, side="right")) - 1, 0)
-        i1 = int(np.searchsorted(fix_times, t1, side="left"))
-        return bool(np.max(np.diff(fix_times[i0 : i1 + 1])) <= self.p.max_gps_gap_s)
+        i0 = max(bisect_right(fix_times, t0) - 1, 0)
+        i1 = bisect_left(fix_times, t1)
+        seg = fix_times[i0 : i1 + 1]
+        return max([b - a for a, b in zip(seg, seg[1:])]) <= self.p.max_gps_gap_s
 
-    def _accel(self, fix_times: np.ndarray, speeds: np.ndarray, t_c: float) -> float | None:
-        i = int(np.searchsorted(fix_times, t_c))
+    def _accel(self, fix_times: list[float], speeds: list[float], t_c: float) -> float | None:
+        i = bisect_left(fix_times, t_c)
         if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * self.p.max_gps_gap_s:
             return None
-        return float((speeds[i + 1] - speeds[i - 1]) / (fix_times[i + 1] - fix_times[i - 1]))
+        return _div(speeds[i + 1] - speeds[i - 1], fix_times[i + 1] - fix_times[i - 1])
 
     def _arc_m(self, w: str, t0: float, t1: float) -> float | None:
         """2*pi*revolutions of wheel w over [t0, t1], or None without samples around both ends."""
         ring = self._wheels[w]
         if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
             return None
-        rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
+        rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
         return TWO_PI * (rev1 - rev0)
 
-    def _grade_sin(self, fix_times: np.ndarray, speeds: np.ndarray, t_c: float, latency_s: float) -> float:
+    def _grade_sin(
+        self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float, ordered: bool = True,
+    ) -> float:
         """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
         if not self.p.grade_from_altitude or len(self._alt) < 2:
             return 0.0
@@ -284,17 +366,18 @@ class SlipEstimator:
         if alt_t[0] > t_a or alt_t[-1] < t_c or not self._gps_covers(fix_times, t_a, t_c):
             return 0.0
         climb = float(np.interp(t_c, alt_t, self._alt.values) - np.interp(t_a, alt_t, self._alt.values))
-        dist = integrate_speed_m(fix_times, speeds, t_a, t_c)
+        dist = _integrate_speed_m(fix_times, speeds, t_a, t_c, ordered)
         return max(-0.3, min(0.3, climb / dist)) if dist > 5.0 else 0.0
 
-    def _weight(self, fix_times: np.ndarray, t0: float, t1: float) -> float:
+    def _weight(self, fix_times: list[float], t0: float, t1: float) -> float:
         """(reference / stated speed accuracy)^2 over the window's fixes, within 0.1..10; 1 without a stated one."""
-        i0, i1 = np.searchsorted(fix_times, (t0, t1))
-        acc = self._gps_acc.values[i0 : i1 + 1]
-        acc = acc[~np.isnan(acc)]
-        if acc.size == 0:
+        i0 = bisect_left(fix_times, t0)
+        # as np.searchsorted(fix_times, (t0, t1)): the second key's search starts where the first one ended
+        i1 = bisect_left(fix_times, t1, i0) if t0 < t1 else bisect_left(fix_times, t1, 0, min(i0 + 1, len(fix_times)))
+        acc = [x for x in self._gps_acc.values[i0 : i1 + 1].tolist() if x == x]
+        if not acc:
             return 1.0
-        sigma = max(float(np.mean(acc)), 1e-3)
+        sigma = max(_np_sum(acc) / len(acc), 1e-3)
         return min(max((REFERENCE_SPEED_ACCURACY_MPS / sigma) ** 2, 0.1), 10.0)
 
     def _force(self, accel: float, speed: float, sin_grade: float) -> float:
@@ -309,17 +392,25 @@ class SlipEstimator:
         )
 
     def _r0(self, w: str) -> tuple[float, str]:
+        return self._r0_all()[w]
+
+    def _r0_all(self) -> dict[str, tuple[float, str]]:
+        """(r0, source) per wheel: its calibration when usable, else the usable ones' mean, else the reference."""
         p = self.p
         base = "configured" if p.r_ref_configured else "tire_size"
         if not p.calibrate_r0:
-            return p.r_ref_m, base
-        cal = self._radius[w]
-        if cal.radius_m is not None and cal.usable:
-            return cal.radius_m, "calibrated" if cal.converged else "calibrating"
-        others = [c.radius_m for c in self._radius.values() if c.radius_m is not None and c.usable]
-        if others:
-            return sum(others) / len(others), "other_wheels"
-        return p.r_ref_m, base
+            return {w: (p.r_ref_m, base) for w in self._radius}
+        usable = {}  # wheel -> (radius, converged) of the usable calibrations, in wheel order
+        for w, cal in self._radius.items():
+            radius = cal.radius_m
+            if radius is not None and cal.usable:
+                usable[w] = (radius, cal.converged)
+        others = [r for r, _ in usable.values()]
+        fallback = (sum(others) / len(others), "other_wheels") if others else (p.r_ref_m, base)
+        return {
+            w: ((u[0], "calibrated" if u[1] else "calibrating") if (u := usable.get(w)) is not None else fallback)
+            for w in self._radius
+        }
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""
@@ -331,13 +422,19 @@ class SlipEstimator:
         refs = self._reference or WHEELS
         lag = self._lag
         times = arrival_s - lag.taus_s
-        arcs = np.zeros_like(times)
+        first_needed_s = (arrival_s - lag.max_tau_s) - 0.5  # = times[-1] - 0.5
+        arcs: np.ndarray | None = None
         for w in refs:
             ring = self._wheels[w]
-            if len(ring) < 2 or ring.first_time > times[-1] - 0.5:
+            if len(ring) < 2 or ring.first_time > first_needed_s:
                 self._lag_prev = None
                 return
-            arcs += np.interp(times, ring.times, ring.values)
+            revs = _interp(times, ring.times, ring.values)
+            if arcs is None:
+                arcs = revs + 0.0  # as zeros + revs
+            else:
+                arcs += revs
+        assert arcs is not None
         arcs *= TWO_PI / len(refs)
         prev, self._lag_prev = self._lag_prev, (arrival_s, speed_mps, arcs)
         if prev is None or accel is None:
@@ -361,19 +458,23 @@ class SlipEstimator:
     def _estimate(self, arrival_s: float, lat: LatencyEstimate) -> Estimate:
         p = self.p
         smooth = self._smooth_arrivals()
-        i = int(np.searchsorted(self._gps.times, arrival_s))
-        fix_times, speeds = smooth - lat.latency_s, self._gps.values
-        t_c = float(fix_times[i])
+        i = int(self._gps.times.searchsorted(arrival_s))
+        latency_s = lat.latency_s
+        fix_arr = smooth - latency_s
+        ordered = bool((fix_arr[1:] >= fix_arr[:-1]).all())  # False too with NaN
+        fix_times, speeds = fix_arr.tolist(), self._gps.values.tolist()
+        t_c = fix_times[i]
         t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
-        speed_c = float(speeds[i])
+        speed_c = speeds[i]
         accel = self._accel(fix_times, speeds, t_c)
         if p.gps_latency_s is None:
             self._update_lag(float(smooth[i]), speed_c, accel)
-        d_gps = integrate_speed_m(fix_times, speeds, t0, t1) if self._gps_covers(fix_times, t0, t1) else None
+        covered = self._gps_covers(fix_times, t0, t1)
+        d_gps = _integrate_speed_m(fix_times, speeds, t0, t1, ordered) if covered else None
         speed = d_gps / p.window_s if d_gps is not None else speed_c
         force = None
         if accel is not None:
-            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s))
+            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s, ordered))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
         arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
         weight = self._weight(fix_times, t0, t1)
@@ -384,7 +485,7 @@ class SlipEstimator:
                 arc = arcs[w]
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
                     self._radius[w].add(d_gps, arc, weight)
-        r0 = {w: self._r0(w) for w in WHEELS}
+        r0 = self._r0_all()
         wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight) for w in WHEELS}
         wheels = self._with_reference_slip(wheels, arcs, r0)
         self._last_center_s = t_c
@@ -469,7 +570,7 @@ class SlipEstimator:
         p = self.p
         half = 0.5 * p.window_s
         refs = self._reference or WHEELS
-        r0 = {w: self._r0(w) for w in WHEELS}
+        r0 = self._r0_all()
 
         def ref_distance(a: float, b: float) -> float | None:
             ds = [r0[w][0] * arc for w in refs if (arc := self._arc_m(w, a, b)) is not None]

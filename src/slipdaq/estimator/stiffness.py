@@ -20,11 +20,15 @@ import numpy as np
 
 
 class StiffnessFit:
+    """Normal equations A theta = b kept as Python floats (A = [[a00, a01], [a01, a11]]): a window costs a few float
+    operations; the solve takes the same products as numpy's (its matrix-vector and dot products go through BLAS,
+    whose rounding is kept by doing those two there)."""
+
     def __init__(self, forgetting: float = 0.998, min_windows: int = 20) -> None:
         self.forgetting = forgetting
         self.min_windows = min_windows
-        self._a = np.zeros((2, 2))
-        self._b = np.zeros(2)
+        self._a00 = self._a01 = self._a10 = self._a11 = 0.0
+        self._b0 = self._b1 = 0.0
         self._yy = 0.0
         self._w = 0.0
         self.windows = 0
@@ -34,11 +38,16 @@ class StiffnessFit:
 
     def add(self, force_n: float, arc_per_metre: float, weight: float = 1.0) -> None:
         """One window: the tire's force and q = 2*pi*N / d_gps; weight from the GPS's stated accuracy."""
-        x = np.array([force_n / 1000.0, 1.0])
-        q = arc_per_metre
+        x0 = float(force_n / 1000.0)  # regressors x = (F in kN, 1)
+        q = float(arc_per_metre)
+        weight = float(weight)
         lam = self.forgetting
-        self._a = lam * self._a + weight * np.outer(x, x)
-        self._b = lam * self._b + weight * x * q
+        self._a00 = lam * self._a00 + weight * (x0 * x0)
+        self._a01 = lam * self._a01 + weight * (x0 * 1.0)
+        self._a10 = lam * self._a10 + weight * (1.0 * x0)
+        self._a11 = lam * self._a11 + weight * 1.0
+        self._b0 = lam * self._b0 + weight * x0 * q
+        self._b1 = lam * self._b1 + weight * 1.0 * q
         self._yy = lam * self._yy + weight * q * q
         self._w = lam * self._w + 1.0
         self.windows += 1
@@ -46,19 +55,22 @@ class StiffnessFit:
             self._solve()
 
     def _solve(self) -> None:
-        det = self._a[0, 0] * self._a[1, 1] - self._a[0, 1] * self._a[1, 0]
-        if det <= 1e-12 * max(self._a[0, 0] * self._a[1, 1], 1e-300):
+        a00, a01, a10, a11 = self._a00, self._a01, self._a10, self._a11
+        det = a00 * a11 - a01 * a10
+        if det <= 1e-12 * max(a00 * a11, 1e-300):
             return  # no spread of force yet
-        inv = np.array([[self._a[1, 1], -self._a[0, 1]], [-self._a[1, 0], self._a[0, 0]]]) / det
-        theta = inv @ self._b
+        i00, i01, i10, i11 = a11 / det, -a01 / det, -a10 / det, a00 / det
+        b = np.array((self._b0, self._b1))
+        theta = np.array(((i00, i01), (i10, i11))) @ b
         beta, alpha = float(theta[0]), float(theta[1])
-        resid = max(self._yy - float(theta @ self._b), 0.0)
-        cov = inv * (resid / max(self._w - 2.0, 1.0))
+        resid = max(self._yy - float(theta @ b), 0.0)
+        scale = resid / max(self._w - 2.0, 1.0)
+        c00, c01, c11 = i00 * scale, i01 * scale, i11 * scale
         if beta <= 0 or alpha <= 0:
             self.cx_n, self.confidence = None, 0.0
             return
         # delta method for Cx = alpha/beta (per kN -> N below)
-        rel_var = cov[1, 1] / alpha**2 + cov[0, 0] / beta**2 - 2.0 * cov[0, 1] / (alpha * beta)
+        rel_var = c11 / alpha**2 + c00 / beta**2 - 2.0 * c01 / (alpha * beta)
         rel_se = math.sqrt(max(rel_var, 0.0))
         self.confidence = float(min(max(1.0 - 10.0 * rel_se, 0.0), 1.0))
         self.radius_m = 1.0 / alpha

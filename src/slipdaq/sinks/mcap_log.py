@@ -200,6 +200,49 @@ def _dumps(payload: dict[str, Any]) -> bytes:
     return json.dumps(payload, separators=(",", ":")).encode()
 
 
+# ---- fixes and estimates, once per GPS epoch: written directly, byte for byte what _dumps of their dicts gives ----
+
+_JSON_TEXT = {t: json.dumps(t) for t in (
+    "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
+    "calibrating", "other_wheels", "tire_size", "configured", "RMC", "VTG", "UBX")}
+
+
+def _jval(x: object) -> str:
+    """_jnum, and the known texts without json.dumps."""
+    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)  # type: ignore[index]
+
+
+_EST_WHEEL_KEYS = {w: tuple(json.dumps(k.format(w)) + ":" for k in (
+    "slip_{}", "re_{}_m", "r0_{}_m", "cx_{}_n", "r0_source_{}", "slip_nd_{}", "cx_fit_{}_n", "cx_fit_{}_conf",
+    "force_{}_n", "wheel_speed_{}_mps")) for w in WHEELS}
+_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)  # type: ignore[attr-defined]
+
+
+def estimate_json(e: Estimate) -> bytes:
+    """/estimate payload: equal to _dumps(estimate_to_dict(e)) (the same keys in the same order)."""
+    keys = [_EST_WHEEL_KEYS.get(w) for w in e.wheels]
+    if None in keys:  # a wheel name of its own: the general path
+        return _dumps(estimate_to_dict(e))
+    j, wheels = _jval, list(zip(keys, e.wheels.values()))
+    parts = [f'{{"time_s":{j(e.time_s)},"speed_mps":{j(e.speed_mps)},"accel_mps2":{j(e.accel_mps2)},'
+             f'"force_n":{j(e.force_n)}']
+    parts += [f",{k[0]}{j(we.slip)},{k[1]}{j(we.re_m)},{k[2]}{j(we.r0_m)},{k[3]}{j(we.cx_n)}"  # type: ignore[index]
+              for k, we in wheels]
+    parts.append(f',"phase":{j(e.phase)},"source":{j(e.source)},"gps_latency_s":{j(e.gps_latency_s)},'
+                 f'"latency_source":{j(e.latency_source)}')
+    parts += [f",{k[4]}{j(we.r0_source)},{k[5]}{j(we.slip_nd)},{k[6]}{j(we.cx_fit_n)},"  # type: ignore[index]
+              f"{k[7]}{j(we.cx_fit_conf)}" for k, we in wheels]  # type: ignore[index]
+    parts.append(f',"window_s":{j(e.window_s)}')
+    parts += [f",{k[8]}{j(we.force_n)},{k[9]}{j(we.speed_mps)}" for k, we in wheels]  # type: ignore[index]
+    parts.append("}")
+    return "".join(parts).encode()
+
+
+def fix_json(fix: GpsFix) -> bytes:
+    """/gps/fix payload: equal to _dumps of the fix's fields in order."""
+    return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
+
+
 RETRY_AFTER_FAILURE_S = 5.0
 """After a failed write (disk full), how often a new segment is tried."""
 
@@ -489,10 +532,10 @@ class McapLogSink:
         self._write(TOPIC_WPT, sample.timestamp_s, wheel_sample_json(sample))
 
     def on_fix(self, fix: GpsFix) -> None:
-        self._write(TOPIC_GPS, fix.timestamp_s, _dumps({k: getattr(fix, k) for k in fix.__slots__}))
+        self._write(TOPIC_GPS, fix.timestamp_s, fix_json(fix))
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
-        self._write(TOPIC_ESTIMATE, log_time_s, _dumps(estimate_to_dict(estimate)))
+        self._write(TOPIC_ESTIMATE, log_time_s, estimate_json(estimate))
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         if self._flush_every_s is not None:  # live: the log's own state goes with the counters

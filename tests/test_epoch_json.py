@@ -1,0 +1,40 @@
+"""The per-epoch JSON written directly (estimate_json, fix_json) is byte for byte json.dumps of the records' dicts."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from slipdaq import WHEELS
+from slipdaq.records import Estimate, GpsFix, WheelEstimate
+from slipdaq.sinks.mcap_log import _dumps, estimate_json, estimate_to_dict, fix_json
+
+FLOAT = st.floats(allow_nan=True, allow_infinity=True)
+OPT_FLOAT = st.one_of(st.none(), FLOAT, st.integers(-(2**70), 2**70), FLOAT.map(np.float64))
+TEXT = st.one_of(st.sampled_from(["calibrated", "tire_size", "other_wheels", "cruise", "gps", "utc", "none"]),
+                 st.text(max_size=8))
+
+WHEEL = st.builds(WheelEstimate, OPT_FLOAT, OPT_FLOAT, FLOAT, OPT_FLOAT, OPT_FLOAT, OPT_FLOAT, TEXT, OPT_FLOAT,
+                  OPT_FLOAT, OPT_FLOAT)
+WHEEL_NAMES = st.one_of(st.permutations(WHEELS), st.lists(st.sampled_from(WHEELS), unique=True),
+                        st.lists(st.text(max_size=4), unique=True, max_size=4))
+
+
+@st.composite
+def estimates(draw: st.DrawFn) -> Estimate:
+    wheels = {w: draw(WHEEL) for w in draw(WHEEL_NAMES)}
+    return Estimate(draw(FLOAT), draw(FLOAT), draw(OPT_FLOAT), draw(OPT_FLOAT), draw(FLOAT), wheels, draw(TEXT),
+                    draw(TEXT), draw(FLOAT), draw(TEXT))
+
+
+@given(estimates())
+def test_estimate_json_is_json_dumps(e: Estimate) -> None:
+    assert estimate_json(e) == _dumps(estimate_to_dict(e))
+
+
+@given(st.builds(GpsFix, FLOAT, FLOAT, OPT_FLOAT, st.booleans(), OPT_FLOAT, OPT_FLOAT, OPT_FLOAT, OPT_FLOAT,
+                 st.one_of(st.none(), st.integers(-5, 2**40)), st.one_of(st.none(), st.integers(0, 99)),
+                 st.one_of(st.sampled_from(["RMC", "VTG", "UBX"]), st.text(max_size=5)), OPT_FLOAT))
+def test_fix_json_is_json_dumps(fix: GpsFix) -> None:
+    assert fix_json(fix) == _dumps({k: getattr(fix, k) for k in fix.__slots__})

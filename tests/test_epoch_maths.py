@@ -1,0 +1,151 @@
+"""The estimator's per-epoch maths on Python floats gives numpy's float64 results bit for bit: each part against the
+numpy formulation it replaced (written out here as the reference)."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slipdaq.estimator.latency import UtcLatency
+from slipdaq.estimator.slip import _integrate_speed_m, _interp_at, _np_sum, integrate_speed_m
+from slipdaq.estimator.stiffness import StiffnessFit
+
+
+def same(a: float | None, b: float | None) -> bool:
+    """Equal bits: equal and the same sign of zero, or both NaN, or both None."""
+    if a is None or b is None:
+        return a is b
+    return (a == b and math.copysign(1.0, a) == math.copysign(1.0, b)) or (a != a and b != b)
+
+
+FINITE = st.floats(-1e6, 1e6, allow_nan=False)
+ANY = st.one_of(FINITE, st.sampled_from([0.0, -0.0, math.inf, -math.inf, 1e308, -1e308, 5e-324]))
+
+
+@given(st.lists(st.one_of(ANY, st.just(math.nan)), max_size=300))
+def test_np_sum(values: list[float]) -> None:
+    with np.errstate(all="ignore"):
+        assert same(_np_sum(values), float(np.sum(np.array(values, dtype=float))))
+
+
+@st.composite
+def interp_case(draw: st.DrawFn) -> tuple[list[float], list[float], float]:
+    xp = sorted(draw(st.lists(st.one_of(FINITE, st.integers(-3, 3).map(float)), min_size=1, max_size=30)))
+    fp = draw(st.lists(ANY, min_size=len(xp), max_size=len(xp)))
+    x = draw(st.one_of(FINITE, st.sampled_from(xp)))
+    return xp, fp, x
+
+
+@given(interp_case())
+def test_interp_at(case: tuple[list[float], list[float], float]) -> None:
+    xp, fp, x = case
+    j = int(np.searchsorted(xp, x, side="right")) - 1
+    with np.errstate(all="ignore"):
+        assert same(_interp_at(x, j, xp, fp), float(np.interp(x, np.array(xp), np.array(fp))))
+
+
+@given(st.lists(st.floats(0.0, 0.3), min_size=1, max_size=60), st.data())
+def test_integrate_speed(steps: list[float], data: st.DataObject) -> None:
+    """On lists (fix times in order, repeats allowed) as numpy's integrate_speed_m on arrays."""
+    times = np.cumsum([1000.0, *steps])
+    speeds = np.array(data.draw(st.lists(st.floats(0, 80), min_size=len(times), max_size=len(times))))
+    t0 = data.draw(st.one_of(st.floats(times[0] - 0.1, times[-1] + 0.1), st.sampled_from(times.tolist())))
+    t1 = t0 + data.draw(st.sampled_from([0.5, 0.2, 1.0, 2.0, 0.05]))
+    got = _integrate_speed_m(times.tolist(), speeds.tolist(), t0, t1, ordered=True)
+    assert same(got, integrate_speed_m(times, speeds, t0, t1))
+
+
+class UtcLatencyReference:
+    """UtcLatency as numpy medians over the deque."""
+
+    def __init__(self, max_latency_s: float, history: int) -> None:
+        self.max_latency_s = max_latency_s
+        self.d: deque[float] = deque(maxlen=history)
+
+    def add(self, arrival_s: float, fix_utc_s: float | None) -> None:
+        if fix_utc_s is not None:
+            self.d.append(arrival_s - fix_utc_s)
+
+    def offset_s(self) -> float | None:
+        return float(np.median(np.fromiter(self.d, float))) if self.d else None
+
+    def estimate(self) -> float | None:
+        if len(self.d) < 5:
+            return None
+        d = np.fromiter(self.d, float)
+        med = float(np.median(d))
+        spread = float(np.median(np.abs(d - med)))
+        return max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+
+
+DEVIATION = st.one_of(st.floats(-0.05, 0.05), st.sampled_from([0.0, -0.0, 0.01, -0.01, 0.02, math.nan, math.inf,
+                                                                -math.inf, 3.0]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 60), st.sampled_from([0.4, 0.1]), st.sampled_from([0.05, 0.0, -0.01, 3.0]),
+       st.lists(st.one_of(st.none(), DEVIATION), max_size=150))
+def test_utc_latency(history: int, max_latency_s: float, latency_s: float, deviations: list[float | None]) -> None:
+    fast, ref = UtcLatency(max_latency_s, history), UtcLatencyReference(max_latency_s, history)
+    for k, dev in enumerate(deviations):
+        arrival = 1000.0 + 0.05 * k
+        utc = None if dev is None else arrival - latency_s - dev
+        fast.add(arrival, utc)
+        ref.add(arrival, utc)
+        with np.errstate(all="ignore"):
+            assert same(fast.offset_s(), ref.offset_s())
+            assert same(fast.estimate(), ref.estimate())
+
+
+class StiffnessReference:
+    """StiffnessFit with numpy 2x2 normal equations."""
+
+    def __init__(self) -> None:
+        self.a, self.b, self.yy, self.w, self.windows = np.zeros((2, 2)), np.zeros(2), 0.0, 0.0, 0
+        self.cx_n: float | None = None
+        self.confidence = 0.0
+        self.radius_m: float | None = None
+
+    def add(self, force_n: float, q: float, weight: float) -> None:
+        x = np.array([force_n / 1000.0, 1.0])
+        self.a = 0.998 * self.a + weight * np.outer(x, x)
+        self.b = 0.998 * self.b + weight * x * q
+        self.yy = 0.998 * self.yy + weight * q * q
+        self.w = 0.998 * self.w + 1.0
+        self.windows += 1
+        if self.windows < 20:
+            return
+        a = self.a
+        det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+        if det <= 1e-12 * max(a[0, 0] * a[1, 1], 1e-300):
+            return
+        inv = np.array([[a[1, 1], -a[0, 1]], [-a[1, 0], a[0, 0]]]) / det
+        theta = inv @ self.b
+        beta, alpha = float(theta[0]), float(theta[1])
+        resid = max(self.yy - float(theta @ self.b), 0.0)
+        cov = inv * (resid / max(self.w - 2.0, 1.0))
+        if beta <= 0 or alpha <= 0:
+            self.cx_n, self.confidence = None, 0.0
+            return
+        rel_var = cov[1, 1] / alpha**2 + cov[0, 0] / beta**2 - 2.0 * cov[0, 1] / (alpha * beta)
+        self.confidence = float(min(max(1.0 - 10.0 * math.sqrt(max(rel_var, 0.0)), 0.0), 1.0))
+        self.radius_m = 1.0 / alpha
+        self.cx_n = 1000.0 * alpha / beta if self.confidence > 0 else None
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(1e4, 3e5), st.floats(0.29, 0.32),
+       st.lists(st.tuples(st.floats(-8000, 8000), st.floats(-0.002, 0.002), st.sampled_from([1.0, 0.1, 10.0, 2.5])),
+                max_size=80))
+def test_stiffness_fit(cx_n: float, r0_m: float, windows: list[tuple[float, float, float]]) -> None:
+    fast, ref = StiffnessFit(), StiffnessReference()
+    for force, noise, weight in windows:
+        q = (1.0 + force / cx_n) / r0_m + noise
+        fast.add(force, q, weight)
+        ref.add(force, q, weight)
+        assert same(fast.cx_n, ref.cx_n) and same(fast.confidence, ref.confidence)
+        assert same(fast.radius_m, ref.radius_m)
