@@ -58,31 +58,42 @@ class CanBusSource:
             return None
         return fd if isinstance(fd, int) and fd >= 0 else None
 
-    async def run(self, emit: Callable[[CanFrame], None]) -> None:
+    async def run(
+        self, emit: Callable[[CanFrame], None], emit_batch: Callable[[list[CanFrame]], None] | None = None
+    ) -> None:
+        """emit_batch (e.g. Pipeline.process_can_batch), when given, gets each wake-up's frames as one list."""
+        if emit_batch is None:
+            def emit_batch(frames: list[CanFrame]) -> None:
+                for f in frames:
+                    emit(f)
         fd = self._fileno()
         if fd is not None:
-            await self._run_on_loop(fd, emit)
+            await self._run_on_loop(fd, emit_batch)
         else:
-            await self._run_in_thread(emit)
+            await self._run_in_thread(emit_batch)
 
     def _error(self, e: Exception) -> None:
         self.reader_errors += 1
         self.last_error = f"{type(e).__name__}: {e}"
         log.warning("CAN reader error (%s), continuing", self.last_error)
 
-    async def _run_on_loop(self, fd: int, emit: Callable[[CanFrame], None]) -> None:
+    async def _run_on_loop(self, fd: int, emit_batch: Callable[[list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
 
         def readable() -> None:
+            frames: list[CanFrame] = []
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
-                        return
-                    self.frames += 1
-                    emit(to_frame(msg))
+                        break
+                    frames.append(to_frame(msg))
             except can.CanError as e:
                 self._error(e)
+            finally:
+                if frames:
+                    self.frames += len(frames)
+                    emit_batch(frames)
 
         loop.add_reader(fd, readable)
         try:
@@ -90,14 +101,13 @@ class CanBusSource:
         finally:
             loop.remove_reader(fd)
 
-    async def _run_in_thread(self, emit: Callable[[CanFrame], None]) -> None:
+    async def _run_in_thread(self, emit_batch: Callable[[list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
         stop = threading.Event()
 
         def deliver(batch: list[can.Message]) -> None:
-            for msg in batch:
-                self.frames += 1
-                emit(to_frame(msg))
+            self.frames += len(batch)
+            emit_batch([to_frame(msg) for msg in batch])
 
         def reader() -> None:
             while not stop.is_set():
