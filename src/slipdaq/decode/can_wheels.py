@@ -195,6 +195,8 @@ class WheelDecoder:
             if entry.message.frame_id < 2048:
                 self._lut[entry.message.frame_id] = i
         self._ids_beyond_lut = any(fid >= 2048 for fid in self._by_id)
+        self._groups = _groups(self._entries, self._wheel_index)
+        self._grouped = {e for g in self._groups for e in g.entries}
 
     @property
     def fast_messages(self) -> list[str]:
@@ -299,7 +301,16 @@ class WheelDecoder:
             which = self.wheel_frames(batch)
         cols: list[tuple[np.ndarray, ...]] = []  # (frame, source order, wheel, t, rev, count, raw, seq, lost, flags)
         ts = batch.timestamp_s
+        done: set[int] = set()
+        for g in self._groups:
+            c = self._group_columns(g, batch, which)
+            if c is not None:
+                done.update(g.entries)
+                if len(c[0]):
+                    cols.append(c)
         for e, entry in enumerate(self._entries):
+            if e in done:
+                continue
             sel = np.flatnonzero(which == e)
             if len(sel) == 0:
                 continue
@@ -321,11 +332,87 @@ class WheelDecoder:
         if not cols:
             return _empty_samples()
         cat = [np.concatenate(c) for c in zip(*cols)] if len(cols) > 1 else list(cols[0])
-        if len(cols) > 1:
-            o = np.lexsort((cat[1], cat[0]))
-            cat = [c[o] for c in cat]
+        o = np.lexsort((cat[1], cat[0]))
+        cat = [c[o] for c in cat]
         frame, _order, wheel, t, rev, count, raw, seq, lost, flags = cat
         return WheelSampleBatch(frame, wheel.astype(np.uint8), t, rev, count, raw, seq, lost, flags.astype(np.uint8))
+
+    def _group_columns(self, g: "_Group", batch: CanFrameBatch, which: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """_count_step over the frames of every message of a group at once (sorted by source, vectorised); None
+        (nothing changed) when a counter reset needs the frame-by-frame path."""
+        slot = g.slot_of[which]
+        sel = np.flatnonzero(slot >= 0)
+        if len(sel) == 0:
+            return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
+        good = batch.dlc[sel] >= g.length
+        if not good.all():
+            sel = sel[good]
+            if len(sel) == 0:
+                self.bad_frames += len(good)
+                return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
+        s = slot[sel]
+        order = np.argsort(s, kind="stable")
+        sel, s = sel[order], s[order]
+        n = len(sel)
+        fields = batch.data[sel, : g.length].copy().view(g.dtype).reshape(-1)
+        r = fields[g.count_name].astype(np.int64)
+        q = fields[g.seq_name].astype(np.int64) if g.seq_name is not None else None
+        t = batch.timestamp_s[sel]
+        brk = np.flatnonzero(s[1:] != s[:-1]) + 1
+        starts = [0, *brk.tolist()]
+        ends = [*brk.tolist(), n]
+        srcs = [g.sources[k] for k in s[starts].tolist()] if n else []
+        prev_r = np.empty_like(r)
+        prev_r[1:] = r[:-1]
+        prev_t = np.empty_like(t)
+        prev_t[1:] = t[:-1]
+        firsts = []
+        for k, src in zip(starts, srcs):
+            if src.last_raw is None or src.last_t is None:
+                prev_r[k], prev_t[k] = r[k], t[k]
+                firsts.append(k)
+            else:
+                prev_r[k], prev_t[k] = src.last_raw, src.last_t
+        modulus = g.count_modulus
+        delta = (r - prev_r) % modulus
+        delta[delta >= modulus // 2] -= modulus
+        dt = t - prev_t
+        limit = np.where(delta >= 0, MAX_REV_PER_S, MAX_REVERSE_REV_PER_S)
+        if bool((np.abs(delta) > g.pulses_per_rev * (limit * np.maximum(dt, 0.0) + 0.1)).any()):
+            return None  # a counter reset: the per-source path (the reset continues at the last rate)
+        self.bad_frames += int(np.count_nonzero(~good))
+        if firsts:
+            delta[firsts] = 0
+        wrapped = np.add.reduceat(((r < prev_r) & (delta > 0)).astype(np.int64), starts) if n else []
+        cs = np.cumsum(delta)
+        bases = np.array([src.count for src in srcs], dtype=np.int64) - (cs[starts] - delta[starts])
+        count = cs + np.repeat(bases, np.subtract(ends, starts))
+        lost = np.zeros(n, dtype=np.int64)
+        lost_sums: list[int] = [0] * len(srcs)
+        if q is not None:
+            prev_q = np.empty_like(q)
+            prev_q[1:] = q[:-1]
+            for k, src in zip(starts, srcs):
+                prev_q[k] = q[k] - 1 if (k in firsts or src.last_seq is None) else src.last_seq
+            lost = (q - prev_q - 1) % g.seq_modulus
+            lost_sums = np.add.reduceat(lost, starts).tolist() if n else []
+        moving = np.maximum.reduceat(np.where(dt > 0, np.arange(n), -1), starts).tolist() if n else []
+        wraps = wrapped.tolist() if n else []
+        for j, (k0, k1, src) in enumerate(zip(starts, ends, srcs)):
+            w = src.wheel
+            self.frames[w] += k1 - k0
+            self.count_wraps[w] += wraps[j]
+            self.lost_frames[w] += lost_sums[j] if q is not None else 0
+            m = moving[j]
+            if m >= 0:
+                src.last_rate = int(delta[m]) / float(dt[m])
+            last = k1 - 1
+            src.count = int(count[last])
+            src.last_raw, src.last_t = int(r[last]), float(t[last])
+            src.last_seq = int(q[last]) if q is not None else None
+        zeros = np.zeros(n, dtype=np.int64)
+        return (sel.astype(np.int64), zeros, g.wheel_of[s], t, count / g.pulses_per_rev, count,
+                r.astype(np.float64), q if q is not None else zeros, lost, np.full(n, g.flags, dtype=np.int64))
 
     def _scalar_columns(self, entry: _Message, batch: CanFrameBatch, sel: np.ndarray) -> tuple[np.ndarray, ...]:
         rows = []
@@ -392,6 +479,47 @@ class WheelDecoder:
         return (frame.astype(np.int64), np.full(n, order, dtype=np.int64), np.full(n, self._wheel_index[w], np.int64),
                 t.astype(np.float64), count / src.pulses_per_rev, count, raw.astype(np.float64),
                 seq if seq is not None else np.zeros(n, dtype=np.int64), lost, np.full(n, flags, dtype=np.int64))
+
+
+@dataclass(slots=True)
+class _Group:
+    """Fast messages of one source each that share a layout (WPT_FL..RR): decoded and unwrapped together."""
+
+    entries: list[int]
+    sources: list[_Source]
+    slot_of: np.ndarray
+    """entry index (which) -> slot in `sources`, -1 for others; index -1 (no wheel message) gives -1."""
+    wheel_of: np.ndarray
+    length: int
+    dtype: np.dtype
+    count_name: str
+    seq_name: str | None
+    count_modulus: int
+    seq_modulus: int
+    pulses_per_rev: int
+    flags: int
+
+
+def _groups(entries: list[_Message], wheel_index: dict[str, int]) -> list[_Group]:
+    by_key: dict[tuple, list[int]] = {}
+    for e, entry in enumerate(entries):
+        if entry.fast is None or len(entry.sources) != 1:
+            continue
+        src = entry.sources[0]
+        seq = src.seq_signal
+        key = (entry.fast.length, str(entry.fast.dtype.descr), src.signal.name, seq.name if seq else None,
+               src.signal.length, seq.length if seq else 0, src.pulses_per_rev)
+        by_key.setdefault(key, []).append(e)
+    out = []
+    for (length, _descr, count_name, seq_name, count_bits, seq_bits, ppr), idx in by_key.items():
+        slot_of = np.full(len(entries) + 1, -1, dtype=np.int64)
+        slot_of[idx] = np.arange(len(idx))
+        sources = [entries[e].sources[0] for e in idx]
+        out.append(_Group(idx, sources, slot_of, np.array([wheel_index[s.wheel] for s in sources], dtype=np.int64),
+                          length, entries[idx[0]].fast.dtype, count_name, seq_name,  # type: ignore[union-attr]
+                          1 << count_bits, 1 << seq_bits, ppr,
+                          SAMPLE_HAS_COUNT | (SAMPLE_HAS_SEQ if seq_name else 0)))
+    return out
 
 
 _COLUMN_DTYPES = (np.int64, np.int64, np.int64, np.float64, np.float64, np.int64, np.float64, np.int64, np.int64,

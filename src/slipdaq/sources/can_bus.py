@@ -15,15 +15,29 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import CanFrame
+from slipdaq.records import CanFrame, CanFrameBatch
 
 log = logging.getLogger(__name__)
 
 BATCH = 256
 
 
+BATCH_COLUMNS_FROM = 48
+"""A wake-up with at least this many frames goes to the pipeline as one CanFrameBatch (numpy columns, no CanFrame
+per frame); fewer go as CanFrames (numpy's fixed cost would dominate). Pipeline.SCALAR_MAX_FRAMES is the same."""
+
+
 def to_frame(msg: can.Message) -> CanFrame:
     return CanFrame(msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_error_frame)
+
+
+def to_frames(msgs: list[can.Message]) -> CanFrameBatch | list[CanFrame]:
+    """One reader wake-up's messages as the pipeline takes them (Pipeline.process_can_batch)."""
+    if len(msgs) < BATCH_COLUMNS_FROM:
+        return [to_frame(m) for m in msgs]
+    return CanFrameBatch.from_columns([m.timestamp for m in msgs], [m.arbitration_id for m in msgs],
+                                      [m.is_extended_id | (m.is_error_frame << 1) for m in msgs],
+                                      [m.data for m in msgs])
 
 
 def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:
@@ -59,12 +73,13 @@ class CanBusSource:
         return fd if isinstance(fd, int) and fd >= 0 else None
 
     async def run(
-        self, emit: Callable[[CanFrame], None], emit_batch: Callable[[list[CanFrame]], None] | None = None
+        self, emit: Callable[[CanFrame], None],
+        emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None] | None = None,
     ) -> None:
-        """emit_batch (e.g. Pipeline.process_can_batch), when given, gets each wake-up's frames as one list."""
+        """emit_batch (e.g. Pipeline.process_can_batch), when given, gets each wake-up's frames at once (to_frames)."""
         if emit_batch is None:
-            def emit_batch(frames: list[CanFrame]) -> None:
-                for f in frames:
+            def emit_batch(frames: CanFrameBatch | list[CanFrame]) -> None:
+                for f in frames if isinstance(frames, list) else frames.frames():
                     emit(f)
         fd = self._fileno()
         if fd is not None:
@@ -77,23 +92,23 @@ class CanBusSource:
         self.last_error = f"{type(e).__name__}: {e}"
         log.warning("CAN reader error (%s), continuing", self.last_error)
 
-    async def _run_on_loop(self, fd: int, emit_batch: Callable[[list[CanFrame]], None]) -> None:
+    async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
 
         def readable() -> None:
-            frames: list[CanFrame] = []
+            msgs: list[can.Message] = []
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
                         break
-                    frames.append(to_frame(msg))
+                    msgs.append(msg)
             except can.CanError as e:
                 self._error(e)
             finally:
-                if frames:
-                    self.frames += len(frames)
-                    emit_batch(frames)
+                if msgs:
+                    self.frames += len(msgs)
+                    emit_batch(to_frames(msgs))
 
         loop.add_reader(fd, readable)
         try:
@@ -101,13 +116,13 @@ class CanBusSource:
         finally:
             loop.remove_reader(fd)
 
-    async def _run_in_thread(self, emit_batch: Callable[[list[CanFrame]], None]) -> None:
+    async def _run_in_thread(self, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
         stop = threading.Event()
 
         def deliver(batch: list[can.Message]) -> None:
             self.frames += len(batch)
-            emit_batch([to_frame(msg) for msg in batch])
+            emit_batch(to_frames(batch))
 
         def reader() -> None:
             while not stop.is_set():
