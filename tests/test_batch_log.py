@@ -158,3 +158,41 @@ def test_batch_columns_round_trip() -> None:
     first, back = decode_can_batch(encode_can_batch(7, b))
     assert first == 7 and list(back.frames()) == frames
     assert np.array_equal(back.dlc, [8, 1, 64, 0])
+
+
+def test_status_sink_counts_batches_as_records() -> None:
+    from slipdaq.sinks.status import StatusSink
+
+    records = _odd_frames()
+    one, many = StatusSink(), StatusSink()
+    p1, p2 = Pipeline(load_config(CONFIG), [one]), Pipeline(load_config(CONFIG), [many])
+    p2.scalar_max_frames = 0
+    for r in records:
+        p1.process(r)
+    run: list = []
+    for r in records + [None]:
+        if isinstance(r, CanFrame):
+            run.append(r)
+            continue
+        p2.process_can_batch(run)
+        run = []
+        if r is not None:
+            p2.process(r)
+    assert (many.can_frames, many.nmea_lines, many.wheel_frames, many.can_errors) == \
+        (one.can_frames, one.nmea_lines, one.wheel_frames, one.can_errors)
+    assert one.can_errors
+
+
+def test_idle_live_sink_waits_for_the_next_second(tmp_path: Path) -> None:
+    """With nothing to write, the flush timer is armed a flush period ahead (it does not spin on the loop)."""
+    import asyncio
+
+    async def run() -> float:
+        sink = McapLogSink(tmp_path / "idle.mcap", load_config(CONFIG), mode="live", flush_every_s=0.2)
+        await asyncio.sleep(0.5)  # two periods without a record
+        assert sink._timer is not None
+        ahead = sink._timer.when() - asyncio.get_running_loop().time()
+        sink.close()
+        return ahead
+
+    assert asyncio.run(run()) > 0.05

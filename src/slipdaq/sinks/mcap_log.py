@@ -543,6 +543,8 @@ class McapLogSink:
         if self._loop is None or self._flush_every_s is None or self.closed or self._loop.is_closed():
             return
         delay = max(0.0, self._last_flush + self._flush_every_s - self._mono())
+        if delay <= 0.0 and not (self._unflushed or self._can.n or self._samples.n):
+            delay = self._flush_every_s  # nothing to flush (no record for a while): look again later, do not spin
         if self._writer is None:  # failed: look again when a retry is due
             delay = max(0.05, self._last_try + RETRY_AFTER_FAILURE_S - self._mono())
         self._timer = self._loop.call_later(min(delay, self._flush_every_s), self._tick)
