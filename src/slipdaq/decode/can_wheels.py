@@ -85,6 +85,8 @@ class _FastLayout:
     """unpack_from(payload) -> the fields in `names` order."""
     names: list[str]
     dtype: np.dtype
+    plan: list[tuple[_Source, int, int]] = field(default_factory=list)
+    """Per source: its count's and Seq's positions in the unpacked fields (-1: no Seq)."""
 
 
 @dataclass(slots=True)
@@ -128,7 +130,9 @@ def _fast_layout(entry: _Message) -> _FastLayout | None:
     names = [f[2] for f in fields]
     dtype = np.dtype({"names": names, "formats": [f"<u{f[1]}" for f in fields], "offsets": [f[0] for f in fields],
                       "itemsize": msg.length})
-    layout = _FastLayout(msg.length, struct.Struct(fmt), names, dtype)
+    plan = [(src, names.index(src.signal.name), names.index(src.seq_signal.name) if src.seq_signal else -1)
+            for src in entry.sources]
+    layout = _FastLayout(msg.length, struct.Struct(fmt), names, dtype, plan)
     rng = np.random.default_rng(7)
     n = msg.length
     payloads = [bytes(n), b"\xff" * n] + [bytes([1 << (k % 8)]) * n for k in range(8)] + \
@@ -232,7 +236,15 @@ class WheelDecoder:
             if len(data) < fast.length:  # cantools: wrong data size
                 self.bad_frames += 1
                 return []
-            values = dict(zip(fast.names, fast.struct.unpack_from(data)))
+            fields = fast.struct.unpack_from(data)
+            out = []
+            for src, ci, qi in fast.plan:
+                raw = fields[ci]
+                seq = fields[qi] if qi >= 0 else None
+                count, lost = self._count_step(src, raw, seq, t)
+                self.frames[src.wheel] += 1
+                out.append(WheelSample(t, src.wheel, count / src.pulses_per_rev, count, float(raw), seq, lost))
+            return out
         else:
             try:
                 values = entry.message.decode(data, decode_choices=False, scaling=False)
