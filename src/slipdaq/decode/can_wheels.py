@@ -343,9 +343,12 @@ class WheelDecoder:
                 cols.append(self._scalar_columns(entry, batch, sel))
         if not cols:
             return _empty_samples()
-        cat = [np.concatenate(c) for c in zip(*cols)] if len(cols) > 1 else list(cols[0])
-        o = np.lexsort((cat[1], cat[0]))
-        cat = [c[o] for c in cat]
+        if len(cols) > 1:  # each part is in frame order already; merge them (ties in source order)
+            cat = [np.concatenate(c) for c in zip(*cols)]
+            o = np.lexsort((cat[1], cat[0]))
+            cat = [c[o] for c in cat]
+        else:
+            cat = list(cols[0])
         frame, _order, wheel, t, rev, count, raw, seq, lost, flags = cat
         return WheelSampleBatch(frame, wheel.astype(np.uint8), t, rev, count, raw, seq, lost, flags.astype(np.uint8))
 
@@ -362,18 +365,19 @@ class WheelDecoder:
             if len(sel) == 0:
                 self.bad_frames += len(good)
                 return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
-        s = slot[sel]
-        order = np.argsort(s, kind="stable")
-        sel, s = sel[order], s[order]
-        n = len(sel)
+        s0 = slot[sel]
         fields = batch.data[sel, : g.length].copy().view(g.dtype).reshape(-1)
-        r = fields[g.count_name].astype(np.int64)
-        q = fields[g.seq_name].astype(np.int64) if g.seq_name is not None else None
-        t = batch.timestamp_s[sel]
+        r0 = fields[g.count_name].astype(np.int64)
+        q0 = fields[g.seq_name].astype(np.int64) if g.seq_name is not None else None
+        t0 = batch.timestamp_s[sel]
+        order = np.argsort(s0, kind="stable")  # by source, each source's frames in order
+        s, r, t = s0[order], r0[order], t0[order]
+        q = q0[order] if q0 is not None else None
+        n = len(sel)
         brk = np.flatnonzero(s[1:] != s[:-1]) + 1
         starts = [0, *brk.tolist()]
         ends = [*brk.tolist(), n]
-        srcs = [g.sources[k] for k in s[starts].tolist()] if n else []
+        srcs = [g.sources[k] for k in s[starts].tolist()]
         prev_r = np.empty_like(r)
         prev_r[1:] = r[:-1]
         prev_t = np.empty_like(t)
@@ -389,16 +393,20 @@ class WheelDecoder:
         delta = (r - prev_r) % modulus
         delta[delta >= modulus // 2] -= modulus
         dt = t - prev_t
-        limit = np.where(delta >= 0, MAX_REV_PER_S, MAX_REVERSE_REV_PER_S)
-        if bool((np.abs(delta) > g.pulses_per_rev * (limit * np.maximum(dt, 0.0) + 0.1)).any()):
-            return None  # a counter reset: the per-source path (the reset continues at the last rate)
+        # A reset needs |delta| > ppr * (limit * max(dt, 0) + 0.1) >= ppr * 0.1: check in full only above that.
+        if np.abs(delta).max() > g.pulses_per_rev * 0.1:
+            limit = np.where(delta >= 0, MAX_REV_PER_S, MAX_REVERSE_REV_PER_S)
+            if bool((np.abs(delta) > g.pulses_per_rev * (limit * np.maximum(dt, 0.0) + 0.1)).any()):
+                return None  # a counter reset: the per-source path (the reset continues at the last rate)
         self.bad_frames += int(np.count_nonzero(~good))
         if firsts:
             delta[firsts] = 0
-        wrapped = np.add.reduceat(((r < prev_r) & (delta > 0)).astype(np.int64), starts) if n else []
+        wraps = np.add.reduceat(((r < prev_r) & (delta > 0)).astype(np.int64), starts).tolist()
         cs = np.cumsum(delta)
         bases = np.array([src.count for src in srcs], dtype=np.int64) - (cs[starts] - delta[starts])
-        count = cs + np.repeat(bases, np.subtract(ends, starts))
+        count_s = cs + np.repeat(bases, np.subtract(ends, starts))
+        count = np.empty(n, dtype=np.int64)
+        count[order] = count_s  # back to frame order
         lost = np.zeros(n, dtype=np.int64)
         lost_sums: list[int] = [0] * len(srcs)
         if q is not None:
@@ -406,25 +414,29 @@ class WheelDecoder:
             prev_q[1:] = q[:-1]
             for k, src in zip(starts, srcs):
                 prev_q[k] = q[k] - 1 if (k in firsts or src.last_seq is None) else src.last_seq
-            lost = (q - prev_q - 1) % g.seq_modulus
-            lost_sums = np.add.reduceat(lost, starts).tolist() if n else []
-        moving = np.maximum.reduceat(np.where(dt > 0, np.arange(n), -1), starts).tolist() if n else []
-        wraps = wrapped.tolist() if n else []
+            lost_s = (q - prev_q - 1) % g.seq_modulus
+            lost_sums = np.add.reduceat(lost_s, starts).tolist()
+            lost[order] = lost_s
+        dt_last = dt[np.subtract(ends, 1)].tolist()
         for j, (k0, k1, src) in enumerate(zip(starts, ends, srcs)):
             w = src.wheel
             self.frames[w] += k1 - k0
             self.count_wraps[w] += wraps[j]
-            self.lost_frames[w] += lost_sums[j] if q is not None else 0
-            m = moving[j]
+            self.lost_frames[w] += lost_sums[j]
+            last = k1 - 1
+            if dt_last[j] > 0:
+                m = last
+            else:  # the last frame with dt > 0 sets the rate
+                moving = np.flatnonzero(dt[k0:k1] > 0)
+                m = k0 + int(moving[-1]) if len(moving) else -1
             if m >= 0:
                 src.last_rate = int(delta[m]) / float(dt[m])
-            last = k1 - 1
-            src.count = int(count[last])
+            src.count = int(count_s[last])
             src.last_raw, src.last_t = int(r[last]), float(t[last])
             src.last_seq = int(q[last]) if q is not None else None
         zeros = np.zeros(n, dtype=np.int64)
-        return (sel.astype(np.int64), zeros, g.wheel_of[s], t, count / g.pulses_per_rev, count,
-                r.astype(np.float64), q if q is not None else zeros, lost, np.full(n, g.flags, dtype=np.int64))
+        return (sel.astype(np.int64), zeros, g.wheel_of[s0], t0, count / g.pulses_per_rev, count,
+                r0.astype(np.float64), q0 if q0 is not None else zeros, lost, np.full(n, g.flags, dtype=np.int64))
 
     def _scalar_columns(self, entry: _Message, batch: CanFrameBatch, sel: np.ndarray) -> tuple[np.ndarray, ...]:
         rows = []
