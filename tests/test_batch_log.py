@@ -183,16 +183,21 @@ def test_status_sink_counts_batches_as_records() -> None:
     assert one.can_errors
 
 
-def test_idle_live_sink_waits_for_the_next_second(tmp_path: Path) -> None:
-    """With nothing to write, the flush timer is armed a flush period ahead (it does not spin on the loop)."""
+def test_idle_live_sink_waits_for_the_next_flush_period(tmp_path: Path) -> None:
+    """With nothing to write for longer than a flush period, the flush timer is armed a flush period ahead (it used
+    to re-arm itself with no delay, spinning on the event loop)."""
     import asyncio
 
+    mono = [1000.0]
+
     async def run() -> float:
-        sink = McapLogSink(tmp_path / "idle.mcap", load_config(CONFIG), mode="live", flush_every_s=0.2)
-        await asyncio.sleep(0.5)  # two periods without a record
+        sink = McapLogSink(tmp_path / "idle.mcap", load_config(CONFIG), mode="live", flush_every_s=10.0,
+                           monotonic=lambda: mono[0])
+        mono[0] += 30.0  # the sink's clock: 30 s without a record
+        sink._tick()  # what the timer does when it fires
         assert sink._timer is not None
         ahead = sink._timer.when() - asyncio.get_running_loop().time()
         sink.close()
         return ahead
 
-    assert asyncio.run(run()) > 0.05
+    assert asyncio.run(run()) > 5.0  # about one flush period (10 s), not 0
