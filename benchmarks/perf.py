@@ -5,11 +5,14 @@ in docs/performance.md (between the perf:begin/perf:end markers). Not a test: no
 
     .venv/bin/python benchmarks/perf.py [--quick] [--replay-minutes N] [--only SECTIONS] [--write]
 
-Sections (all by default, in this order): ingest, replay, latency, cpu, profile, proto.
+Sections (in this order): ingest, replay, latency, cpu, profile, proto; all but proto by default (the prototypes are
+written against ef5d01e's internals and skip themselves on later trees).
 - ingest:  python-can Messages built in memory first (simulator, 4 WPT messages at 2000 Hz each + 20 Hz NMEA);
-           then, interleaved, `rounds` times: slipdaq's live path minus the driver (to_frame(msg) ->
-           Pipeline.process -> McapLogSink, every frame logged, NMEA lines in arrival order, file closed) and
-           python-can's can.Logger writing the same frames to .blf and to .asc. Median frames/s and the ratios.
+           then, interleaved, `rounds` times: slipdaq's live path minus the driver (reader batches of up to 256
+           frames, as CanBusSource reads them: to_frames(msgs) -> Pipeline.process_can_batch -> McapLogSink, every
+           frame logged, NMEA lines in arrival order, file closed), the same frame by frame (to_frame ->
+           Pipeline.process), and python-can's can.Logger writing the same frames to .blf and to .asc. Median
+           frames/s and the ratios.
 - replay:  a raw log of N minutes of 4 x 500 Hz + 20 Hz NMEA (written with McapLogSink.on_raw), then
            `slipdaq replay RAW -o OUT` in this process (slipdaq.cli.main). Frames/s and times real time.
 - latency: run_daemon in this process on python-can's virtual bus, a sender thread at 4 x 1 kHz + NMEA at 20 Hz on
@@ -236,6 +239,27 @@ def ingest_slipdaq(cfg: Config, items: list[Any], path: Path, *, status_sink: bo
     return time.perf_counter() - t0
 
 
+def ingest_batched(cfg: Config, batches: list[Any], path: Path) -> float:
+    """Seconds for what the live source and pipeline do per reader wake-up: to_frames(msgs) (a CanFrameBatch from
+    48 frames on, else CanFrames) -> Pipeline.process_can_batch, NMEA lines through Pipeline.process; finish, close."""
+    from slipdaq.pipeline import Pipeline
+    from slipdaq.sinks.mcap_log import McapLogSink
+    from slipdaq.sources.can_bus import to_frames
+
+    sink = McapLogSink(path, cfg, mode="bench")
+    pipeline = Pipeline(cfg, [sink])
+    process, process_can_batch = pipeline.process, pipeline.process_can_batch
+    t0 = time.perf_counter()
+    for b in batches:
+        if type(b) is list:
+            process_can_batch(to_frames(b))
+        else:
+            process(b)
+    pipeline.finish()
+    sink.close()
+    return time.perf_counter() - t0
+
+
 def ingest_logger(msgs: list[can.Message], path: Path) -> float:
     logger = can.Logger(str(path))
     t0 = time.perf_counter()
@@ -276,12 +300,14 @@ def run_ingest(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> IngestR
     batches = reader_batches(items)
     res = IngestResult(len(msgs), len(items) - len(msgs), a.ingest_seconds)
     variants: list[tuple[str, Any]] = [
-        ("slipdaq (to_frame -> Pipeline.process -> McapLogSink)",
+        ("slipdaq, reader batches of up to 256 (to_frames -> Pipeline.process_can_batch -> McapLogSink)",
+         lambda p: ingest_batched(cfg, batches, p)),
+        ("slipdaq, frame by frame (to_frame -> Pipeline.process -> McapLogSink)",
          lambda p: ingest_slipdaq(cfg, items, p)),
         ("python-can can.Logger -> .blf", lambda p: ingest_logger(msgs, p)),
         ("python-can can.Logger -> .asc", lambda p: ingest_logger(msgs, p)),
     ]
-    exts = ["mcap", "blf", "asc"]
+    exts = ["mcap", "mcap", "blf", "asc"]
     if with_proto:
         variants.append(("prototype: batched path (perf_proto.FastPipeline)", lambda p: ingest_fast(cfg, batches, p)))
         exts.append("mcap")
@@ -301,8 +327,8 @@ def run_ingest(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> IngestR
 def ingest_table(res: IngestResult) -> str:
     names = list(res.rates)
     slip = median(res.rates[names[0]])
-    blf = median(res.rates[names[1]])
-    asc = median(res.rates[names[2]])
+    blf = median(res.rates[next(n for n in names if n.endswith(".blf"))])
+    asc = median(res.rates[next(n for n in names if n.endswith(".asc"))])
     rows = []
     for n in names:
         m = median(res.rates[n])
@@ -515,9 +541,13 @@ def analyse_latency(log_path: Path, probe: list[list[float]], cfg: Config) -> tu
     times: dict[str, list[float]] = {w: [] for w in ids.values()}
     estimates: list[tuple[dict[str, Any], dict[str, int], tuple[str, float]]] = []
     last: tuple[str, float] = ("none", math.nan)
+    batched = False
     with open(log_path, "rb") as f:
         for _s, ch, m in make_reader(f).iter_messages(topics=["/can/raw", "/nmea/raw", "/estimate"],
                                                       log_time_order=False):
+            if ch.message_encoding == "cdr":
+                batched = True
+                break
             d = json.loads(m.data)
             if ch.topic == "/can/raw":
                 w = ids.get(d["id"])
@@ -528,6 +558,8 @@ def analyse_latency(log_path: Path, probe: list[list[float]], cfg: Config) -> tu
                 last = ("nmea", d["timestamp_s"])
             else:
                 estimates.append((d, {w: len(v) for w, v in times.items()}, last))
+    if batched:
+        times, estimates = _batched_log_estimates(log_path, ids)
     notes: list[str] = []
     if len(probe) != len(estimates):
         notes.append(f"probe saw {len(probe)} estimates, the log has {len(estimates)}: matched by order")
@@ -539,6 +571,52 @@ def analyse_latency(log_path: Path, probe: list[list[float]], cfg: Config) -> tu
         items.append((wall, d, counts, kind, t_rel))
     frame_ms, trig_ms, by_nmea, more = _latency_core(items, {w: np.asarray(v) for w, v in times.items()})
     return frame_ms, trig_ms, by_nmea, len(estimates), notes + more
+
+
+def _batched_log_estimates(log_path: Path, ids: dict[int, str]) -> tuple[dict[str, list[float]], list[Any]]:
+    """analyse_latency for the batched format: a batch may be written after an estimate its frames released, so the
+    releasing record comes from the estimate's log time (the releasing record's timestamp): an NMEA line with that
+    time (its can_index: the frames before it), else the CAN frame with that time."""
+    from mcap.reader import make_reader
+
+    from slipdaq.sinks.cdr import decode_can_batch
+
+    cols: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    lines: dict[int, tuple[float, int]] = {}
+    raw_estimates: list[tuple[int, dict[str, Any]]] = []
+    with open(log_path, "rb") as f:
+        for _s, ch, m in make_reader(f).iter_messages(topics=["/can/raw", "/nmea/raw", "/estimate"],
+                                                      log_time_order=False):
+            if ch.topic == "/can/raw":
+                _first, b = decode_can_batch(m.data)
+                cols.append((b.timestamp_s.copy(), b.arbitration_id.copy(), b.flags.copy()))
+            elif ch.topic == "/nmea/raw":
+                d = json.loads(m.data)
+                lines[m.log_time] = (d["timestamp_s"], d.get("can_index", 0))
+            else:
+                raw_estimates.append((m.log_time, json.loads(m.data)))
+    ts = np.concatenate([c[0] for c in cols]) if cols else np.empty(0)
+    fid = np.concatenate([c[1] for c in cols]) if cols else np.empty(0, dtype=np.uint32)
+    flags = np.concatenate([c[2] for c in cols]) if cols else np.empty(0, dtype=np.uint8)
+    ns = np.maximum(np.round(ts * 1e9), 0).astype(np.int64)
+    wheel_of = {w: (fid == i) & (flags == 0) for i, w in ids.items()}
+    cum = {w: np.concatenate(([0], np.cumsum(sel))) for w, sel in wheel_of.items()}
+    times = {w: ts[sel].tolist() for w, sel in wheel_of.items()}
+    last_index: dict[int, int] = {}
+    for i, v in enumerate(ns.tolist()):
+        last_index[v] = i
+    estimates = []
+    for log_time, d in raw_estimates:
+        if log_time in lines:
+            t_rel, k = lines[log_time]
+            kind = "nmea"
+        else:
+            i = last_index.get(log_time)
+            if i is None:
+                continue
+            t_rel, k, kind = float(ts[i]), i + 1, "can"
+        estimates.append((d, {w: int(c[k]) for w, c in cum.items()}, (kind, t_rel)))
+    return times, estimates
 
 
 def analyse_latency_proto(log_path: Path, rows: list[list[Any]]) -> tuple[list[float], list[float], int, int,
@@ -828,26 +906,37 @@ def cpu_table(cpus: list[CpuResult]) -> str:
 
 # ---- 5. profile -------------------------------------------------------------------------------------------------
 PROFILE_RULES: list[tuple[str, tuple[str, ...]]] = [
-    ("estimator: UtcLatency.estimate (2 numpy medians; per frame in ef5d01e)", ("UtcLatency.estimate",)),
-    ("estimator: the estimates themselves (window maths, at GPS epochs)",
-     ("SlipEstimator._estimate", "SlipEstimator._wheel_only", "SlipEstimator._gps_lost", "SlipEstimator.status")),
-    ("estimator: readiness check per frame (_drain/_ready/latency)",
-     ("SlipEstimator._drain", "SlipEstimator._ready", "SlipEstimator._reporting", "SlipEstimator.latency",
-      "SlipEstimator._current_latency", "SlipEstimator._smooth_arrival")),
-    ("estimator: ring append and add_wheel/add_gps", ("SlipEstimator.add_wheel", "SlipEstimator.add_gps",
-                                                       "SeriesRing.")),
+    ("epoch: GPS latency (UtcLatency / WheelLatency, numpy medians; once per fix)",
+     ("UtcLatency.", "WheelLatency.", "SlipEstimator._current_latency")),
+    ("epoch: the estimates themselves (window maths, r0, Cx, lag fit)",
+     ("SlipEstimator._estimate", "SlipEstimator._wheel_only", "SlipEstimator._gps_lost", "SlipEstimator.status",
+      "estimator/radius.py", "estimator/stiffness.py", "SlipEstimator._update_lag", "SlipEstimator._arc_m",
+      "SlipEstimator._weight", "SlipEstimator._gps_covers", "SlipEstimator._accel", "SlipEstimator._grade_sin",
+      "SlipEstimator._force", "SlipEstimator._r0", "SlipEstimator._wheel", "SlipEstimator._with_reference_slip",
+      "SlipEstimator._smooth_arrivals", "SlipEstimator._free_rolling", "integrate_speed_m", "phase_of",
+      "tire_forces")),
+    ("estimator: readiness (_head_consts, _ready_index, _drain)",
+     ("SlipEstimator._drain", "SlipEstimator._ready", "SlipEstimator._head_consts", "SlipEstimator.latency",
+      "SlipEstimator._smooth_arrival ", "SlipEstimator._reporting")),
+    ("estimator: samples into the rings (add_wheels, add_wheel_at, SeriesRing)",
+     ("SlipEstimator.add_wheel", "SeriesRing.", "append_upto")),
+    ("estimator: add_gps (fix into the rings)", ("SlipEstimator.add_gps",)),
     ("estimator: other", ("estimator/",)),
     ("decode: cantools Message.decode", ("cantools",)),
-    ("decode: wheel frames (WptDecoder/WheelDecoder: unwrap, Seq, samples)", ("WptDecoder.", "WheelDecoder.",
-                                                                             "decode/can_wheels.py")),
-    ("decode: GPS (NmeaDecoder, pynmea2, UBX)", ("NmeaDecoder.", "pynmea2", "decode/nmea.py", "decode/ubx.py")),
-    ("log: json.dumps", ("json/encoder.py", "json/__init__.py")),
+    ("decode: wheel frames (WheelDecoder: batch decode, unwrap, Seq)", ("WheelDecoder.", "decode/can_wheels.py")),
+    ("epoch: GPS decode (NmeaDecoder, pynmea2, UBX)", ("NmeaDecoder.", "pynmea2", "decode/nmea.py",
+                                                        "decode/ubx.py")),
+    ("epoch: estimates, fixes, diagnostics to JSON", ("json/encoder.py", "json/__init__.py", "estimate_to_dict",
+                                                       "Estimate.as_row", "McapLogSink.on_estimate",
+                                                       "McapLogSink.on_fix", "McapLogSink.on_diagnostics",
+                                                       "Pipeline.diagnostics", "Pipeline.emit_diagnostics")),
+    ("log: CDR batches (sinks/cdr.py)", ("sinks/cdr.py",)),
     ("log: mcap Writer.add_message, chunks, zstd", ("mcap/", "zstandard")),
-    ("log: McapLogSink (dicts, hex, topic dispatch)", ("McapLogSink.", "can_frame_to_dict", "estimate_to_dict",
-                                                       "Estimate.as_row", "_ns (", "sinks/mcap_log.py")),
-    ("pipeline: Pipeline.process (dispatch, sinks loop, diagnostics)", ("Pipeline.", "records.py")),
-    ("source: to_frame (can.Message -> CanFrame)", ("to_frame",)),
-    ("benchmark driver loop (for, type check)", ("ingest_loop", "ingest_slipdaq")),
+    ("log: McapLogSink (pending batches, topic dispatch)", ("McapLogSink.", "_Pending", "concat_can_batches",
+                                                            "sinks/mcap_log.py")),
+    ("pipeline: process_can_batch / process (dispatch, counters)", ("Pipeline.", "pipeline.py")),
+    ("source: to_frames (can.Message -> CanFrameBatch columns)", ("to_frame", "CanFrameBatch.", "records.py")),
+    ("benchmark driver loop (for, type check)", ("ingest_loop", "ingest_slipdaq", "ingest_batched")),
 ]
 
 
@@ -867,11 +956,11 @@ def profile_target(seconds: float) -> None:
     import slipdaq.sources.can_bus  # noqa: F401
 
     cfg = base_config()
-    items = sim_items(2000.0, 20.0, seconds)
+    batches = reader_batches(sim_items(2000.0, 20.0, seconds))
     tmp = Path(tempfile.mkdtemp())
 
     def ingest_loop() -> None:
-        ingest_slipdaq(cfg, items, tmp / "p.mcap")
+        ingest_batched(cfg, batches, tmp / "p.mcap")
 
     ingest_loop()
     shutil.rmtree(tmp, ignore_errors=True)
@@ -908,10 +997,10 @@ def run_profile(a: argparse.Namespace, tmp: Path) -> dict[str, Any]:
     import pstats
 
     cfg = base_config()
-    items = sim_items(2000.0, 20.0, seconds)
+    batches = reader_batches(sim_items(2000.0, 20.0, seconds))
     pr = cProfile.Profile()
     pr.enable()
-    ingest_slipdaq(cfg, items, tmp / "p.mcap")
+    ingest_batched(cfg, batches, tmp / "p.mcap")
     pr.disable()
     s = io.StringIO()
     pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(15)
@@ -1210,7 +1299,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small sizes, < 1 minute (a smoke run, not the figures)")
-    ap.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated subset of {','.join(SECTIONS)}")
+    ap.add_argument("--only", default=",".join(s for s in SECTIONS if s != "proto"),
+                    help=f"comma-separated subset of {','.join(SECTIONS)} (default: all but proto, the prototypes of "
+                         f"ef5d01e's internals)")
     ap.add_argument("--replay-minutes", type=float, default=None,
                     help="minutes of 4 x 500 Hz log to replay (default 60, the issue's definition; --quick 0.25)")
     ap.add_argument("--proto-replay-minutes", type=float, default=None,

@@ -25,6 +25,7 @@ from slipdaq.pipeline import Pipeline
 from slipdaq.recover import ScanResult, recover, scan
 from slipdaq.records import CanFrame, NmeaLine, WheelSample
 from slipdaq.sinks import CollectingSink
+from slipdaq.sinks.cdr import decode_can_batch
 from slipdaq.sinks.durable import TRAILER
 from slipdaq.sinks.mcap_log import (
     TOPIC_EVENTS, McapLogSink, can_frame_json, can_frame_to_dict, estimate_to_dict, wheel_sample_json,
@@ -86,8 +87,9 @@ def test_chunk_closed_every_second_even_when_records_stop(tmp_path: Path) -> Non
         await asyncio.sleep(1.15)  # no record at all now
         copy = tmp_path / "copy.mcap"
         shutil.copy(path, copy)  # what a SIGKILL now would leave
-        with open(copy, "rb") as f:
-            seen = sum(1 for _ in make_reader(f).iter_messages(log_time_order=False))  # the standard reader
+        with open(copy, "rb") as f:  # the standard reader; /can/raw holds batches of frames
+            seen = sum(len(decode_can_batch(m.data)[1]) for _, _, m in make_reader(f).iter_messages(
+                log_time_order=False))
         sink.close()
         return n, seen
 
@@ -262,7 +264,7 @@ def test_disk_full_clear_message_estimating_goes_on_and_logging_resumes(tmp_path
     records = sim_records(8.0, wpt_rate_hz=400.0)
     cfg = load_config(CONFIG)
     with small_tmpfs(tmp_path / "mnt", "1M") as mnt:
-        filler = fill(mnt, 100_000)
+        filler = fill(mnt, 30_000)  # about 1 s of this log (CAN frames in batches)
         mono = FakeMonotonic()
         seen: list = []
         sink = McapLogSink(mnt / "run.mcap", cfg, mode="live", flush_every_s=1.0, monotonic=mono, fsync=False,
@@ -333,7 +335,7 @@ def test_slipdaq_run_rotates_by_the_config(tmp_path: Path) -> None:
     assert all(is_finished(seg) for seg in segments) and read_metadata(segments[1])["segment"] == "2"
 
 
-@pytest.mark.parametrize("policy", [RotationPolicy(max_bytes=50_000), RotationPolicy(max_s=1.5)],
+@pytest.mark.parametrize("policy", [RotationPolicy(max_bytes=25_000), RotationPolicy(max_s=1.5)],
                          ids=["size", "duration"])
 def test_rotation_loses_no_message_at_a_boundary(tmp_path: Path, policy: RotationPolicy) -> None:
     """Segments by size or by duration: each a finished slipdaq log; their raw records, in order, are exactly the
@@ -390,6 +392,10 @@ def test_fast_json_equals_json_dumps(t, ident, data, ext, err, revs, count, raw,
 def test_scan_of_a_finished_file_reads_everything(finished_log) -> None:  # type: ignore[no-untyped-def]
     path, records, _ = finished_log
     res = ScanResult(path)
-    kinds = [k for k, _ in scan(path, res)]
+    items = list(scan(path, res))
+    kinds = [k for k, _ in items]
     assert res.finished and res.has_summary and not res.stopped_because and res.read_bytes == res.size_bytes
-    assert kinds.count("metadata") == 1 and res.messages > len(records)
+    frames = sum(len(decode_can_batch(m.data)[1]) for k, (c, m) in ((k, i) for k, i in items if k == "message")
+                 if c.topic == "/can/raw")
+    assert kinds.count("metadata") == 1 and frames == sum(isinstance(r, CanFrame) for r in records)
+    assert res.messages > sum(not isinstance(r, CanFrame) for r in records)

@@ -207,14 +207,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.offline import process_to_log
     from slipdaq.report.labels import LABEL_PREFIX
     from slipdaq.sources.mcap_log import (
-        ScanResult, config_from_log, iter_raw_records, raw_record_count, read_metadata,
+        ScanResult, config_from_log, iter_raw_batches, raw_record_count, read_metadata,
     )
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
     total = raw_record_count(args.log)
     labels = {k: v for k, v in read_metadata(args.log).items() if k.startswith(LABEL_PREFIX)}  # kept
     scanned = ScanResult(Path(args.log))
-    p = process_to_log(cfg, iter_raw_records(args.log, scanned), Path(args.output), "replay",
+    p = process_to_log(cfg, iter_raw_batches(args.log, scanned), Path(args.output), "replay",
                        metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
     _unfinished_note(args.log, scanned)
     print(f"replayed {p.can_frames + p.nmea.lines + p.ubx.frames} records -> {args.output} ({p.estimates} estimates)")

@@ -165,7 +165,7 @@ async def run_daemon(
 
     try:
         async with asyncio.TaskGroup() as tg:
-            tg.create_task(can_source.run(pipeline.process), name="can")
+            tg.create_task(can_source.run(pipeline.process, pipeline.process_can_batch), name="can")
             tg.create_task(gps_source.run(pipeline.process), name="gps")
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")

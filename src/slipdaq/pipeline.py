@@ -1,22 +1,30 @@
-"""Raw records in -> decoded -> estimator -> sinks. Live, replay and import all call Pipeline.process.
+"""Raw records in -> decoded -> estimator -> sinks. Live, replay and import all call Pipeline.process, or
+Pipeline.process_can_batch for consecutive CAN frames.
 
 Records are processed in the order given; the estimates depend on nothing else, so a log replayed in
-the order it was recorded gives the same estimates, bit for bit.
+the order it was recorded gives the same estimates, bit for bit. How CAN frames are grouped into batches does not
+change anything either: a batch gives the same samples, estimates (released by the same frames, with the same log
+times), counters and diagnostics snapshots as its frames one by one.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
+import numpy as np
+
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
-from slipdaq.records import CanFrame, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame
+from slipdaq import WHEELS
+from slipdaq.records import FLAG_ERROR, CanFrame, CanFrameBatch, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame
 from slipdaq.sinks import Sink
 
 DIAGNOSTICS_PERIOD_S = 1.0
+SCALAR_MAX_FRAMES = 48
+"""process_can_batch takes frames one by one below this batch size (numpy's fixed cost per call dominates)."""
 
 
 class Pipeline:
@@ -34,6 +42,12 @@ class Pipeline:
         self.estimates = 0
         self.last_time_s: float | None = None
         self._next_diag_s: float | None = None
+        self.scalar_max_frames = SCALAR_MAX_FRAMES
+        # sinks that take batches (McapLogSink); the others get the batch's frames and samples one by one
+        self._can_batch_sinks = [s for s in self.sinks if hasattr(s, "on_can_batch")]
+        self._frame_sinks = [s for s in self.sinks if not hasattr(s, "on_can_batch")]
+        self._sample_batch_sinks = [s for s in self.sinks if hasattr(s, "on_wheel_batch")]
+        self._sample_sinks = [s for s in self.sinks if not hasattr(s, "on_wheel_batch")]
 
     def process(self, record: RawRecord) -> None:
         """One raw record through decode and estimator to every sink."""
@@ -67,6 +81,68 @@ class Pipeline:
             self.estimates += 1
             for s in sinks:
                 s.on_estimate(e, t)
+        self.last_time_s = t
+        if self._next_diag_s is None:
+            self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
+        elif t >= self._next_diag_s:
+            self.emit_diagnostics()
+            self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
+
+    def process_can_batch(self, frames: CanFrameBatch | Sequence[CanFrame]) -> None:
+        """Consecutive CAN frames (a reader's wake-up, a block of a log): the same as process() for each in turn.
+
+        Small batches go one by one; large ones through numpy (decode, unwrap, estimator in bulk), cut only where a
+        diagnostics snapshot falls due."""
+        n = len(frames)
+        if n == 0:
+            return
+        if n < self.scalar_max_frames:
+            for f in frames if not isinstance(frames, CanFrameBatch) else frames.frames():
+                self.process(f)
+            return
+        batch = frames if isinstance(frames, CanFrameBatch) else CanFrameBatch.from_frames(frames)
+        ts = batch.timestamp_s
+        start = 0
+        while start < n:
+            if self._next_diag_s is None:
+                stop = start + 1
+            else:
+                due = np.flatnonzero(ts[start:] >= self._next_diag_s)
+                stop = start + int(due[0]) + 1 if len(due) else n
+            self._can_segment(batch if (start, stop) == (0, n) else batch.slice(start, stop))
+            start = stop
+
+    def _can_segment(self, batch: CanFrameBatch) -> None:
+        """Frames of which at most the last may make a diagnostics snapshot due."""
+        for s in self._can_batch_sinks:
+            s.on_can_batch(batch)  # type: ignore[attr-defined]
+        if self._frame_sinks:
+            for f in batch.frames():
+                for s in self._frame_sinks:
+                    s.on_raw(f)
+        n = len(batch)
+        self.can_frames += n
+        which = self.wheels.wheel_frames(batch)
+        error = (batch.flags & FLAG_ERROR) != 0
+        self.error_frames += int(np.count_nonzero(error))
+        self.unknown_frames += int(np.count_nonzero(~error & (which < 0)))
+        samples = self.wheels.decode_batch(batch, which)
+        if len(samples):
+            for s in self._sample_batch_sinks:
+                s.on_wheel_batch(samples)  # type: ignore[attr-defined]
+            if self._sample_sinks:
+                for sample in samples.samples(WHEELS):
+                    for s in self._sample_sinks:
+                        s.on_wheel(sample)
+            released = self.estimator.add_wheels(samples.wheel, samples.timestamp_s, samples.revolutions)
+            if released:
+                ts = batch.timestamp_s
+                for i, e in released:
+                    t_e = float(ts[samples.frame[i]])
+                    self.estimates += 1
+                    for s in self.sinks:
+                        s.on_estimate(e, t_e)
+        t = float(batch.timestamp_s[-1])
         self.last_time_s = t
         if self._next_diag_s is None:
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S

@@ -5,7 +5,10 @@ Times are seconds in the log's clock (host wall clock for live runs, the files' 
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+
+import numpy as np
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,6 +39,97 @@ class UbxFrame:
 
 
 RawRecord = CanFrame | NmeaLine | UbxFrame
+
+FLAG_EXTENDED = 1
+FLAG_ERROR = 2
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CanFrameBatch:
+    """Consecutive raw CAN frames in arrival order, as numpy columns (one row per frame)."""
+
+    timestamp_s: np.ndarray
+    """float64 receive timestamps."""
+    arbitration_id: np.ndarray
+    """uint32."""
+    flags: np.ndarray
+    """uint8: FLAG_EXTENDED | FLAG_ERROR."""
+    dlc: np.ndarray
+    """uint8: payload length in bytes."""
+    data: np.ndarray
+    """uint8 [n, width]: frame i's payload in data[i, :dlc[i]], zero-padded; width >= 8 (64 for CAN FD)."""
+
+    def __len__(self) -> int:
+        return len(self.timestamp_s)
+
+    @classmethod
+    def from_columns(cls, timestamp_s: Sequence[float], arbitration_id: Sequence[int], flags: Sequence[int],
+                     payloads: Sequence[bytes]) -> "CanFrameBatch":
+        n = len(payloads)
+        dlc = np.fromiter(map(len, payloads), dtype=np.uint8, count=n)
+        width = max(8, int(dlc.max())) if n else 8
+        if n and width == 8 and bool((dlc == 8).all()):
+            data = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(n, 8)
+        else:
+            data = np.frombuffer(b"".join(p.ljust(width, b"\0") for p in payloads), dtype=np.uint8).reshape(n, width)
+        return cls(np.asarray(timestamp_s, dtype=np.float64), np.asarray(arbitration_id, dtype=np.uint32),
+                   np.asarray(flags, dtype=np.uint8), dlc, data)
+
+    @classmethod
+    def from_frames(cls, frames: Sequence[CanFrame]) -> "CanFrameBatch":
+        return cls.from_columns([f.timestamp_s for f in frames], [f.arbitration_id for f in frames],
+                                [f.is_extended_id | (f.is_error_frame << 1) for f in frames], [f.data for f in frames])
+
+    def payload(self, i: int) -> bytes:
+        return self.data[i, : self.dlc[i]].tobytes()
+
+    def frames(self) -> Iterator[CanFrame]:
+        """The frames one by one (the general path)."""
+        rows = self.data.tolist()
+        for t, fid, fl, n, row in zip(self.timestamp_s.tolist(), self.arbitration_id.tolist(), self.flags.tolist(),
+                                      self.dlc.tolist(), rows):
+            yield CanFrame(t, fid, bytes(row[:n]), bool(fl & FLAG_EXTENDED), bool(fl & FLAG_ERROR))
+
+    def slice(self, start: int, stop: int) -> "CanFrameBatch":
+        return CanFrameBatch(self.timestamp_s[start:stop], self.arbitration_id[start:stop], self.flags[start:stop],
+                             self.dlc[start:stop], self.data[start:stop])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class WheelSampleBatch:
+    """Decoded wheel samples in record order, as numpy columns: what many WheelSamples carry."""
+
+    frame: np.ndarray
+    """int64: index of the frame each sample came from, within its CanFrameBatch."""
+    wheel: np.ndarray
+    """uint8: index in WHEELS."""
+    timestamp_s: np.ndarray
+    revolutions: np.ndarray
+    count: np.ndarray
+    """int64 (0 where has_count is false)."""
+    raw: np.ndarray
+    """float64: the signal as sent."""
+    seq: np.ndarray
+    """int64 (0 where has_seq is false)."""
+    lost_frames: np.ndarray
+    """int64."""
+    flags: np.ndarray
+    """uint8: SAMPLE_HAS_COUNT | SAMPLE_HAS_SEQ."""
+
+    def __len__(self) -> int:
+        return len(self.timestamp_s)
+
+    def samples(self, wheels: Sequence[str]) -> Iterator["WheelSample"]:
+        for w, t, rev, c, raw, q, lost, fl in zip(
+            self.wheel.tolist(), self.timestamp_s.tolist(), self.revolutions.tolist(), self.count.tolist(),
+            self.raw.tolist(), self.seq.tolist(), self.lost_frames.tolist(), self.flags.tolist(),
+        ):
+            yield WheelSample(t, wheels[w], rev, c if fl & SAMPLE_HAS_COUNT else None, raw,
+                              q if fl & SAMPLE_HAS_SEQ else None, lost)
+
+
+SAMPLE_HAS_COUNT = 1
+SAMPLE_HAS_SEQ = 2
 
 
 @dataclass(frozen=True, slots=True)

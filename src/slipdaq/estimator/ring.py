@@ -18,6 +18,8 @@ class SeriesRing:
         self._start = 0
         self._end = 0
         self.drop_before = -np.inf
+        self.last_t = -np.inf
+        """The newest sample's time as a Python float (-inf when empty): readiness checks compare it per frame."""
 
     def __len__(self) -> int:
         return self._end - self._start
@@ -32,7 +34,7 @@ class SeriesRing:
 
     @property
     def last_time(self) -> float:
-        return float(self._t[self._end - 1]) if self._end > self._start else -np.inf
+        return self.last_t
 
     @property
     def first_time(self) -> float:
@@ -44,6 +46,22 @@ class SeriesRing:
         self._t[self._end] = t
         self._v[self._end] = v
         self._end += 1
+        self.last_t = float(t)
+
+    def extend(self, ts: np.ndarray, vs: np.ndarray) -> None:
+        """append() for each (t, v) in order, in bulk: _make_room runs at the same points, so the kept samples
+        are the same as after one-by-one appends."""
+        i, n = 0, len(ts)
+        while i < n:
+            if self._end == len(self._t):
+                self._make_room()
+            k = min(n - i, len(self._t) - self._end)
+            self._t[self._end : self._end + k] = ts[i : i + k]
+            self._v[self._end : self._end + k] = vs[i : i + k]
+            self._end += k
+            i += k
+        if n:
+            self.last_t = float(ts[n - 1])
 
     def _make_room(self) -> None:
         keep_from = self._start + int(np.searchsorted(self.times, self.drop_before, side="left"))

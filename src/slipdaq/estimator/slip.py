@@ -43,6 +43,9 @@ G_MPS2 = 9.81
 WHEEL_ONLY_STEP_S = 0.1
 REFERENCE_SPEED_ACCURACY_MPS = 0.05
 """A window whose fixes state this speed accuracy (1 sigma) has weight 1 in the r0 and Cx fits; weight ~ 1/sigma^2."""
+WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
+BULK_MIN_SAMPLES = 64
+"""add_wheels goes one by one below this many samples (numpy's fixed cost per call would dominate)."""
 LAG_GUARD_ROWS = 5
 """A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
 
@@ -231,6 +234,9 @@ class SlipEstimator:
         self._latency: LatencyEstimate | None = None
         self._utc_offset_s: float | None = None
         self.rejected_fixes = 0
+        self._rings = [self._wheels[w] for w in WHEELS]  # by wheel index (WHEELS order)
+        self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
+        self.bulk_min_samples = BULK_MIN_SAMPLES
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
@@ -256,13 +262,135 @@ class SlipEstimator:
 
     # ---- input -------------------------------------------------------------------------------------
     def add_wheel(self, sample: WheelSample) -> list[Estimate]:
-        ring = self._wheels[sample.wheel]
-        if sample.timestamp_s < ring.last_time:
+        return self.add_wheel_at(WHEEL_INDEX[sample.wheel], sample.timestamp_s, sample.revolutions)
+
+    def add_wheel_at(self, wheel: int, time_s: float, revolutions: float) -> list[Estimate]:
+        """One wheel sample (wheel: index in WHEELS); what add_wheel does, without the WheelSample."""
+        ring = self._rings[wheel]
+        if time_s < ring.last_t:
             return []  # out of order: keep the ring monotonic
-        ring.append(sample.timestamp_s, sample.revolutions)
-        if sample.timestamp_s - self._gps.last_time > self.p.gps_lost_after_s:
+        ring.append(time_s, revolutions)
+        if time_s - self._gps.last_t > self.p.gps_lost_after_s:
             return self._gps_lost()
-        return self._drain() if self._pending else []
+        if not self._pending:
+            return []
+        mode, need, since = self._head or self._head_consts()
+        if mode == 0:
+            return []
+        if mode == 2:
+            for r in self._rings:
+                if since <= r.last_t < need:
+                    return []  # a reporting wheel has not reached the window's end yet
+        return self._drain()
+
+    def add_wheels(
+        self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray
+    ) -> list[tuple[int, Estimate]]:
+        """Many wheel samples in record order (wheel: indices in WHEELS; times and revolutions float64); returns
+        (index of the sample whose arrival released it, estimate) in order.
+
+        The same estimates, released by the same samples, with the same rings and state as add_wheel_at for each
+        sample in turn, whatever the batch: samples are appended in bulk and _drain runs exactly after the samples
+        where one-by-one processing would emit. Small batches (below bulk_min_samples) and samples once GPS is
+        lost go one by one."""
+        n = len(time_s)
+        if n < self.bulk_min_samples or bool(np.isnan(time_s).any()):
+            out: list[tuple[int, Estimate]] = []
+            add = self.add_wheel_at
+            for i, (w, t, r) in enumerate(zip(wheel.tolist(), time_s.tolist(), revolutions.tolist())):
+                e = add(w, t, r)
+                if e:
+                    out += [(i, x) for x in e]
+            return out
+        rings = self._rings
+        wheel = np.asarray(wheel)
+        keep: np.ndarray | None = None
+        sel_w: list[np.ndarray] = []
+        for w in range(len(rings)):
+            s = np.flatnonzero(wheel == w)
+            sel_w.append(s)
+            if len(s) == 0:
+                continue
+            tw = time_s[s]
+            if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
+                continue
+            run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
+            ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
+            if not ok.all():
+                if keep is None:
+                    keep = np.ones(n, dtype=bool)
+                keep[s] = ok
+        index: np.ndarray | None = None  # kept position -> input index
+        if keep is not None:
+            index = np.flatnonzero(keep)
+            wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
+            sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
+        m = len(time_s)
+        ptr = [0] * len(rings)  # per wheel: samples of this batch already appended
+
+        def append_upto(k: int) -> None:  # the samples at positions < k
+            for w, s in enumerate(sel_w):
+                j = ptr[w]
+                e = int(np.searchsorted(s, k, side="left"))
+                if e > j:
+                    rings[w].extend(time_s[s[j:e]], revolutions[s[j:e]])
+                    ptr[w] = e
+
+        lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
+        stop = int(lost_at[0]) if len(lost_at) else m
+        out = []
+        pos = 0
+        while pos < stop and self._pending:
+            k = self._ready_index(pos, stop, time_s, sel_w, ptr)
+            if k is None:
+                break
+            append_upto(k + 1)
+            i = k if index is None else int(index[k])
+            out += [(i, e) for e in self._drain()]
+            pos = k + 1
+        append_upto(stop)
+        for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
+                                          revolutions[stop:].tolist()), stop):
+            e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
+            if e:
+                i = k if index is None else int(index[k])
+                out += [(i, x) for x in e]
+        return out
+
+    def _ready_index(self, pos: int, stop: int, t: np.ndarray, sel_w: list[np.ndarray], ptr: list[int]) -> int | None:
+        """add_wheels: the first position k in [pos, stop) after whose sample the head epoch is ready, else None.
+        The samples before pos are in the rings; each wheel's samples from ptr on are at positions >= pos."""
+        mode, need, since = self._head or self._head_consts()
+        if mode == 0:
+            return None
+        if mode == 1:
+            return pos
+        never = 1 << 62
+        blocks: list[tuple[int, int]] = []  # [enter, reach): positions where the wheel is reporting but short
+        for w, ring in enumerate(self._rings):
+            lt = ring.last_t
+            if lt >= need:
+                continue
+            s = sel_w[w][ptr[w]:]
+            ts = t[s]
+            j = int(np.searchsorted(ts, need, side="left"))
+            reach = int(s[j]) if j < len(ts) else never
+            if lt >= since:
+                enter = -1
+            else:
+                j = int(np.searchsorted(ts, since, side="left"))
+                enter = int(s[j]) if j < len(ts) else never
+            if enter < reach:
+                blocks.append((enter, reach))
+        k = pos
+        moved = True
+        while moved:
+            moved = False
+            for enter, reach in blocks:
+                if enter <= k < reach:
+                    k = reach
+                    moved = True
+        return k if k < stop else None
 
     def add_gps(self, fix: GpsFix) -> list[Estimate]:
         if not fix.valid or not math.isfinite(fix.speed_mps):
@@ -277,6 +405,7 @@ class SlipEstimator:
         self._gps_utc.append(a, fix.fix_time_utc_s if fix.fix_time_utc_s is not None else math.nan)
         self._gps_acc.append(a, fix.speed_accuracy_mps if fix.speed_accuracy_mps is not None else math.nan)
         self._latency = None
+        self._head = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
         self._pending.append(a)
@@ -294,25 +423,40 @@ class SlipEstimator:
         utc = self._gps_utc.values[int(np.searchsorted(self._gps_utc.times, arrival_s))]
         return arrival_s if math.isnan(utc) else float(utc) + self._utc_offset_s
 
-    def _ready(self, arrival_s: float, latency_s: float) -> bool:
+    def _head_consts(self) -> tuple[int, float, float]:
+        """The head epoch's readiness as (mode, need, since), cached until a fix, an estimate or GPS loss:
+        mode 0: not before a later fix; 1: ready; 2: ready once every reporting wheel (newest sample at or after
+        `since`) has a sample at or after `need`."""
+        lat = self.latency.latency_s
+        arrival_s = self._pending[0]
         half = 0.5 * self.p.window_s
-        t1 = self._smooth_arrival(arrival_s) - latency_s + half
-        gps_last = self._gps.last_time - latency_s
+        t1 = self._smooth_arrival(arrival_s) - lat + half
+        gps_last = self._gps.last_time - lat
         if gps_last < t1:
-            return False
-        if gps_last >= t1 + max(self.p.window_s, 0.5):
-            return True
-        need = max(t1, arrival_s) if self.p.gps_latency_s is None else t1
-        return all(r.last_time >= need for r in self._reporting(t1 - 3 * half))
+            head = (0, 0.0, 0.0)
+        elif gps_last >= t1 + max(self.p.window_s, 0.5):
+            head = (1, 0.0, 0.0)
+        else:
+            head = (2, max(t1, arrival_s) if self.p.gps_latency_s is None else t1, t1 - 3 * half)
+        self._head = head
+        return head
+
+    def _ready(self) -> bool:
+        """The head epoch (self._pending[0]) can be estimated now."""
+        mode, need, since = self._head or self._head_consts()
+        if mode != 2:
+            return mode == 1
+        return all(r.last_t >= need for r in self._rings if r.last_t >= since)
 
     def _drain(self) -> list[Estimate]:
         out: list[Estimate] = []
         while self._pending:
-            lat = self.latency
-            if not self._ready(self._pending[0], lat.latency_s):
+            if not self._ready():
                 break
+            lat = self.latency
             out.append(self._estimate(self._pending.popleft(), lat))
             self._latency = None  # the estimate may have moved the wheels' latency fit
+            self._head = None
         first = self._pending[0] if self._pending else self._gps.last_time
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
         self._gps.drop_before = keep
@@ -545,6 +689,7 @@ class SlipEstimator:
         lat = self.latency
         while self._pending:
             out.append(self._estimate(self._pending.popleft(), lat))
+        self._head = None
         return out + self._wheel_only()
 
     def _wheel_only(self) -> list[Estimate]:

@@ -15,12 +15,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.writer import CompressionType, Writer
 
 import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
-from slipdaq.records import CanFrame, Estimate, GpsFix, NmeaLine, RawRecord, UbxFrame, WheelSample
+from slipdaq.records import (
+    SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, Estimate, GpsFix, NmeaLine, RawRecord, UbxFrame,
+    WheelSample, WheelSampleBatch,
+)
+from slipdaq.sinks import cdr
 from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
 from slipdaq.sinks.rotation import RotationPolicy, segment_path
 from slipdaq.sources.events import EventHandler, SourceEvent
@@ -70,18 +75,35 @@ def _per_wheel(title: str) -> dict[str, Any]:
     return _obj(title, {w: _INT for w in WHEELS})
 
 
-SCHEMAS: dict[str, dict[str, Any]] = {
+MAX_BATCH_FRAMES = 512
+MAX_BATCH_SPAN_S = 0.05
+"""/can/raw and /wpt/count: one message per batch of at most this many frames (samples) or this much log time."""
+
+BATCH_SCHEMAS: dict[str, tuple[str, str]] = {
+    TOPIC_CAN: (cdr.CAN_BATCH_SCHEMA_NAME, cdr.CAN_BATCH_SCHEMA),
+    TOPIC_WPT: (cdr.WHEEL_BATCH_SCHEMA_NAME, cdr.WHEEL_BATCH_SCHEMA),
+}
+"""The batched topics (ros2msg schema, CDR messages; sinks.cdr)."""
+
+LEGACY_SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_CAN: _obj("slipdaq.CanFrame", {
         "timestamp_s": _NUM, "id": _INT, "extended": {"type": "boolean"}, "error": {"type": "boolean"},
         "dlc": _INT, "data": {"type": "string", "description": "payload bytes as hex"},
     }),
-    TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}}),
-    TOPIC_UBX: _obj("slipdaq.UbxFrame", {
-        "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole UBX frame as hex"},
-    }),
     TOPIC_WPT: _obj("slipdaq.WheelSample", {
         "timestamp_s": _NUM, "wheel": {"type": "string"}, "revolutions": _NUM, "count": _INT_OR_NULL, "raw": _NUM,
         "seq": _INT_OR_NULL, "lost_frames": _INT,
+    }),
+}
+"""/can/raw and /wpt/count as logs before the batches had them: one JSON message per frame (still read)."""
+
+_CAN_INDEX = {"type": "integer", "description": "CAN frames processed before this record (its place among them)"}
+
+SCHEMAS: dict[str, dict[str, Any]] = {
+    TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}, "can_index": _CAN_INDEX}),
+    TOPIC_UBX: _obj("slipdaq.UbxFrame", {
+        "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole UBX frame as hex"},
+        "can_index": _CAN_INDEX,
     }),
     TOPIC_GPS: _obj("slipdaq.GpsFix", {
         "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
@@ -124,6 +146,7 @@ LIVE_DIAGNOSTICS: dict[str, Any] = {
     "can_last_outage_s": _NUM_OR_NULL,
 }
 """Keys a live run adds to /diagnostics, all optional."""
+# JSON topics (all but BATCH_SCHEMAS)
 SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
 SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
     "time_s": _NUM, "source": {"type": "string", "enum": ["gps", "can", "log", "clock"]}, "event": _TEXT,
@@ -243,6 +266,64 @@ def fix_json(fix: GpsFix) -> bytes:
     return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
 
 
+class _PendingCan:
+    """Frames waiting for their /can/raw batch: whole batches and single frames, in order."""
+
+    def __init__(self) -> None:
+        self.parts: list[CanFrameBatch | list[CanFrame]] = []
+        self.n = 0
+        self.first_index = 0
+        self.t0 = 0.0
+
+    def take(self) -> CanFrameBatch:
+        parts = [p if isinstance(p, CanFrameBatch) else CanFrameBatch.from_frames(p) for p in self.parts]
+        self.parts, self.n = [], 0
+        return parts[0] if len(parts) == 1 else concat_can_batches(parts)
+
+
+class _PendingSamples:
+    """Wheel samples waiting for their /wpt/count batch."""
+
+    def __init__(self) -> None:
+        self.parts: list[WheelSampleBatch | list[WheelSample]] = []
+        self.n = 0
+        self.first_index = 0
+        self.t0 = 0.0
+
+    def take(self) -> WheelSampleBatch:
+        parts = [p if isinstance(p, WheelSampleBatch) else samples_to_batch(p) for p in self.parts]
+        self.parts, self.n = [], 0
+        if len(parts) == 1:
+            return parts[0]
+        return WheelSampleBatch(*(np.concatenate([getattr(p, f) for p in parts]) for f in WheelSampleBatch.__slots__))
+
+
+def concat_can_batches(parts: list[CanFrameBatch]) -> CanFrameBatch:
+    width = max(p.data.shape[1] for p in parts)
+    data = [p.data if p.data.shape[1] == width else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
+            for p in parts]
+    return CanFrameBatch(np.concatenate([p.timestamp_s for p in parts]),
+                         np.concatenate([p.arbitration_id for p in parts]), np.concatenate([p.flags for p in parts]),
+                         np.concatenate([p.dlc for p in parts]), np.concatenate(data))
+
+
+_WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
+
+
+def samples_to_batch(samples: list[WheelSample]) -> WheelSampleBatch:
+    n = len(samples)
+    return WheelSampleBatch(
+        np.full(n, -1, dtype=np.int64), np.array([_WHEEL_INDEX[s.wheel] for s in samples], dtype=np.uint8),
+        np.array([s.timestamp_s for s in samples], dtype=np.float64),
+        np.array([s.revolutions for s in samples], dtype=np.float64),
+        np.array([s.count or 0 for s in samples], dtype=np.int64), np.array([s.raw for s in samples], dtype=np.float64),
+        np.array([s.seq or 0 for s in samples], dtype=np.int64),
+        np.array([s.lost_frames for s in samples], dtype=np.int64),
+        np.array([(SAMPLE_HAS_COUNT if s.count is not None else 0) | (SAMPLE_HAS_SEQ if s.seq is not None else 0)
+                  for s in samples], dtype=np.uint8),
+    )
+
+
 RETRY_AFTER_FAILURE_S = 5.0
 """After a failed write (disk full), how often a new segment is tried."""
 
@@ -314,6 +395,12 @@ class McapLogSink:
         self._failed_since: float | None = None
         self._last_try = 0.0
         self._timer: asyncio.TimerHandle | None = None
+        self._can = _PendingCan()
+        self._samples = _PendingSamples()
+        self.can_index = 0
+        """CAN frames received so far (the next frame's index; GPS lines record it as can_index)."""
+        self._sample_index = 0
+        self._in_flush = False
         try:
             self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
         except RuntimeError:
@@ -334,6 +421,9 @@ class McapLogSink:
             writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
             writer.start(profile=PROFILE, library=f"slipdaq {slipdaq.__version__}")
             channels: dict[str, int] = {}
+            for topic, (name, text) in BATCH_SCHEMAS.items():
+                sid = writer.register_schema(name, cdr.SCHEMA_ENCODING, text.encode())
+                channels[topic] = writer.register_channel(topic, cdr.ENCODING, sid)
             for topic, schema in SCHEMAS.items():
                 sid = writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
                 channels[topic] = writer.register_channel(topic, "json", sid)
@@ -459,7 +549,8 @@ class McapLogSink:
                                      sequence=self._seq & 0xFFFFFFFF, data=data)
             self.messages += 1
             self._unflushed += 1
-            if self._flush_every_s is not None and now - self._last_flush >= self._flush_every_s:
+            if (self._flush_every_s is not None and now - self._last_flush >= self._flush_every_s
+                    and not self._in_flush):
                 self.flush()
         except LogWriteError as e:
             self._fail(e)
@@ -468,8 +559,22 @@ class McapLogSink:
         assert self._rotation is not None and self._file is not None
         return self._rotation.due(self._file.tell(), now - self._opened_at)
 
+    def flush_batches(self) -> None:
+        """Write the pending /can/raw and /wpt/count batches now."""
+        if self._can.n:
+            self._flush_can()
+        if self._samples.n:
+            self._flush_samples()
+
     def flush(self) -> None:
         """Close the chunk in progress and commit the file (it is then complete up to here on disk)."""
+        if self._writer is None:
+            return
+        self._in_flush = True
+        try:
+            self.flush_batches()
+        finally:
+            self._in_flush = False
         if self._writer is None:
             return
         try:
@@ -484,6 +589,8 @@ class McapLogSink:
         if self._loop is None or self._flush_every_s is None or self.closed or self._loop.is_closed():
             return
         delay = max(0.0, self._last_flush + self._flush_every_s - self._mono())
+        if delay <= 0.0 and not (self._unflushed or self._can.n or self._samples.n):
+            delay = self._flush_every_s  # nothing to flush (no record for a while): look again later, do not spin
         if self._writer is None:  # failed: look again when a retry is due
             delay = max(0.05, self._last_try + RETRY_AFTER_FAILURE_S - self._mono())
         self._timer = self._loop.call_later(min(delay, self._flush_every_s), self._tick)
@@ -509,27 +616,103 @@ class McapLogSink:
             self._try_resume()
         elif self._rotation is not None and self._rotation_due(now):
             self._rotate()
-        elif self._unflushed and now - self._last_flush >= self._flush_every_s - 1e-3:  # type: ignore[operator]
+        elif ((self._unflushed or self._can.n or self._samples.n)
+              and now - self._last_flush >= self._flush_every_s - 1e-3):  # type: ignore[operator]
             self.flush()
         self._arm_timer()
 
     # ---- Sink ----
     def on_raw(self, record: RawRecord) -> None:
         if isinstance(record, CanFrame):
-            self._write(TOPIC_CAN, record.timestamp_s, can_frame_json(record))
+            p = self._can
+            t = record.timestamp_s
+            if not p.n:
+                p.first_index, p.t0 = self.can_index, t
+                p.parts.append([])
+            elif not isinstance(p.parts[-1], list):
+                p.parts.append([])
+            p.parts[-1].append(record)  # type: ignore[union-attr]
+            p.n += 1
+            self.can_index += 1
+            if p.n >= MAX_BATCH_FRAMES or t - p.t0 >= MAX_BATCH_SPAN_S:
+                self._flush_can()
         elif isinstance(record, NmeaLine):
+            self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
             self._write(TOPIC_NMEA, record.timestamp_s,
-                        _dumps({"timestamp_s": record.timestamp_s, "line": record.line}))
+                        _dumps({"timestamp_s": record.timestamp_s, "line": record.line, "can_index": self.can_index}))
         elif isinstance(record, UbxFrame):
+            self.flush_batches()
             self._write(TOPIC_UBX, record.timestamp_s,
-                        _dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex()}))
+                        _dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex(),
+                                "can_index": self.can_index}))
         else:  # a raw record type this sink has no topic for yet: say so once, do not stop the run
             self.unlogged_records += 1
             if self.unlogged_records == 1:
                 log.error("MCAP log: no topic for raw %s records: not logged", type(record).__name__)
 
+    def _flush_can(self) -> None:
+        p = self._can
+        first, t0 = p.first_index, p.t0
+        self._write(TOPIC_CAN, t0, cdr.encode_can_batch(first, p.take()))
+
+    def _flush_samples(self) -> None:
+        q = self._samples
+        first, t0 = q.first_index, q.t0
+        self._write(TOPIC_WPT, t0, cdr.encode_wheel_batch(first, q.take()))
+
+    def on_can_batch(self, batch: CanFrameBatch) -> None:
+        """Consecutive frames (Pipeline.process_can_batch): into /can/raw batches by the same rule as on_raw."""
+        ts = batch.timestamp_s
+        i, n = 0, len(batch)
+        while i < n:
+            p = self._can
+            if not p.n:
+                p.first_index, p.t0 = self.can_index, float(ts[i])
+            k = min(n, i + MAX_BATCH_FRAMES - p.n)
+            full = p.n + k - i >= MAX_BATCH_FRAMES
+            late = np.flatnonzero(ts[i:k] - p.t0 >= MAX_BATCH_SPAN_S)
+            if len(late):
+                k, full = i + int(late[0]) + 1, True
+            p.parts.append(batch if (i, k) == (0, n) else batch.slice(i, k))
+            p.n += k - i
+            self.can_index += k - i
+            i = k
+            if full:
+                self._flush_can()
+
     def on_wheel(self, sample: WheelSample) -> None:
-        self._write(TOPIC_WPT, sample.timestamp_s, wheel_sample_json(sample))
+        q = self._samples
+        t = sample.timestamp_s
+        if not q.n:
+            q.first_index, q.t0 = self._sample_index, t
+            q.parts.append([])
+        elif not isinstance(q.parts[-1], list):
+            q.parts.append([])
+        q.parts[-1].append(sample)  # type: ignore[union-attr]
+        q.n += 1
+        self._sample_index += 1
+        if q.n >= MAX_BATCH_FRAMES or t - q.t0 >= MAX_BATCH_SPAN_S:
+            self._flush_samples()
+
+    def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        ts = samples.timestamp_s
+        i, n = 0, len(samples)
+        while i < n:
+            q = self._samples
+            if not q.n:
+                q.first_index, q.t0 = self._sample_index, float(ts[i])
+            k = min(n, i + MAX_BATCH_FRAMES - q.n)
+            full = q.n + k - i >= MAX_BATCH_FRAMES
+            late = np.flatnonzero(ts[i:k] - q.t0 >= MAX_BATCH_SPAN_S)
+            if len(late):
+                k, full = i + int(late[0]) + 1, True
+            q.parts.append(samples if (i, k) == (0, n) else
+                           WheelSampleBatch(*(getattr(samples, f)[i:k] for f in WheelSampleBatch.__slots__)))
+            q.n += k - i
+            self._sample_index += k - i
+            i = k
+            if full:
+                self._flush_samples()
 
     def on_fix(self, fix: GpsFix) -> None:
         self._write(TOPIC_GPS, fix.timestamp_s, fix_json(fix))
@@ -551,6 +734,8 @@ class McapLogSink:
         """Finish the file (summary and footer). Safe to call twice; never raises for a failed write."""
         if self.closed:
             return
+        if self._writer is not None:
+            self.flush_batches()
         self.closed = True
         if self._timer is not None:
             self._timer.cancel()

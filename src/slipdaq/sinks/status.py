@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TextIO
 
+import numpy as np
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
@@ -19,7 +20,9 @@ from rich.text import Text
 
 from slipdaq import WHEELS
 from slipdaq.decode.can_errors import error_classes
-from slipdaq.records import Estimate, GpsFix, RawRecord, WheelSample
+from slipdaq.records import (
+    FLAG_ERROR, FLAG_EXTENDED, CanFrame, CanFrameBatch, Estimate, GpsFix, RawRecord, WheelSample, WheelSampleBatch,
+)
 from slipdaq.sources.events import SourceEvent
 
 
@@ -70,6 +73,20 @@ class StatusSink:
                     self.can_errors[c] = self.can_errors.get(c, 0) + 1
         else:
             self.nmea_lines += 1
+
+    def on_can_batch(self, batch: CanFrameBatch) -> None:
+        """on_raw for each frame of a batch (Pipeline.process_can_batch)."""
+        self.can_frames += len(batch)
+        for i in np.flatnonzero(batch.flags & FLAG_ERROR).tolist():
+            frame = CanFrame(float(batch.timestamp_s[i]), int(batch.arbitration_id[i]), batch.payload(i),
+                             bool(batch.flags[i] & FLAG_EXTENDED), True)
+            for c in error_classes(frame):
+                self.can_errors[c] = self.can_errors.get(c, 0) + 1
+
+    def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        for w, n in enumerate(np.bincount(samples.wheel, minlength=len(WHEELS)).tolist()):
+            if n:
+                self.wheel_frames[WHEELS[w]] += n
 
     def on_source_event(self, event: SourceEvent) -> None:
         self.events.append(event)

@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import CanFrame
+from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sources.clock import STEP_THRESHOLD_S, SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
 
@@ -29,9 +29,9 @@ log = logging.getLogger(__name__)
 BATCH = 256
 """Most frames read per wake-up of the loop."""
 BATCH_BUDGET_S = 0.01
-"""Longest a wake-up reads frames (SocketCAN) before the loop serves its other readers: the GPS port's lines are
-stamped when they are read, so a CAN backlog being drained must not hold them back (256 frames through the
-pipeline take ~80 ms on a PC, over a second in the emulated test VM)."""
+"""Longest a wake-up reads frames (SocketCAN) before it hands them to the pipeline and the loop serves its other
+readers: the GPS port's lines are stamped when they are read, so a CAN backlog being drained must not hold them
+back (reading is the slow part in the emulated test VM)."""
 
 SO_RCVBUFFORCE: int | None = getattr(socket, "SO_RCVBUFFORCE", None) or (
     33 if sys.platform == "linux" and not platform.machine().startswith(("alpha", "parisc", "sparc")) else None
@@ -40,8 +40,25 @@ SO_RCVBUFFORCE: int | None = getattr(socket, "SO_RCVBUFFORCE", None) or (
 net.core.rmem_max); 33 is its value in Linux's asm-generic/socket.h, used by every architecture but these three."""
 
 
+BATCH_COLUMNS_FROM = 48
+"""A wake-up with at least this many frames goes to the pipeline as one CanFrameBatch (numpy columns, no CanFrame
+per frame); fewer go as CanFrames (numpy's fixed cost would dominate). Pipeline.SCALAR_MAX_FRAMES is the same."""
+
+
 def to_frame(msg: can.Message) -> CanFrame:
     return CanFrame(msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_error_frame)
+
+
+def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch | list[CanFrame]:
+    """One reader wake-up's messages as the pipeline takes them (Pipeline.process_can_batch); timestamps_s replaces
+    their own stamps (the log's clock)."""
+    ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
+    if len(msgs) < BATCH_COLUMNS_FROM:
+        return [CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
+                for t, m in zip(ts, msgs)]
+    return CanFrameBatch.from_columns(ts, [m.arbitration_id for m in msgs],
+                                      [m.is_extended_id | (m.is_error_frame << 1) for m in msgs],
+                                      [m.data for m in msgs])
 
 
 def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:
@@ -127,35 +144,44 @@ class CanBusSource:
             return None
         return fd if isinstance(fd, int) and fd >= 0 else None
 
-    async def run(self, emit: Callable[[CanFrame], None]) -> None:
+    async def run(
+        self, emit: Callable[[CanFrame], None],
+        emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None] | None = None,
+    ) -> None:
+        """emit_batch (e.g. Pipeline.process_can_batch), when given, gets each wake-up's frames at once (to_frames)."""
+        if emit_batch is None:
+            def emit_batch(frames: CanFrameBatch | list[CanFrame]) -> None:
+                for f in frames if isinstance(frames, list) else frames.frames():
+                    emit(f)
         fd = self._fileno()
         if fd is not None:
-            await self._run_on_loop(fd, emit)
+            await self._run_on_loop(fd, emit_batch)
         else:
-            await self._run_in_thread(emit)
+            await self._run_in_thread(emit_batch)
 
-    def _stamper(self) -> Callable[[can.Message], CanFrame]:
-        """msg -> CanFrame in the log's clock, in order (see the class's docstring); made once per read."""
+    def _stamps(self, msgs: list[can.Message]) -> list[float]:
+        """The messages' timestamps in the log's clock, in order (see the class's docstring)."""
         st = self.stamp
         if st is None:
-            return to_frame
+            return [m.timestamp for m in msgs]
         now = st()
         offset = st.offset_s()  # host wall clock - log clock
         if abs(offset - self._wall_offset_s) > STEP_THRESHOLD_S:
             self._wall_offset_s = offset  # the host clock stepped
         offset = self._wall_offset_s  # else exactly the last step's: the kernel's stamps kept to the ns, not jittered
         latest = now + STEP_THRESHOLD_S  # a stamp from before a step back, converted after it, is not in the future
-
-        def frame(m: can.Message) -> CanFrame:
+        last = self._last_t
+        out = []
+        for m in msgs:
             t = m.timestamp - offset
             if t > latest:
                 t = now
-            if t < self._last_t:
-                t = self._last_t
-            self._last_t = t
-            return CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
-
-        return frame
+            if t < last:
+                t = last
+            out.append(t)
+            last = t
+        self._last_t = last
+        return out
 
     def _source_event(self, event: str, detail: str, gap_s: float | None = None) -> None:
         if self.on_event is None:
@@ -195,32 +221,32 @@ class CanBusSource:
                          f"(outage {self.outages}; first frame stamped {msg.timestamp:.6f})")
         self._source_event("up", f"receiving again (outage {self.outages})", self.last_outage_s)
 
-    def _deliver(self, msgs: list[can.Message], emit: Callable[[CanFrame], None]) -> None:
+    def _deliver(self, msgs: list[can.Message], emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
+        if not msgs:
+            return
         self.frames += len(msgs)
-        stamp = self._stamper()
-        for m in msgs:
-            emit(stamp(m))
+        emit_batch(to_frames(msgs, self._stamps(msgs)))
 
-    async def _run_on_loop(self, fd: int, emit: Callable[[CanFrame], None]) -> None:
+    async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
 
         def readable() -> None:
             deadline = time.monotonic() + BATCH_BUDGET_S
-            stamp = self._stamper()
+            msgs: list[can.Message] = []
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
                         self._drained = True
-                        return
+                        break
                     if self.outage_since is not None:
                         self._during_outage(msg)
-                    self.frames += 1
-                    emit(stamp(msg))
+                    msgs.append(msg)
                     if time.monotonic() > deadline:
-                        return  # the rest on the next wake-up (level-triggered: the socket is still readable)
-            except Exception as e:  # any error: counted, reading goes on (the frames before it are delivered)
+                        break  # the rest on the next wake-up (level-triggered: the socket is still readable)
+            except Exception as e:  # any error: counted, reading goes on, the frames read before it delivered
                 self._error(e)
+            self._deliver(msgs, emit_batch)
 
         loop.add_reader(fd, readable)
         try:
@@ -228,7 +254,7 @@ class CanBusSource:
         finally:
             loop.remove_reader(fd)
 
-    async def _run_in_thread(self, emit: Callable[[CanFrame], None]) -> None:
+    async def _run_in_thread(self, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
         stop = threading.Event()
 
@@ -236,7 +262,7 @@ class CanBusSource:
             for msg in batch:
                 if self.outage_since is not None:
                     self._during_outage(msg)
-            self._deliver(batch, emit)
+            self._deliver(batch, emit_batch)
 
         def reader() -> None:
             while not stop.is_set():

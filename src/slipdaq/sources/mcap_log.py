@@ -14,15 +14,18 @@ from typing import Any
 
 from mcap.reader import make_reader
 
+from slipdaq import WHEELS
 from slipdaq.config import Config, parse_config
 from slipdaq.recover import LogError, ScanResult, scan_messages, scan_metadata
-from slipdaq.records import NmeaLine, RawRecord, UbxFrame
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
+from slipdaq.sinks import cdr
 from slipdaq.sinks.mcap_log import (
-    METADATA_NAME, RAW_TOPICS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_UBX, can_frame_from_dict,
+    MAX_BATCH_FRAMES, METADATA_NAME, RAW_TOPICS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_UBX, TOPIC_WPT, can_frame_from_dict,
+    can_frame_to_dict, wheel_sample_to_dict,
 )
 
-__all__ = ["LogError", "ScanResult", "config_from_log", "is_finished", "iter_estimates", "iter_raw_records",
-           "iter_topic", "raw_record_count", "read_metadata"]
+__all__ = ["LogError", "ScanResult", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",
+           "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
 
 
 def _open(path: str | Path):  # type: ignore[no-untyped-def]
@@ -64,10 +67,10 @@ def config_from_log(path: str | Path) -> Config:
     return parse_config(meta.get("config_toml", ""), Path(source) if source else None, dbc_text=meta.get("dbc"))
 
 
-def iter_topic(
+def iter_messages(
     path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None
-) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    """(topic, log_time_ns, decoded JSON) in the order the messages were written.
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """(topic, message encoding, log_time_ns, data) in the order the messages were written.
 
     A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far."""
     if is_finished(path):
@@ -76,21 +79,72 @@ def iter_topic(
         with _open(path) as f:
             reader = make_reader(f)
             for _schema, channel, message in reader.iter_messages(topics=list(topics), log_time_order=False):
-                yield channel.topic, message.log_time, json.loads(message.data)
+                yield channel.topic, channel.message_encoding, message.log_time, message.data
         return
     for channel, message in scan_messages(path, topics, scan_result):
-        yield channel.topic, message.log_time, json.loads(message.data)
+        yield channel.topic, channel.message_encoding, message.log_time, message.data
 
 
-def iter_raw_records(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[RawRecord]:
-    """The raw CAN frames and NMEA lines in the order the pipeline processed them when recording."""
-    for topic, _t, d in iter_topic(path, RAW_TOPICS, scan_result):
+def _ns(t_s: float) -> int:
+    return max(int(round(t_s * 1e9)), 0)
+
+
+def iter_topic(
+    path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None
+) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """(topic, log_time_ns, decoded JSON) in the order the messages were written. Batches (/can/raw, /wpt/count)
+    come one dict per frame or sample, with the keys of the old per-frame JSON and the frame's time as log time.
+
+    A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far."""
+    for topic, encoding, log_time, data in iter_messages(path, topics, scan_result):
+        if encoding != cdr.ENCODING:
+            yield topic, log_time, json.loads(data)
+        elif topic == TOPIC_CAN:
+            for f in cdr.decode_can_batch(data)[1].frames():
+                yield topic, _ns(f.timestamp_s), can_frame_to_dict(f)
+        elif topic == TOPIC_WPT:
+            for s in cdr.decode_wheel_batch(data)[1].samples(WHEELS):
+                yield topic, _ns(s.timestamp_s), wheel_sample_to_dict(s)
+
+
+def iter_raw_batches(
+    path: str | Path, scan_result: ScanResult | None = None
+) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame]:
+    """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
+    batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
+    run: list[CanFrame] = []
+    for topic, encoding, _t, data in iter_messages(path, RAW_TOPICS, scan_result):
         if topic == TOPIC_CAN:
-            yield can_frame_from_dict(d)
-        elif topic == TOPIC_UBX:
+            if encoding == cdr.ENCODING:
+                if run:
+                    yield CanFrameBatch.from_frames(run)
+                    run = []
+                yield cdr.decode_can_batch(data)[1]
+            else:
+                run.append(can_frame_from_dict(json.loads(data)))
+                if len(run) >= MAX_BATCH_FRAMES:
+                    yield CanFrameBatch.from_frames(run)
+                    run = []
+            continue
+        if run:
+            yield CanFrameBatch.from_frames(run)
+            run = []
+        d = json.loads(data)
+        if topic == TOPIC_UBX:
             yield UbxFrame(d["timestamp_s"], bytes.fromhex(d["data"]))
         else:
             yield NmeaLine(d["timestamp_s"], d["line"])
+    if run:
+        yield CanFrameBatch.from_frames(run)
+
+
+def iter_raw_records(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[RawRecord]:
+    """The raw CAN frames and NMEA lines in the order the pipeline processed them when recording, one by one."""
+    for item in iter_raw_batches(path, scan_result):
+        if isinstance(item, CanFrameBatch):
+            yield from item.frames()
+        else:
+            yield item
 
 
 def iter_estimates(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[dict[str, Any]]:
@@ -99,7 +153,7 @@ def iter_estimates(path: str | Path, scan_result: ScanResult | None = None) -> I
 
 
 def raw_record_count(path: str | Path) -> int | None:
-    """Number of raw CAN and NMEA messages, from the file's summary (None when it has none)."""
+    """Number of raw CAN and NMEA messages (a batch is one), from the file's summary (None when it has none)."""
     with _open(path) as f:
         try:
             summary = make_reader(f).get_summary()
