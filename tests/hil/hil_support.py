@@ -241,7 +241,7 @@ class ZygoteChild(Proc):
 
 # ---- the daemon ----
 
-_STATUS = re.compile(r"\| can \d+ fr/s \((\d+) frames, lost (\d+)\)")
+_STATUS = re.compile(r"\| can \d+ fr/s \((\d+) frames, lost (\d+)\b")  # then maybe error classes, reader errors
 _WRITTEN = re.compile(r"log written: (\S+) \((\d+) CAN frames, (\d+) NMEA lines, (\d+) estimates, (\d+) lost frames, "
                       r"(\d+) bad sentences\)")
 
