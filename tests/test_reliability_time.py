@@ -73,7 +73,7 @@ def test_gps_lines_stamped_by_the_steady_clock_across_a_host_step() -> None:
 
 def _stamped(records: list[RawRecord], step_at_s: float, step_s: float, steady: bool) -> list[RawRecord]:
     """The records as a live run would stamp them when the host clock steps by step_s at step_at_s: with the host's
-    wall clock (steady=False), or through SteadyClock.from_wall (what the sources do in the proposed design)."""
+    wall clock (steady=False), or through SteadyClock.from_wall (what the CAN source does)."""
     h = HostClock(records[0].timestamp_s)
     h.mono = 0.0
     h.offset = records[0].timestamp_s

@@ -21,7 +21,7 @@ from collections.abc import Callable
 import can
 
 from slipdaq.records import CanFrame, CanFrameBatch
-from slipdaq.sources.clock import STEP_THRESHOLD_S, SteadyClock
+from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
 
 log = logging.getLogger(__name__)
@@ -115,7 +115,6 @@ class CanBusSource:
         self.stamp = stamp
         self.on_event = on_event
         self._last_t = float("-inf")
-        self._wall_offset_s = 0.0
         self.frames = 0
         self.reader_errors = 0
         self.last_error: str | None = None
@@ -161,26 +160,10 @@ class CanBusSource:
 
     def _stamps(self, msgs: list[can.Message]) -> list[float]:
         """The messages' timestamps in the log's clock, in order (see the class's docstring)."""
-        st = self.stamp
-        if st is None:
+        if self.stamp is None:
             return [m.timestamp for m in msgs]
-        now = st()
-        offset = st.offset_s()  # host wall clock - log clock
-        if abs(offset - self._wall_offset_s) > STEP_THRESHOLD_S:
-            self._wall_offset_s = offset  # the host clock stepped
-        offset = self._wall_offset_s  # else exactly the last step's: the kernel's stamps kept to the ns, not jittered
-        latest = now + STEP_THRESHOLD_S  # a stamp from before a step back, converted after it, is not in the future
-        last = self._last_t
-        out = []
-        for m in msgs:
-            t = m.timestamp - offset
-            if t > latest:
-                t = now
-            if t < last:
-                t = last
-            out.append(t)
-            last = t
-        self._last_t = last
+        out = self.stamp.from_wall_many([m.timestamp for m in msgs], self._last_t)
+        self._last_t = out[-1]
         return out
 
     def _source_event(self, event: str, detail: str, gap_s: float | None = None) -> None:

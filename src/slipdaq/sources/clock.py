@@ -14,8 +14,9 @@ with from_wall().
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 STEP_THRESHOLD_S = 0.010
 """A change of the host-clock offset larger than this is reported as a step."""
@@ -33,8 +34,10 @@ class SteadyClock:
         self._wall = wall
         self._monotonic = monotonic
         self._origin = 0.0
-        self._origin = self.offset_s()
+        self._origin = self.offset_s()  # with origin 0: the wall clock minus the monotonic clock
         self._last_offset_s = 0.0
+        self._stamp_offset_s = 0.0
+        """The offset from_wall_many() subtracts: changed only by a step."""
         self.steps = 0
         """Host clock steps seen by check_step()."""
 
@@ -57,15 +60,34 @@ class SteadyClock:
                     break
         return best
 
-    def from_wall(self, wall_ts: float, not_after: float | None = None) -> float:
-        """A host wall-clock timestamp (taken just before now) in this clock, never later than now (or not_after).
+    def from_wall_many(self, wall_stamps: Iterable[float], not_before: float = -math.inf) -> list[float]:
+        """Host wall-clock timestamps (taken before now, in order: a read of CAN frames' kernel stamps) in this clock.
 
-        A timestamp taken before a step and converted after it would be off by the step; clamping it to now keeps
-        the records in order (a source also keeps its own records monotonic, see CanBusSource in the docs)."""
+        The host clock's offset is taken to change only when it moves by more than STEP_THRESHOLD_S (a step), so
+        that until a step the stamps are kept exactly, not jittered by the offset's reading. A stamp taken before a
+        step and converted after it would be off by the step: it becomes now if it lands in the future, and no stamp
+        goes before the previous one or not_before (the source's last), so that the records stay in order."""
         now = self()
-        t = wall_ts - (self._wall() - now)
-        limit = now if not_after is None else min(now, not_after)
-        return t if t <= limit else limit
+        offset = self.offset_s()
+        if abs(offset - self._stamp_offset_s) > STEP_THRESHOLD_S:
+            self._stamp_offset_s = offset
+        offset = self._stamp_offset_s
+        latest = now + STEP_THRESHOLD_S
+        out: list[float] = []
+        last = not_before
+        for w in wall_stamps:
+            t = w - offset
+            if t > latest:
+                t = now
+            if t < last:
+                t = last
+            out.append(t)
+            last = t
+        return out
+
+    def from_wall(self, wall_ts: float) -> float:
+        """One host wall-clock timestamp in this clock (from_wall_many)."""
+        return self.from_wall_many((wall_ts,))[0]
 
     def check_step(self, threshold_s: float = STEP_THRESHOLD_S) -> float | None:
         """The host clock's step since the last call (seconds, signed) when larger than threshold_s, else None."""
