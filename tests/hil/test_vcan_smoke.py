@@ -2,37 +2,23 @@
 
 Skipped where the kernel has no AF_CAN (errno 97) or no vcan0, e.g. on the host.
 """
-import errno
-import os
 import socket
 import struct
 import threading
 import time
 
 import pytest
+from hil_support import can_unavailable_reason
 
 
-def _can_available():
-    if not hasattr(socket, "AF_CAN"):
-        return "no socket.AF_CAN on this platform"
-    try:
-        socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
-    except OSError as e:
-        if e.errno == errno.EAFNOSUPPORT:
-            return "kernel has no SocketCAN (errno 97); run tests/hil/run_vm.sh"
-        raise
-    if not os.path.exists("/sys/class/net/vcan0"):
-        return "no vcan0 interface; run tests/hil/run_vm.sh"
-    return None
-
-
-_reason = _can_available()
+_reason = can_unavailable_reason()
 if _reason:
     pytest.skip(_reason, allow_module_level=True)
 
 import can  # noqa: E402  (must be installed where the VM runs the tests)
 
-SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  # Linux value; root only
+from slipdaq.sources.can_bus import SO_RCVBUFFORCE  # noqa: E402  (Linux value; root only)
+
 BIG_RCVBUF = 8 * 1024 * 1024
 IDS = (0x310, 0x311, 0x312, 0x313)
 
