@@ -789,7 +789,7 @@ def proc_cpu_s(pid: int) -> float:
 
 
 def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, mode: str = "slipdaq",
-            tick_ms: float = 0.0) -> CpuResult:
+            tick_ms: float = 0.0, read_interval_s: float | None = None) -> CpuResult:
     """mode "slipdaq": `slipdaq run` (the current design); "proto": the prototype's live loop (perf_bus.py)."""
     import tomllib
 
@@ -805,6 +805,8 @@ def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, 
     conf = tomllib.loads(pkg.read_text())
     conf["can"].update({"interface": "slipdaq_bench_udp", "channel": f"127.0.0.1:{port}",
                         "dbc": str((pkg.parent / conf["can"].get("dbc", "wpt.dbc")).resolve())})
+    if read_interval_s is not None:
+        conf["can"]["read_interval_s"] = read_interval_s
     conf["gps"]["port"] = os.ttyname(slave)
     conf.setdefault("log", {})["dir"] = str(work / "logs")
     cfg_path = work / "slipdaq.toml"
@@ -841,6 +843,12 @@ def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, 
         start = float(first[1])  # later than planned when generating took longer than the lead
         t_a = start + warm
         time.sleep(max(0.0, t_a - time.time()))
+        if getattr(a, "cpu_profile", None) and shutil.which("py-spy", path=str(Path(py).parent)) and mode == "slipdaq":
+            Path(a.cpu_profile).mkdir(parents=True, exist_ok=True)
+            out = Path(a.cpu_profile) / f"daemon-{int(total_rate_hz)}hz.txt"
+            subprocess.Popen([str(Path(py).parent / "py-spy"), "record", "--pid", str(daemon.pid), "-r", "1000",
+                              "-d", str(max(1, int(start + seconds - 0.5 - time.time()))), "-f", "raw", "-o", str(out)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         cpu_a, wall_a = proc_cpu_s(daemon.pid), time.time()
         t_b = start + seconds - 0.3
         time.sleep(max(0.0, t_b - time.time()))
@@ -1311,6 +1319,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--latency-seconds", type=float, default=None, help="default 20")
     ap.add_argument("--cpu-seconds", type=float, default=None, help="seconds per CPU run (default 20)")
     ap.add_argument("--profile-seconds", type=float, default=None, help="default 3")
+    ap.add_argument("--cpu-profile", default=None, metavar="DIR",
+                    help="with the cpu section: py-spy record the daemon over its sending window into DIR "
+                         "(raw collapsed stacks, one file per run; the CPU share then includes py-spy's pauses)")
     ap.add_argument("--tmp-dir", default=None, help="where the logs are written (default: the system's temp dir)")
     ap.add_argument("--write", action="store_true", help="also write the tables into docs/performance.md")
     a = ap.parse_args(argv)
@@ -1351,10 +1362,14 @@ def main(argv: list[str] | None = None) -> int:
             lats.append(run_latency_virtual(a, tmp))
         if "cpu" in only:
             loads = [(4000.0, "4 × 1 kHz + 20 Hz NMEA"), (9000.0, "9,000 frames/s (4 × 2250 Hz) + 20 Hz NMEA")]
+            default_s = Config().can.read_interval_s
             if a.quick:
                 loads = loads[:1]
             for rate, label in loads:
-                cpus.append(run_cpu(a, tmp, rate, label))
+                cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval {default_s * 1e3:g} ms (default)"))
+            if not a.quick:  # the same without pacing: every frame read as it comes
+                for rate, label in loads:
+                    cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval 0 (every frame)", read_interval_s=0.0))
             if "proto" in only:
                 for rate, label in loads:
                     cpus.append(run_cpu(a, tmp, rate, label, mode="proto", tick_ms=0.0))

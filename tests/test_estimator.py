@@ -155,3 +155,39 @@ def test_uncompensated_latency_biases_slip() -> None:
     s_rl = np.median([e.wheels["RL"].slip for e in late if e.wheels["RL"].slip is not None and e.time_s > 1])
     # GPS speed read 0.2 s late at 2 m/s^2 is 0.4 m/s too low at ~15 m/s: a free-rolling wheel shows ~ +2.7 %
     assert 0.015 < s_rl < 0.04
+
+
+@pytest.mark.parametrize("gps_latency_s", [None, 0.03])
+def test_estimate_released_by_the_fix_that_ends_its_window(gps_latency_s: float | None) -> None:
+    """At 20 Hz and W = 0.5 s the fix 0.25 s after an epoch closes its window: the estimate comes with that fix,
+    whatever the fix's read jitter or the float rounding of epoch-second UTC times, not one GPS interval later.
+    (Before, a fix read 1 ms early against the median offset made the estimate wait for the next one: 50 ms.)"""
+    p = EstimatorParams(window_s=0.5, r_ref_m=0.3, gps_latency_s=gps_latency_s)
+    est = SlipEstimator(p)
+    utc0 = 1_763_800_000.0  # epoch seconds: one ulp is 2.4e-7 s
+    jitter = [0.0, -0.002, 0.0015, -0.001, 0.002, 0.0005, -0.0015]
+    events: list[tuple[float, int, object]] = []
+    for k in range(1, 8000):  # wheels at 1 kHz, stamped on the host clock (= UTC here)
+        t = utc0 + k * 1e-3
+        for i, w in enumerate(WHEELS):
+            revs = 20.0 * (t - utc0) / (2 * math.pi * 0.3)
+            events.append((t + i * 1e-6, 0, WheelSample(t + i * 1e-6, w, revs, int(revs * 1000), 0, 0, 0)))
+    for k in range(160):  # 20 Hz fixes, read 30 ms after their UTC time with jitter
+        utc = utc0 + k * 0.05
+        arrival = utc + 0.03 + jitter[k % len(jitter)]
+        events.append((arrival, 1, (k, GpsFix(arrival, 20.0, fix_time_utc_s=utc))))
+    events.sort(key=lambda e: (e[0], e[1]))
+    released_by_fix: list[tuple[int, float]] = []  # (index of the releasing fix, estimate centre)
+    by_wheels = []
+    for _, kind, rec in events:
+        if kind == 0:
+            by_wheels += est.add_wheel(rec)  # type: ignore[arg-type]
+        else:
+            k, fix = rec  # type: ignore[misc]
+            released_by_fix += [(k, e.time_s) for e in est.add_gps(fix)]
+    late = [(k, t_c) for k, t_c in released_by_fix if t_c > utc0 + 1.0]
+    assert len(late) > 100
+    for k, t_c in late:
+        centre_k = round((t_c - utc0) / 0.05)
+        assert k == centre_k + 5, f"estimate at epoch {centre_k} waited for fix {k}"
+    assert not [e for e in by_wheels if e.time_s > utc0 + 1.0]  # the wheels were there before the fix

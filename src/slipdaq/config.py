@@ -103,6 +103,11 @@ class CanConfig(_Section):
     bitrate: int = Field(500000, gt=0)
     dbc: str = "wpt.dbc"
     receive_buffer_bytes: int = Field(8 * 1024 * 1024, ge=0, description="SO_RCVBUF asked for on SocketCAN")
+    read_interval_s: float = Field(
+        0.02, ge=0, le=0.1,
+        description="shortest time between two reads of a socket bus (SocketCAN): frames wait in the kernel's "
+                    "buffer, keep its receive stamps, and are handled in larger batches; less CPU, more latency",
+    )
 
 
 class GpsConfig(_Section):

@@ -21,6 +21,7 @@ from slipdaq.config import Config, ConfigError
 from slipdaq.decode.nmea import NmeaFramer
 from slipdaq.decode.ubx import GpsFramer
 from slipdaq.pipeline import Pipeline
+from slipdaq.records import RawRecord
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.rotation import RotationPolicy
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
@@ -142,7 +143,9 @@ async def run_daemon(
     ))
     sink = _LiveLogSink(log_path, config, can_meta | (metadata or {}), clock=clock, on_event=status.on_source_event)
     events = EventFanout([sink, status])  # source events -> /diagnostics/events and the view
-    can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events)
+    can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events,
+                              read_interval_s=config.can.read_interval_s,
+                              keep_reading=lambda: pipeline.waiting_for_wheels())
     # u-blox velocity: the port carries UBX frames among NMEA lines
     framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events, framer=framer)
@@ -155,6 +158,11 @@ async def run_daemon(
             installed.append(sig)
     started = loop.time()
 
+    def process_gps(record: RawRecord) -> None:
+        pipeline.process(record)
+        if pipeline.waiting_for_wheels():  # the fix that closes a window: read the wheels' frames now
+            can_source.read_now()
+
     async def stopper() -> None:
         if duration_s is not None:
             with contextlib.suppress(TimeoutError):
@@ -166,7 +174,7 @@ async def run_daemon(
     try:
         async with asyncio.TaskGroup() as tg:
             tg.create_task(can_source.run(pipeline.process, pipeline.process_can_batch), name="can")
-            tg.create_task(gps_source.run(pipeline.process), name="gps")
+            tg.create_task(gps_source.run(process_gps), name="gps")
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")
     except* _Stop:

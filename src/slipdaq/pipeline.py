@@ -49,6 +49,10 @@ class Pipeline:
         self._sample_batch_sinks = [s for s in self.sinks if hasattr(s, "on_wheel_batch")]
         self._sample_sinks = [s for s in self.sinks if not hasattr(s, "on_wheel_batch")]
 
+    def waiting_for_wheels(self) -> bool:
+        """An estimate waits only for wheel frames (a live CAN reader that pauses between reads should read now)."""
+        return self.estimator.waiting_for_wheels()
+
     def process(self, record: RawRecord) -> None:
         """One raw record through decode and estimator to every sink."""
         sinks = self.sinks

@@ -48,6 +48,10 @@ BULK_MIN_SAMPLES = 64
 """add_wheels goes one by one below this many samples (numpy's fixed cost per call would dominate)."""
 LAG_GUARD_ROWS = 5
 """A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
+TIME_TOL_S = 1e-5
+"""GPS times this close count as equal when a window's ends are compared with fixes: the fix that ends a window
+(UTC + offset - latency) and the window's end (centre + W/2) are the same instant computed two ways, and float
+rounding (a few ulps: 2.4e-7 s at today's epoch seconds) must not decide whether an estimate waits for one more fix."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -431,8 +435,8 @@ class SlipEstimator:
         arrival_s = self._pending[0]
         half = 0.5 * self.p.window_s
         t1 = self._smooth_arrival(arrival_s) - lat + half
-        gps_last = self._gps.last_time - lat
-        if gps_last < t1:
+        gps_last = self._smooth_arrival(self._gps.last_time) - lat  # on the same (jitter-free) time line as t1
+        if gps_last < t1 - TIME_TOL_S:
             head = (0, 0.0, 0.0)
         elif gps_last >= t1 + max(self.p.window_s, 0.5):
             head = (1, 0.0, 0.0)
@@ -440,6 +444,10 @@ class SlipEstimator:
             head = (2, max(t1, arrival_s) if self.p.gps_latency_s is None else t1, t1 - 3 * half)
         self._head = head
         return head
+
+    def waiting_for_wheels(self) -> bool:
+        """The oldest pending estimate has its GPS and waits only for wheel samples past its window's end."""
+        return bool(self._pending) and (self._head or self._head_consts())[0] == 2
 
     def _ready(self) -> bool:
         """The head epoch (self._pending[0]) can be estimated now."""
@@ -478,7 +486,7 @@ class SlipEstimator:
         return np.where(np.isnan(utc), arrivals, utc + offset)
 
     def _gps_covers(self, fix_times: list[float], t0: float, t1: float) -> bool:
-        if len(fix_times) < 2 or fix_times[0] > t0 or fix_times[-1] < t1:
+        if len(fix_times) < 2 or fix_times[0] > t0 + TIME_TOL_S or fix_times[-1] < t1 - TIME_TOL_S:
             return False
         i0 = max(bisect_right(fix_times, t0) - 1, 0)
         i1 = bisect_left(fix_times, t1)

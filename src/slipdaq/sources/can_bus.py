@@ -110,8 +110,15 @@ class CanBusSource:
         *,
         stamp: SteadyClock | None = None,
         on_event: EventHandler | None = None,
+        read_interval_s: float = 0.0,
+        keep_reading: Callable[[], bool] | None = None,
     ) -> None:
         self.bus = bus
+        self.read_interval_s = read_interval_s
+        self.keep_reading = keep_reading
+        self.reads = 0
+        """Wake-ups that read the bus (a socket bus read on the loop)."""
+        self._read_now: Callable[[], None] | None = None
         self.stamp = stamp
         self.on_event = on_event
         self._last_t = float("-inf")
@@ -127,6 +134,11 @@ class CanBusSource:
         self._drained = False
         self._report = report
         self._clock = clock
+
+    def read_now(self) -> None:
+        """End a pause between reads (read_interval_s) now: e.g. an estimate waits for wheel frames."""
+        if self._read_now is not None:
+            self._read_now()
 
     def status(self) -> dict[str, object]:
         """The reader's state for the diagnostics record."""
@@ -212,15 +224,29 @@ class CanBusSource:
 
     async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
+        interval_s = self.read_interval_s
+        keep_reading = self.keep_reading
+        resume: asyncio.TimerHandle | None = None
+
+        def add_reader() -> None:
+            nonlocal resume
+            if resume is not None:
+                resume.cancel()
+                resume = None
+                loop.add_reader(fd, readable)
 
         def readable() -> None:
+            nonlocal resume
+            woke_s = loop.time()
+            self.reads += 1
             deadline = time.monotonic() + BATCH_BUDGET_S
             msgs: list[can.Message] = []
+            drained = False
             try:
                 for _ in range(BATCH):
                     msg = self.bus.recv(timeout=0)
                     if msg is None:
-                        self._drained = True
+                        self._drained = drained = True
                         break
                     if self.outage_since is not None:
                         self._during_outage(msg)
@@ -230,11 +256,19 @@ class CanBusSource:
             except Exception as e:  # any error: counted, reading goes on, the frames read before it delivered
                 self._error(e)
             self._deliver(msgs, emit_batch)
+            if drained and interval_s > 0 and not (keep_reading is not None and keep_reading()):
+                # pause: the next frames wait in the kernel's buffer, with their receive stamps, and come as a batch
+                loop.remove_reader(fd)
+                resume = loop.call_at(woke_s + interval_s, add_reader)
 
         loop.add_reader(fd, readable)
+        self._read_now = add_reader
         try:
             await asyncio.Event().wait()
         finally:
+            self._read_now = None
+            if resume is not None:
+                resume.cancel()
             loop.remove_reader(fd)
 
     async def _run_in_thread(self, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
