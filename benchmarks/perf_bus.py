@@ -3,10 +3,12 @@ process and the `slipdaq run` child. Nothing here is imported by src/.
 
 Why: python-can's virtual bus only works inside one process, so the sender's CPU would count as the daemon's, and
 there is no vcan on this machine (no kernel module). This bus carries one CAN frame per UDP datagram on 127.0.0.1
-(nothing leaves the host), exposes the socket's fileno() and a `socket` attribute, so slipdaq's CanBusSource reads it
-exactly as it reads SocketCAN: from the asyncio loop (loop.add_reader), up to 256 recv() calls per wake-up, and
-daemon.open_bus asks it for the large SO_RCVBUF as on a car. The sender stamps each frame with time.time() right
-before sendto(), standing in for the kernel's receive timestamp of SocketCAN.
+(nothing leaves the host), as SocketCAN's `struct can_frame` (16 bytes: can_id with the EFF/ERR flag bits, len, data),
+and the socket has SO_TIMESTAMPNS, so the kernel stamps each datagram on arrival as SocketCAN stamps a frame. The bus
+exposes the socket's fileno() and a `socket` attribute and declares `raw_socketcan_frames`, so slipdaq's CanBusSource
+reads it exactly as it reads python-can's SocketCAN bus: from the asyncio loop (loop.add_reader, paced by
+can.read_interval_s), one recvmsg per frame straight from the socket (slipdaq.sources.socketcan_raw), and
+daemon.open_bus asks it for the large SO_RCVBUF as on a car.
 
     python benchmarks/perf_bus.py daemon --config CFG --duration S --log-dir D [--probe OUT.json]
         registers the interface name `slipdaq_bench_udp`, then runs slipdaq.cli.main(["run", ...]) (the code of
@@ -34,8 +36,10 @@ from pathlib import Path
 import can
 
 INTERFACE = "slipdaq_bench_udp"
-FRAME = struct.Struct("<dIBB8s")
-"""timestamp (time.time() at send), arbitration id, flags (1 extended, 2 error), dlc, 8 data bytes."""
+FRAME = struct.Struct("=IB3x8s")
+"""SocketCAN's struct can_frame: can_id (| CAN_EFF_FLAG 0x80000000, | CAN_ERR_FLAG 0x20000000), len, pad, data[8]."""
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+TIMESPEC = struct.Struct("@ll")
 
 
 def parse_channel(channel: str) -> tuple[str, int]:
@@ -46,12 +50,18 @@ def parse_channel(channel: str) -> tuple[str, int]:
 
 
 class LoopbackUdpBus(can.BusABC):
-    """Receive-only python-can bus: one CAN frame per datagram on 127.0.0.1:PORT (channel "127.0.0.1:PORT")."""
+    """Receive-only python-can bus: one SocketCAN frame per datagram on 127.0.0.1:PORT (channel "127.0.0.1:PORT"),
+    stamped by the kernel on arrival (SO_TIMESTAMPNS)."""
+
+    raw_socketcan_frames = os.environ.get("SLIPDAQ_BENCH_PYTHON_CAN_RECV") != "1"
+    """slipdaq reads the socket directly, as python-can's SocketCAN bus; with SLIPDAQ_BENCH_PYTHON_CAN_RECV=1 through
+    python-can's recv() (a can.Message per frame), for comparison."""
 
     def __init__(self, channel: str, can_filters=None, **kwargs: object) -> None:
         self._addr = parse_channel(channel)
         self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.socket.bind(self._addr)
+        self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.socket.setblocking(False)
         self.channel_info = f"loopback udp {channel}"
         self._channel = str(channel)
@@ -59,17 +69,20 @@ class LoopbackUdpBus(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
-            data = self.socket.recv(64)
+            data, anc, _, _ = self.socket.recvmsg(64, socket.CMSG_SPACE(TIMESPEC.size))
         except BlockingIOError:
             if timeout == 0:
                 return None, False
             ready, _, _ = select.select([self.socket], [], [], timeout)
             if not ready:
                 return None, False
-            data = self.socket.recv(64)
-        ts, aid, flags, dlc, payload = FRAME.unpack(data)
-        msg = can.Message(timestamp=ts, arbitration_id=aid, is_extended_id=bool(flags & 1),
-                          is_error_frame=bool(flags & 2), dlc=dlc, data=payload[:dlc], channel=self._channel)
+            data, anc, _, _ = self.socket.recvmsg(64, socket.CMSG_SPACE(TIMESPEC.size))
+        sec, ns = TIMESPEC.unpack_from(anc[0][2])
+        can_id, dlc, payload = FRAME.unpack(data)
+        ext = bool(can_id & 0x80000000)
+        msg = can.Message(timestamp=sec + ns * 1e-9, arbitration_id=can_id & (0x1FFFFFFF if ext else 0x7FF),
+                          is_extended_id=ext, is_error_frame=bool(can_id & 0x20000000), dlc=dlc,
+                          data=payload[:dlc], channel=self._channel)
         return msg, False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -215,7 +228,7 @@ def proto_daemon_main(args: argparse.Namespace) -> int:
 # ---- the sender -------------------------------------------------------------------------------------------------
 def build_schedule(wpt_rate_hz: float, gps_rate_hz: float, duration_s: float, gps_latency_s: float,
                    start_utc_s: float) -> tuple[list[float], list[object]]:
-    """(times since start, payloads): bytes-tuple (id, flags, dlc, data8) for CAN, bytes for an NMEA line."""
+    """(times since start, payloads): (SocketCAN can_id with flags, dlc, data8) for CAN, bytes for an NMEA line."""
     from dataclasses import replace
 
     from slipdaq.config import load_config, packaged_config_path
@@ -231,8 +244,8 @@ def build_schedule(wpt_rate_hz: float, gps_rate_hz: float, duration_s: float, gp
         r = ev.record
         if isinstance(r, CanFrame):
             times.append(ev.time_s)
-            payloads.append((r.arbitration_id, int(r.is_extended_id) | 2 * int(r.is_error_frame), len(r.data),
-                             bytes(r.data).ljust(8, b"\0")))
+            can_id = r.arbitration_id | (0x80000000 if r.is_extended_id else 0) | (0x20000000 if r.is_error_frame else 0)
+            payloads.append((can_id, len(r.data), bytes(r.data).ljust(8, b"\0")))
         elif isinstance(r, NmeaLine):
             times.append(ev.time_s)
             payloads.append((r.line + "\r\n").encode("ascii"))
@@ -271,8 +284,8 @@ def sender_main(args: argparse.Namespace) -> int:
             late_over_1ms += 1
         p = payloads[i]
         if isinstance(p, tuple):
-            aid, flags, dlc, data = p
-            sock.sendto(pack(now(), aid, flags, dlc, data), addr)
+            can_id, dlc, data = p
+            sock.sendto(pack(can_id, dlc, data), addr)
             frames += 1
         else:
             data = p

@@ -1,7 +1,10 @@
 """CAN source: python-can bus -> CanFrame, on the asyncio loop without blocking it.
 
-A bus with a file descriptor (SocketCAN) is read from the loop itself (loop.add_reader, no thread);
-any other bus is read by one thread that hands frames to the loop in batches and is joined on exit.
+A bus with a file descriptor (SocketCAN) is read from the loop itself (loop.add_reader, no thread), SocketCAN straight
+from its socket (socketcan_raw: no can.Message per frame), at most every `read_interval_s` (the frames wait in the
+kernel's buffer with their receive stamps and come as one batch) unless `keep_reading()` says an estimate waits for
+wheel frames; `read_now()` ends a pause. Any other bus is read by one thread that hands frames to the loop in
+batches and is joined on exit.
 A reader that raises is reported and restarted, never silently stopped. A receive error (e.g. ENETDOWN when the
 SocketCAN link goes down) starts an outage, which ends with the next frame received; both are reported (`report`)
 and counted (`status()`, logged with the diagnostics).
@@ -23,6 +26,7 @@ import can
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
+from slipdaq.sources.socketcan_raw import RawFrame, frame_reader, message_to_raw
 
 log = logging.getLogger(__name__)
 
@@ -52,13 +56,16 @@ def to_frame(msg: can.Message) -> CanFrame:
 def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch | list[CanFrame]:
     """One reader wake-up's messages as the pipeline takes them (Pipeline.process_can_batch); timestamps_s replaces
     their own stamps (the log's clock)."""
-    ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
-    if len(msgs) < BATCH_COLUMNS_FROM:
-        return [CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
-                for t, m in zip(ts, msgs)]
-    return CanFrameBatch.from_columns(ts, [m.arbitration_id for m in msgs],
-                                      [m.is_extended_id | (m.is_error_frame << 1) for m in msgs],
-                                      [m.data for m in msgs])
+    raws = [message_to_raw(m) for m in msgs]  # as the reader does for a bus read through python-can
+    return raw_to_frames(raws, [r[0] for r in raws] if timestamps_s is None else timestamps_s)
+
+
+def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch | list[CanFrame]:
+    """to_frames for frames read as RawFrame tuples (socketcan_raw.frame_reader), stamped timestamps_s."""
+    if len(raws) < BATCH_COLUMNS_FROM:
+        return [CanFrame(t, aid, data, ext, err) for t, (_, aid, ext, err, data) in zip(timestamps_s, raws)]
+    _, ids, ext, err, payloads = zip(*raws)
+    return CanFrameBatch.from_columns(timestamps_s, ids, [e | (r << 1) for e, r in zip(ext, err)], payloads)
 
 
 def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:
@@ -170,11 +177,11 @@ class CanBusSource:
         else:
             await self._run_in_thread(emit_batch)
 
-    def _stamps(self, msgs: list[can.Message]) -> list[float]:
-        """The messages' timestamps in the log's clock, in order (see the class's docstring)."""
+    def _stamps(self, raws: list[RawFrame]) -> list[float]:
+        """The frames' timestamps in the log's clock, in order (see the class's docstring)."""
         if self.stamp is None:
-            return [m.timestamp for m in msgs]
-        out = self.stamp.from_wall_many([m.timestamp for m in msgs], self._last_t)
+            return [r[0] for r in raws]
+        out = self.stamp.from_wall_many([r[0] for r in raws], self._last_t)
         self._last_t = out[-1]
         return out
 
@@ -204,28 +211,29 @@ class CanBusSource:
         else:
             self._source_event("reader_error", self.last_error)
 
-    def _during_outage(self, msg: can.Message) -> None:
-        """A frame during an outage: the outage ends if the frame came after the error."""
+    def _during_outage(self, timestamp_s: float) -> None:
+        """A frame (its bus stamp) during an outage: the outage ends if the frame came after the error."""
         assert self.outage_since is not None
-        if not self._drained and msg.timestamp < self._outage_wall_s:
+        if not self._drained and timestamp_s < self._outage_wall_s:
             return  # queued before the error
         self.last_outage_s = self._clock() - self.outage_since
         self.outage_since = None
         if self._report is not None:
             self._report(f"CAN receiving again after {self.last_outage_s:.2f} s "
-                         f"(outage {self.outages}; first frame stamped {msg.timestamp:.6f})")
+                         f"(outage {self.outages}; first frame stamped {timestamp_s:.6f})")
         self._source_event("up", f"receiving again (outage {self.outages})", self.last_outage_s)
 
-    def _deliver(self, msgs: list[can.Message], emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
-        if not msgs:
+    def _deliver(self, raws: list[RawFrame], emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
+        if not raws:
             return
-        self.frames += len(msgs)
-        emit_batch(to_frames(msgs, self._stamps(msgs)))
+        self.frames += len(raws)
+        emit_batch(raw_to_frames(raws, self._stamps(raws)))
 
     async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
         interval_s = self.read_interval_s
         keep_reading = self.keep_reading
+        recv = frame_reader(self.bus)  # SocketCAN: straight from the socket, no can.Message per frame
         resume: asyncio.TimerHandle | None = None
 
         def add_reader() -> None:
@@ -240,22 +248,22 @@ class CanBusSource:
             woke_s = loop.time()
             self.reads += 1
             deadline = time.monotonic() + BATCH_BUDGET_S
-            msgs: list[can.Message] = []
+            raws: list[RawFrame] = []
             drained = False
             try:
                 for _ in range(BATCH):
-                    msg = self.bus.recv(timeout=0)
-                    if msg is None:
+                    raw = recv()
+                    if raw is None:
                         self._drained = drained = True
                         break
                     if self.outage_since is not None:
-                        self._during_outage(msg)
-                    msgs.append(msg)
+                        self._during_outage(raw[0])
+                    raws.append(raw)
                     if time.monotonic() > deadline:
                         break  # the rest on the next wake-up (level-triggered: the socket is still readable)
             except Exception as e:  # any error: counted, reading goes on, the frames read before it delivered
                 self._error(e)
-            self._deliver(msgs, emit_batch)
+            self._deliver(raws, emit_batch)
             if drained and interval_s > 0 and not (keep_reading is not None and keep_reading()):
                 # pause: the next frames wait in the kernel's buffer, with their receive stamps, and come as a batch
                 loop.remove_reader(fd)
@@ -276,10 +284,11 @@ class CanBusSource:
         stop = threading.Event()
 
         def deliver(batch: list[can.Message]) -> None:
-            for msg in batch:
+            raws = [message_to_raw(m) for m in batch]
+            for raw in raws:
                 if self.outage_since is not None:
-                    self._during_outage(msg)
-            self._deliver(batch, emit_batch)
+                    self._during_outage(raw[0])
+            self._deliver(raws, emit_batch)
 
         def reader() -> None:
             while not stop.is_set():
