@@ -1,29 +1,27 @@
 #!/usr/bin/env python3
-"""Performance benchmarks (issue 7): ingest, replay, latency and CPU of slipdaq, a profile of the ingest path and
-the prototypes of the proposed redesign (benchmarks/perf_proto.py). Prints markdown tables; --write also puts them
-in docs/performance.md (between the perf:begin/perf:end markers). Not a test: nothing here asserts a target.
+"""Performance benchmarks (issue 7): ingest, replay, latency and CPU of slipdaq, and a profile of the ingest path.
+Prints markdown tables; --write also puts them in docs/performance.md (between the perf:begin/perf:end markers).
+Not a test: nothing here asserts a target.
 
     .venv/bin/python benchmarks/perf.py [--quick] [--replay-minutes N] [--only SECTIONS] [--write]
 
-Sections (in this order): ingest, replay, latency, cpu, profile, proto; all but proto by default (the prototypes are
-written against ef5d01e's internals and skip themselves on later trees).
+Sections (in this order): ingest, replay, latency, cpu, profile.
 - ingest:  python-can Messages built in memory first (simulator, 4 WPT messages at 2000 Hz each + 20 Hz NMEA);
            then, interleaved, `rounds` times: slipdaq's live path minus the driver (reader batches of up to 256
-           frames, as CanBusSource reads them: to_frames(msgs) -> Pipeline.process_can_batch -> McapLogSink, every
-           frame logged, NMEA lines in arrival order, file closed), the same frame by frame (to_frame ->
-           Pipeline.process), and python-can's can.Logger writing the same frames to .blf and to .asc. Median
-           frames/s and the ratios.
+           frames, as CanBusSource hands them on for a bus read through python-can: to_frames(msgs) ->
+           Pipeline.process_can_batch -> McapLogSink, every frame logged, NMEA lines in arrival order, file closed),
+           the same frame by frame (to_frame -> Pipeline.process), and python-can's can.Logger writing the same
+           frames to .blf and to .asc. Median frames/s and the ratios.
 - replay:  a raw log of N minutes of 4 x 500 Hz + 20 Hz NMEA (written with McapLogSink.on_raw), then
            `slipdaq replay RAW -o OUT` in this process (slipdaq.cli.main). Frames/s and times real time.
 - latency: run_daemon in this process on python-can's virtual bus, a sender thread at 4 x 1 kHz + NMEA at 20 Hz on
            a pseudo-terminal; see docs/performance.md for the definition. p50/p99.
-- cpu:     `slipdaq run` (slipdaq.cli.main in a child process) reading a loopback-UDP python-can bus that slipdaq
-           reads like SocketCAN (benchmarks/perf_bus.py), the sender in another process; the daemon's CPU time from
-           /proc/PID/stat over the run. At 4 x 1 kHz and at 9,000 frames/s; also its latency (same definition).
-           With the proto section, the prototype's live loop runs on the same rig for comparison.
+- cpu:     `slipdaq run` (slipdaq.cli.main in a child process) reading a loopback-UDP bus that carries SocketCAN
+           frames with kernel stamps and that slipdaq reads as it reads SocketCAN (benchmarks/perf_bus.py), the
+           sender in another process; the daemon's CPU time from /proc/PID/stat over the run. At 4 x 1 kHz and at
+           9,000 frames/s, with the default can.read_interval_s and with 0 (every frame read as it comes); also
+           its latency (same definition). --cpu-profile DIR records the daemon with py-spy.
 - profile: py-spy (sampling, if installed; else cProfile) of the ingest loop, time by category.
-- proto:   the prototypes: each piece's gain and the batched path end to end (ingest and replay), checked bit for
-           bit against the current estimates.
 """
 
 from __future__ import annotations
@@ -37,7 +35,6 @@ import math
 import os
 import platform
 import pty
-import re
 import shutil
 import signal
 import socket
@@ -65,7 +62,7 @@ from slipdaq.config import Config, load_config, packaged_config_path  # noqa: E4
 from slipdaq.records import CanFrame, NmeaLine  # noqa: E402
 from slipdaq.sim.emit import SimSettings, generate  # noqa: E402
 
-SECTIONS = ("ingest", "replay", "latency", "cpu", "profile", "proto")
+SECTIONS = ("ingest", "replay", "latency", "cpu", "profile")
 SKIP_S = 2.0
 """The simulator's cycle starts with 2 s at standstill: ingest data starts after it (the car moving)."""
 
@@ -126,19 +123,6 @@ def busy_processes(min_cpu: float = 10.0) -> str:
         if len(parts) == 3 and int(parts[0]) != os.getpid() and float(parts[1]) >= min_cpu:
             items.append((float(parts[1]), parts[2]))
     return ", ".join(f"{name} {cpu:.0f} %" for cpu, name in sorted(items, reverse=True))
-
-
-def proto_problem() -> str | None:
-    """Why the prototypes cannot run against this slipdaq (they use the estimator's and decoder's internals of
-    commit ef5d01e), or None when they can."""
-    try:
-        import perf_proto
-
-        fp = perf_proto.FastPipeline(base_config(), None)
-        fp.est._wheels, fp.est._drain, fp.est._pending, fp.est._gps  # noqa: B018
-    except Exception as e:  # an API that moved: say so and measure the rest
-        return f"{type(e).__name__}: {e}"
-    return None
 
 
 def median(xs: list[float]) -> float:
@@ -208,8 +192,7 @@ def wheel_ids(cfg: Config) -> dict[int, str]:
 
 
 # ---- 1. ingest ----------------------------------------------------------------------------------------------
-def ingest_slipdaq(cfg: Config, items: list[Any], path: Path, *, status_sink: bool = False,
-                   cached_latency: bool = False) -> float:
+def ingest_slipdaq(cfg: Config, items: list[Any], path: Path, *, status_sink: bool = False) -> float:
     """Seconds for: to_frame + Pipeline.process for every item, finish, close (construction not timed)."""
     from slipdaq.pipeline import Pipeline
     from slipdaq.sinks.mcap_log import McapLogSink
@@ -222,10 +205,6 @@ def ingest_slipdaq(cfg: Config, items: list[Any], path: Path, *, status_sink: bo
 
         sinks.append(StatusSink())
     pipeline = Pipeline(cfg, sinks)
-    if cached_latency:
-        from perf_proto import install_cached_latency
-
-        install_cached_latency(pipeline.estimator)
     Message = can.Message
     process = pipeline.process
     t0 = time.perf_counter()
@@ -269,21 +248,6 @@ def ingest_logger(msgs: list[can.Message], path: Path) -> float:
     return time.perf_counter() - t0
 
 
-def ingest_fast(cfg: Config, batches: list[Any], path: Path) -> float:
-    from perf_proto import BatchLog, FastPipeline, columns_from_messages
-
-    log = BatchLog(path, cfg, "bench")
-    fp = FastPipeline(cfg, log)
-    t0 = time.perf_counter()
-    for b in batches:
-        if isinstance(b, list):
-            fp.process_msgs(b)
-        else:
-            fp.process_nmea(b)
-    fp.finish()
-    return time.perf_counter() - t0
-
-
 @dataclass
 class IngestResult:
     frames: int
@@ -293,7 +257,7 @@ class IngestResult:
     sizes: dict[str, int] = field(default_factory=dict)
 
 
-def run_ingest(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> IngestResult:
+def run_ingest(a: argparse.Namespace, tmp: Path) -> IngestResult:
     cfg = base_config()
     items = sim_items(2000.0, 20.0, a.ingest_seconds)
     msgs = [m for m in items if isinstance(m, can.Message)]
@@ -308,9 +272,6 @@ def run_ingest(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> IngestR
         ("python-can can.Logger -> .asc", lambda p: ingest_logger(msgs, p)),
     ]
     exts = ["mcap", "mcap", "blf", "asc"]
-    if with_proto:
-        variants.append(("prototype: batched path (perf_proto.FastPipeline)", lambda p: ingest_fast(cfg, batches, p)))
-        exts.append("mcap")
     print(f"ingest: {len(msgs):,} frames + {res.nmea} NMEA lines ({a.ingest_seconds:g} s of 4 x 2000 Hz + 20 Hz), "
           f"{a.rounds} interleaved rounds", flush=True)
     for r in range(a.rounds):
@@ -352,68 +313,36 @@ class ReplayResult:
     nmea: int
     produce_s: float
     replay_s: float | None = None
-    proto_rows: list[tuple[float, int, float]] = field(default_factory=list)
-    fast_identical: str = ""
 
 
-def write_raw_log(cfg: Config, minutes: float, path: Path, fast_path: Path | None = None) -> tuple[int, int, float]:
-    """A raw-only slipdaq log of `minutes` of 4 x 500 Hz + 20 Hz NMEA; optionally the same as a prototype log."""
+def write_raw_log(cfg: Config, minutes: float, path: Path) -> tuple[int, int, float]:
+    """A raw-only slipdaq log of `minutes` of 4 x 500 Hz + 20 Hz NMEA: (frames, NMEA lines, seconds to write)."""
     from slipdaq.sinks.mcap_log import McapLogSink
 
     t0 = time.perf_counter()
-    sink = McapLogSink(path, cfg, mode="bench-raw") if path else None
-    fast = None
-    if fast_path is not None:
-        from perf_proto import BatchLog, FastPipeline
-
-        fast = FastPipeline(cfg, BatchLog(fast_path, cfg, "bench-raw"))
+    sink = McapLogSink(path, cfg, mode="bench-raw")
     settings = replace(SimSettings(), wpt_rate_hz=500.0, gps_rate_hz=20.0, gps_latency_s=0.05, can_jitter_s=0.0002)
     frames = nmea = 0
-    buf: list[CanFrame] = []
-
-    def flush() -> None:
-        if buf and fast is not None:
-            n = len(buf)
-            fast.process_can(np.fromiter((f.timestamp_s for f in buf), np.float64, n),
-                             np.fromiter((f.arbitration_id for f in buf), np.uint32, n),
-                             np.fromiter((f.is_extended_id | 2 * f.is_error_frame for f in buf), np.uint8, n),
-                             np.fromiter((len(f.data) for f in buf), np.uint8, n),
-                             np.frombuffer(b"".join(f.data.ljust(8, b"\0") for f in buf), np.uint8))
-        buf.clear()
-
     for ev in generate(cfg, "cycle", "paved", settings, duration_s=minutes * 60.0):  # type: ignore[arg-type]
         r = ev.record
         if r is None:
             continue
-        if sink is not None:
-            sink.on_raw(r)
+        sink.on_raw(r)
         if isinstance(r, CanFrame):
             frames += 1
-            if fast is not None:
-                buf.append(r)
-                if len(buf) >= 256:
-                    flush()
         else:
             nmea += 1
-            if fast is not None:
-                flush()
-                fast.process_nmea(r)
-    flush()
-    if sink is not None:
-        sink.close()
-    if fast is not None:
-        fast.finish()
+    sink.close()
     return frames, nmea, time.perf_counter() - t0
 
 
-def run_replay(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> ReplayResult:
+def run_replay(a: argparse.Namespace, tmp: Path) -> ReplayResult:
     from slipdaq.cli import main as slipdaq_main
 
     cfg = base_config()
     raw = tmp / "replay-raw.mcap"
-    fast_raw = tmp / "replay-raw-fast.mcap" if with_proto else None
     print(f"replay: writing a {a.replay_minutes:g}-minute raw log (4 x 500 Hz + 20 Hz NMEA)...", flush=True)
-    frames, nmea, produce_s = write_raw_log(cfg, a.replay_minutes, raw, fast_raw)
+    frames, nmea, produce_s = write_raw_log(cfg, a.replay_minutes, raw)
     res = ReplayResult(a.replay_minutes, frames, nmea, produce_s)
     print(f"  {frames:,} frames, {nmea:,} NMEA lines, {raw.stat().st_size / 1e6:.1f} MB, written in {produce_s:.0f} s;"
           f" timing `slipdaq replay`...", flush=True)
@@ -425,61 +354,22 @@ def run_replay(a: argparse.Namespace, tmp: Path, *, with_proto: bool) -> ReplayR
     if rc != 0:
         raise SystemExit(f"slipdaq replay failed with exit status {rc}")
     print(f"  slipdaq replay: {res.replay_s:.1f} s = {fmt_rate(frames / res.replay_s)} frames/s", flush=True)
-    if with_proto and fast_raw is not None:
-        from slipdaq.sources.mcap_log import iter_estimates
-
-        ref_estimates = [json.dumps(e) for e in iter_estimates(out)]
-        dt, same = time_fast_replay(cfg, fast_raw, tmp / "replay-fast-out.mcap", ref_estimates)
-        res.proto_rows.append((a.replay_minutes, frames, dt))
-        res.fast_identical = same
-        print(f"  prototype replay of the same log: {dt:.1f} s = {fmt_rate(frames / dt)} frames/s ({same})", flush=True)
-        fast_raw.unlink()
-        if a.proto_replay_minutes > a.replay_minutes:
-            print(f"replay (prototype): writing a {a.proto_replay_minutes:g}-minute prototype log...", flush=True)
-            n_big = write_raw_log(cfg, a.proto_replay_minutes, None, fast_raw)[0]  # type: ignore[arg-type]
-            dt, _ = time_fast_replay(cfg, fast_raw, tmp / "replay-fast-out.mcap", None)
-            res.proto_rows.append((a.proto_replay_minutes, n_big, dt))
-            print(f"  prototype replay: {dt:.1f} s = {fmt_rate(n_big / dt)} frames/s", flush=True)
-            fast_raw.unlink()
     out.unlink()
     raw.unlink()
     return res
 
 
-def time_fast_replay(cfg: Config, src: Path, out: Path, ref: list[str] | None) -> tuple[float, str]:
-    from perf_proto import replay_fast
-
-    t0 = time.perf_counter()
-    fp = replay_fast(cfg, src, out)
-    dt = time.perf_counter() - t0
-    same = "estimates not compared"
-    if ref is not None:
-        with open(out, "rb") as f:
-            from mcap.reader import make_reader
-
-            got = [json.dumps(json.loads(m.data)) for _s, _c, m in
-                   make_reader(f).iter_messages(topics=["/estimate"], log_time_order=False)]
-        same = f"{len(got)} estimates, identical to slipdaq replay's: {'yes' if got == ref else 'NO'}"
-    out.unlink()
-    del fp
-    return dt, same
-
-
 def replay_table(res: ReplayResult) -> str:
     real_s = res.minutes * 60.0
-    rows = [[f"`slipdaq replay` (current design)", f"{res.minutes:g} min", f"{res.frames:,}",
+    rows = [["`slipdaq replay`", f"{res.minutes:g} min", f"{res.frames:,}",
              f"{res.replay_s:.1f} s", fmt_rate(res.frames / res.replay_s), f"{real_s / res.replay_s:.1f}×",
              f"{res.replay_s * 60 / res.minutes / 60:.1f} min"]]
-    for minutes, n, dt in res.proto_rows:
-        rows.append(["prototype batched replay (perf_proto.replay_fast)", f"{minutes:g} min", f"{n:,}", f"{dt:.1f} s",
-                     fmt_rate(n / dt), f"{minutes * 60 / dt:.1f}×", f"{dt * 60 / minutes:.1f} s"])
     head = (f"Raw log: 4 WPT messages × 500 Hz + 20 Hz NMEA from the simulator's cycle (written in "
             f"{res.produce_s:.0f} s, not timed). Replay time includes reading, decode, estimator and writing the new "
             f"log. The last column is the measured rate expressed per hour of log (the 60-minute figure is only "
             f"measured when --replay-minutes 60). Target: ≥ 500,000 frames/s, an hour of 4 × 500 Hz in < 15 s.\n\n")
     t = table(["replay", "log", "frames", "wall time", "frames/s", "× real time", "time per hour of log"], rows)
-    note = f"\n\nPrototype check: {res.fast_identical}." if res.fast_identical else ""
-    return head + t + note
+    return head + t
 
 
 # ---- latency: shared analysis -----------------------------------------------------------------------------------
@@ -619,42 +509,6 @@ def _batched_log_estimates(log_path: Path, ids: dict[int, str]) -> tuple[dict[st
     return times, estimates
 
 
-def analyse_latency_proto(log_path: Path, rows: list[list[Any]]) -> tuple[list[float], list[float], int, int,
-                                                                           list[str]]:
-    """The same figures for the prototype's live loop: frames from its CDR batches, estimates from its probe."""
-    from mcap.reader import make_reader
-
-    from perf_proto import CAN_DTYPES, _cdr_read
-
-    cfg = base_config()
-    ids = wheel_ids(cfg)
-    ts_parts: list[np.ndarray] = []
-    id_parts: list[np.ndarray] = []
-    firsts: list[int] = []
-    with open(log_path, "rb") as f:
-        for _s, _c, m in make_reader(f).iter_messages(topics=["/can/raw"], log_time_order=False):
-            first, cols = _cdr_read(m.data, CAN_DTYPES)
-            firsts.append(first)
-            ts_parts.append(cols[0])
-            id_parts.append(cols[1])
-    order = np.argsort(firsts, kind="stable")
-    ts = np.concatenate([ts_parts[i] for i in order]) if ts_parts else np.zeros(0)
-    fid = np.concatenate([id_parts[i] for i in order]) if id_parts else np.zeros(0, np.uint32)
-    index = np.arange(len(ts))
-    arrays, idx = {}, {}
-    for frame_id, w in ids.items():
-        sel = fid == frame_id
-        arrays[w], idx[w] = ts[sel], index[sel]
-    items = []
-    for wall, time_s, window_s, lat, lsrc, source, t_rel, can_index in rows:
-        counts = {w: int(np.searchsorted(idx[w], can_index, side="left")) for w in arrays}
-        kind = "can" if can_index > 0 and can_index <= len(ts) and ts[can_index - 1] == t_rel else "nmea"
-        d = {"time_s": time_s, "window_s": window_s, "gps_latency_s": lat, "latency_source": lsrc, "source": source}
-        items.append((wall, d, counts, kind, t_rel))
-    frame_ms, trig_ms, by_nmea, notes = _latency_core(items, arrays)
-    return frame_ms, trig_ms, by_nmea, len(rows), notes
-
-
 def diagnostics_of(log_path: Path) -> dict[str, Any]:
     from mcap.reader import make_reader
 
@@ -788,9 +642,9 @@ def proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, mode: str = "slipdaq",
-            tick_ms: float = 0.0, read_interval_s: float | None = None) -> CpuResult:
-    """mode "slipdaq": `slipdaq run` (the current design); "proto": the prototype's live loop (perf_bus.py)."""
+def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str,
+            read_interval_s: float | None = None) -> CpuResult:
+    """`slipdaq run` on the loopback rig at total_rate_hz + 20 Hz NMEA; read_interval_s overrides can.read_interval_s."""
     import tomllib
 
     import tomli_w
@@ -818,14 +672,14 @@ def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, 
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(Path(slipdaq.__file__).resolve().parents[1]), str(HERE)] +
                                         ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    who = "`slipdaq run`" if mode == "slipdaq" else f"the prototype's live loop (tick {tick_ms:g} ms)"
+    who = "`slipdaq run`"
     print(f"cpu: {label}: {who} in a child process, sender in another, {seconds:g} s...", flush=True)
     sender = subprocess.Popen(
         [py, str(HERE / "perf_bus.py"), "sender", "--port", str(port), "--nmea-fd", str(master),
          "--wpt-rate-hz", str(total_rate_hz / 4), "--gps-rate-hz", "20", "--duration", str(seconds),
          "--start-wall", str(start)], pass_fds=[master], stdout=subprocess.PIPE, text=True, env=env)
     out_file = open(work / "daemon.out", "w")
-    child = ["daemon"] if mode == "slipdaq" else ["proto-daemon", "--tick-ms", str(tick_ms)]
+    child = ["daemon"]
     daemon = subprocess.Popen(
         [py, str(HERE / "perf_bus.py"), *child, "--config", str(cfg_path), "--log-dir", str(work / "logs"),
          "--probe", str(probe_path)], stdout=out_file, stderr=subprocess.STDOUT, env=env)
@@ -843,7 +697,7 @@ def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, 
         start = float(first[1])  # later than planned when generating took longer than the lead
         t_a = start + warm
         time.sleep(max(0.0, t_a - time.time()))
-        if getattr(a, "cpu_profile", None) and shutil.which("py-spy", path=str(Path(py).parent)) and mode == "slipdaq":
+        if getattr(a, "cpu_profile", None) and shutil.which("py-spy", path=str(Path(py).parent)):
             Path(a.cpu_profile).mkdir(parents=True, exist_ok=True)
             out = Path(a.cpu_profile) / f"daemon-{int(total_rate_hz)}hz.txt"
             subprocess.Popen([str(Path(py).parent / "py-spy"), "record", "--pid", str(daemon.pid), "-r", "1000",
@@ -869,12 +723,7 @@ def run_cpu(a: argparse.Namespace, tmp: Path, total_rate_hz: float, label: str, 
     log_path = next((work / "logs").glob("*.mcap"))
     probe = json.loads(probe_path.read_text()) if probe_path.exists() else []
     cfg = base_config()
-    if mode == "slipdaq":
-        frame_ms, trig_ms, by_nmea, n, notes = analyse_latency(log_path, probe, cfg)
-        who = "`slipdaq run`"
-    else:
-        frame_ms, trig_ms, by_nmea, n, notes = analyse_latency_proto(log_path, probe)
-        who = f"prototype live loop ({'add_reader' if tick_ms <= 0 else f'{tick_ms:g} ms tick'})"
+    frame_ms, trig_ms, by_nmea, n, notes = analyse_latency(log_path, probe, cfg)
     diag = diagnostics_of(log_path)
     frames_logged = int(diag.get("can_frames", 0))
     lost = sum((diag.get("lost_frames") or {}).values())
@@ -1025,268 +874,6 @@ def profile_table(prof: dict[str, Any]) -> str:
             table(["where the time goes (current design, ingest path)", "share"], rows))
 
 
-# ---- 6. prototypes ----------------------------------------------------------------------------------------------
-def run_proto(a: argparse.Namespace, tmp: Path, ingest: IngestResult | None) -> dict[str, Any]:
-    import perf_proto as P
-    from mcap.writer import CompressionType, Writer
-
-    from slipdaq.decode.can_wheels import WptDecoder
-    from slipdaq.sinks.mcap_log import McapLogSink, can_frame_to_dict
-    from slipdaq.sources.can_bus import to_frame
-    from slipdaq.sources.mcap_log import iter_estimates
-
-    cfg = base_config()
-    out: dict[str, Any] = {}
-    items = sim_items(2000.0, 20.0, a.ingest_seconds)
-    msgs = [m for m in items if isinstance(m, can.Message)]
-    frames = [to_frame(m) for m in msgs]
-    n = len(frames)
-    print(f"proto: {n:,} frames", flush=True)
-
-    def best(fn: Any, reps: int = 3) -> float:
-        return min(fn() for _ in range(reps))
-
-    # (1) cached GPS latency: the whole current pipeline with only that change
-    ref_path, cached_path = tmp / "ref.mcap", tmp / "cached.mcap"
-    t_ref = ingest_slipdaq(cfg, items, ref_path)
-    t_cached = min(ingest_slipdaq(cfg, items, cached_path, cached_latency=True) for _ in range(a.rounds))
-    same = [json.dumps(e) for e in iter_estimates(ref_path)] == [json.dumps(e) for e in iter_estimates(cached_path)]
-    out["cached"] = (n / t_ref, n / t_cached, same)
-    ref_estimates = [json.dumps(e) for e in iter_estimates(ref_path)]
-    ref_path.unlink()
-    cached_path.unlink()
-    print(f"  cached latency: {fmt_rate(n / t_cached)} frames/s (estimates identical: {same})", flush=True)
-
-    # (2) decode: cantools (WptDecoder) vs precompiled struct vs numpy batch
-    layout = P.WptStructLayout.from_dbc(cfg.load_dbc_text())
-    assert layout is not None
-
-    def t_cantools() -> float:
-        dec = WptDecoder(cfg.load_dbc_text())
-        t0 = time.perf_counter()
-        for f in frames:
-            dec.decode(f)
-        return time.perf_counter() - t0
-
-    def t_cantools_bare() -> float:
-        from slipdaq.decode.can_wheels import load_dbc, wheel_layouts
-
-        lay = wheel_layouts(load_dbc(cfg.load_dbc_text()))
-        t0 = time.perf_counter()
-        for f in frames:
-            lay[f.arbitration_id].message.decode(f.data, decode_choices=False, scaling=False)
-        return time.perf_counter() - t0
-
-    def t_struct() -> float:
-        unpack = layout.struct.unpack
-        ids = layout.ids
-        t0 = time.perf_counter()
-        for f in frames:
-            if f.arbitration_id in ids:
-                unpack(f.data)
-        return time.perf_counter() - t0
-
-    data = np.frombuffer(b"".join(f.data for f in frames), np.uint8)
-
-    def t_numpy() -> float:
-        t0 = time.perf_counter()
-        for i in range(0, n, 256):
-            a_ = data[8 * i:8 * (i + 256)].view(layout.dtype)
-            a_["count"].astype(np.int64)
-            a_["seq"].astype(np.int64)
-        return time.perf_counter() - t0
-
-    same_dec = all(layout.unpack(f.data) == v for f, v in
-                   zip(frames, P.cantools_decode_all(cfg.load_dbc_text(), [(f.arbitration_id, f.data) for f in frames])))
-    out["decode"] = [("WptDecoder.decode (cantools + unwrap + WheelSample), today", best(t_cantools) / n),
-                     ("cantools Message.decode alone", best(t_cantools_bare) / n),
-                     ("precompiled struct.unpack per frame (verified against cantools)", best(t_struct) / n),
-                     ("numpy structured view per batch of 256", best(t_numpy) / n)]
-    out["decode_same"] = same_dec
-
-    # (3) logging the raw frames: per-frame JSON (today) vs JSON batches vs CDR batches
-    def write_with(kind: str) -> tuple[float, int]:
-        path = tmp / f"log-{kind}.mcap"
-        f_ = open(path, "wb")
-        w = Writer(f_, chunk_size=cfg.log.chunk_size_bytes, compression=CompressionType.ZSTD)
-        w.start(profile="slipdaq", library="perf")
-        sid = w.register_schema("s", "jsonschema" if kind != "cdr" else "ros2msg",
-                                P.CAN_BATCH_SCHEMA.encode() if kind == "cdr" else b"{}")
-        ch = w.register_channel("/can/raw", "json" if kind != "cdr" else "cdr", sid)
-        t0 = time.perf_counter()
-        if kind == "json per frame":
-            dumps = json.dumps
-            for i, fr in enumerate(frames):
-                ns = int(fr.timestamp_s * 1e9)
-                w.add_message(ch, log_time=ns, publish_time=ns, sequence=i,
-                              data=dumps(can_frame_to_dict(fr), separators=(",", ":")).encode())
-        else:
-            for i in range(0, n, 256):
-                part = msgs[i:i + 256]
-                cols = P.columns_from_messages(part)
-                ns = int(cols[0][-1] * 1e9)
-                payload = P.json_batch(*cols) if kind == "json batch" else P._cdr(i, list(cols))
-                w.add_message(ch, log_time=ns, publish_time=ns, sequence=i, data=payload)
-        w.finish()
-        f_.close()
-        dt = time.perf_counter() - t0
-        size = path.stat().st_size
-        path.unlink()
-        return dt, size
-
-    out["log"] = []
-    for kind in ("json per frame", "json batch", "cdr"):
-        dts = [write_with(kind) for _ in range(3)]
-        dt = min(d for d, _ in dts)
-        out["log"].append((kind, dt / n, dts[0][1] / n))
-    t_cols = best(lambda: _time(lambda: [P.columns_from_messages(msgs[i:i + 256]) for i in range(0, n, 256)]))
-    out["columns"] = t_cols / n
-
-    # (4) the batched path end to end, batch-size sweep (live wake-ups deliver small batches)
-    out["sweep"] = []
-    for size in (1, 4, 16, 64, 256):
-        batches = reader_batches(items, size)
-        reps = 1 if size < 16 else a.rounds
-        dt = min(ingest_fast(cfg, batches, tmp / f"sweep-{size}.mcap") for _ in range(reps))
-        fp_items = P.FastPipeline(cfg, None)
-        fp_items.keep_estimates = True
-        for b in batches:
-            if isinstance(b, list):
-                fp_items.process_msgs(b)
-            else:
-                fp_items.process_nmea(b)
-        from slipdaq.sinks.mcap_log import estimate_to_dict
-
-        same_b = [json.dumps(estimate_to_dict(e), separators=(", ", ": ")) for e in fp_items.estimates]
-        ref_cmp = [json.dumps(json.loads(s), separators=(", ", ": ")) for s in ref_estimates]
-        out["sweep"].append((size, n / dt, same_b == ref_cmp))
-        (tmp / f"sweep-{size}.mcap").unlink()
-        print(f"  batched path, batches of {size}: {fmt_rate(n / dt)} frames/s (identical: {same_b == ref_cmp})",
-              flush=True)
-    # check the CDR batches with an independent decoder
-    chk = tmp / "chk.mcap"
-    ingest_fast(cfg, reader_batches(items, 256), chk)
-    out["cdr_check"] = P.verify_cdr_with_mcap_ros2(chk)
-    chk.unlink()
-    # (5) fixed costs per GPS epoch, which bound replay: NMEA decode per line, add_gps (the estimate), JSON out
-    fp = P.FastPipeline(cfg, None)
-    fp.keep_estimates = True
-    acc = {"nmea": [0.0, 0], "gps": [0.0, 0]}
-    dec, add = fp.nmea.decode, fp.est.add_gps
-
-    def tdec(line: Any) -> Any:
-        t0 = time.perf_counter()
-        r = dec(line)
-        acc["nmea"][0] += time.perf_counter() - t0
-        acc["nmea"][1] += 1
-        return r
-
-    def tadd(fix: Any) -> Any:
-        t0 = time.perf_counter()
-        r = add(fix)
-        acc["gps"][0] += time.perf_counter() - t0
-        acc["gps"][1] += 1
-        return r
-
-    fp.nmea.decode = tdec  # type: ignore[method-assign]
-    fp.est.add_gps = tadd  # type: ignore[method-assign]
-    for b in reader_batches(items, 256):
-        if isinstance(b, list):
-            fp.process_msgs(b)
-        else:
-            fp.process_nmea(b)
-    from slipdaq.sinks.mcap_log import estimate_to_dict as e2d
-
-    t_json = _time(lambda: [json.dumps(e2d(e), separators=(",", ":")).encode() for e in fp.estimates])
-    out["epoch"] = {"nmea_line": acc["nmea"][0] / max(acc["nmea"][1], 1),
-                    "add_gps": acc["gps"][0] / max(acc["gps"][1], 1),
-                    "estimates_per_fix": len(fp.estimates) / max(acc["gps"][1], 1),
-                    "estimate_json": t_json / max(len(fp.estimates), 1)}
-    # python-can's receive side, for the live estimate: recv() of the loopback bus (SocketCAN-like) per frame
-    out["recv"] = time_udp_recv(min(n, 20000))
-    if ingest is not None:
-        out["blf"] = median(ingest.rates[list(ingest.rates)[1]])
-    return out
-
-
-def _time(fn: Any) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
-
-
-def time_udp_recv(n: int) -> float:
-    """Seconds per frame for LoopbackUdpBus.recv(timeout=0) (python-can Message built per frame, as SocketCAN)."""
-    import perf_bus
-
-    port = free_udp_port()
-    bus = perf_bus.LoopbackUdpBus(f"127.0.0.1:{port}")
-    bus.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 * 1024 * 1024)
-    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    pkt = perf_bus.FRAME.pack(0x310, 8, bytes(8))
-    got = 0
-    total = 0.0
-    try:
-        while got < n:
-            k = min(2000, n - got)
-            for _ in range(k):
-                tx.sendto(pkt, ("127.0.0.1", port))
-            t0 = time.perf_counter()
-            for _ in range(k):
-                if bus.recv(timeout=0) is None:
-                    break
-                got += 1
-            total += time.perf_counter() - t0
-    finally:
-        tx.close()
-        bus.shutdown()
-    return total / max(got, 1)
-
-
-def proto_tables(p: dict[str, Any], ingest: IngestResult | None) -> str:
-    parts = []
-    base, cached, same = p["cached"]
-    parts.append("**P1. GPS latency memoised** (CachedUtcLatency: `UtcLatency.estimate()` once per fix instead of once "
-                 "per frame), everything else as today:\n\n" + table(
-                     ["pipeline", "frames/s", "estimates identical"],
-                     [["today (same run, one round)", fmt_rate(base), "—"],
-                      ["today + memoised latency (best of rounds)", fmt_rate(cached), "yes" if same else "NO"]]))
-    parts.append("**P2. Decoding a WPT frame** (µs per frame; precompiled layout equals cantools on every frame: "
-                 f"{'yes' if p['decode_same'] else 'NO'}):\n\n" +
-                 table(["decoder", "µs/frame"], [[k, f"{v * 1e6:.2f}"] for k, v in p["decode"]]))
-    parts.append("**P3. Logging the raw frames** (µs per frame including mcap add_message, chunking and zstd, and "
-                 "file bytes per frame; batches of 256):\n\n" +
-                 table(["/can/raw encoding", "µs/frame", "bytes/frame on disk"],
-                       [[k, f"{t * 1e6:.2f}", f"{b:.1f}"] for k, t, b in p["log"]]) +
-                 f"\n\nBuilding the columns from python-can Messages (the per-frame Python left in the batched path): "
-                 f"{p['columns'] * 1e6:.2f} µs/frame. CDR batches read back by an independent decoder: "
-                 f"{p['cdr_check']}.")
-    blf = p.get("blf")
-    rows = [[f"{size}", fmt_rate(r), f"{1e6 / r:.2f}", f"{r / blf:.2f}" if blf else "—", "yes" if s else "NO"]
-            for size, r, s in p["sweep"]]
-    parts.append("**P4. The batched path end to end** (perf_proto.FastPipeline: P1 + P2 (numpy) + P3 (CDR) + decoded "
-                 "samples logged per batch + samples appended to the rings in bulk + `_drain` only where per-frame "
-                 "processing would emit; NMEA, estimates, fixes, diagnostics as today). Same frames as the ingest "
-                 "table, written to an MCAP file and closed; estimates compared with today's pipeline:\n\n" +
-                 table(["frames per reader batch", "frames/s", "µs/frame", "ratio to BLF (ingest run)",
-                        "estimates identical"], rows) +
-                 f"\n\npython-can receive side for comparison: LoopbackUdpBus.recv (one datagram → can.Message, as "
-                 f"SocketCAN's recv) {p['recv'] * 1e6:.2f} µs/frame.")
-    e = p.get("epoch")
-    if e:
-        per_epoch = 3 * e["nmea_line"] + e["add_gps"] + e["estimates_per_fix"] * e["estimate_json"]
-        parts.append("**P5. Fixed costs per GPS epoch** (today's code, inside the batched path; they do not shrink with "
-                     "batching and bound replay):\n\n" + table(["per", "µs"], [
-                         ["NMEA line decoded (NmeaDecoder.decode, pynmea2)", f"{e['nmea_line'] * 1e6:.0f}"],
-                         ["GPS fix into the estimator (add_gps: drain, the estimate's window maths, calibrations)",
-                          f"{e['add_gps'] * 1e6:.0f}"],
-                         ["estimate to JSON (estimate_to_dict + json.dumps)", f"{e['estimate_json'] * 1e6:.0f}"],
-                         ["one 20 Hz epoch: 3 lines + fix + estimate", f"{per_epoch * 1e6:.0f}"]]) +
-                     f"\n\nAt 20 Hz these are {20 * per_epoch * 1e3:.1f} ms per second of log; replay at 500,000 "
-                     f"frames/s of a 4 × 500 Hz log leaves 4.0 ms per second of log for everything.")
-    return "\n\n".join(parts)
-
-
 # ---- main ---------------------------------------------------------------------------------------------------------
 def write_doc(block: str) -> None:
     doc = ROOT / "docs" / "performance.md"
@@ -1307,13 +894,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small sizes, < 1 minute (a smoke run, not the figures)")
-    ap.add_argument("--only", default=",".join(s for s in SECTIONS if s != "proto"),
-                    help=f"comma-separated subset of {','.join(SECTIONS)} (default: all but proto, the prototypes of "
-                         f"ef5d01e's internals)")
+    ap.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated subset of {','.join(SECTIONS)}")
     ap.add_argument("--replay-minutes", type=float, default=None,
                     help="minutes of 4 x 500 Hz log to replay (default 60, the issue's definition; --quick 0.25)")
-    ap.add_argument("--proto-replay-minutes", type=float, default=None,
-                    help="minutes of log for the prototype's replay (default 10; --quick 0.25)")
     ap.add_argument("--ingest-seconds", type=float, default=None, help="seconds of 4 x 2000 Hz data (default 6)")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the ingest comparison (default 3)")
     ap.add_argument("--latency-seconds", type=float, default=None, help="default 20")
@@ -1327,7 +910,6 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     q = a.quick
     a.replay_minutes = a.replay_minutes if a.replay_minutes is not None else (0.25 if q else 60.0)
-    a.proto_replay_minutes = a.proto_replay_minutes if a.proto_replay_minutes is not None else (0.25 if q else 10.0)
     a.ingest_seconds = a.ingest_seconds if a.ingest_seconds is not None else (0.75 if q else 6.0)
     a.latency_seconds = a.latency_seconds if a.latency_seconds is not None else (3.0 if q else 20.0)
     a.cpu_seconds = a.cpu_seconds if a.cpu_seconds is not None else (4.0 if q else 20.0)
@@ -1336,10 +918,6 @@ def main(argv: list[str] | None = None) -> int:
     bad = [s for s in only if s not in SECTIONS]
     if bad:
         ap.error(f"unknown section(s) {bad}: choose from {SECTIONS}")
-    skipped_proto = proto_problem() if "proto" in only else None
-    if skipped_proto:
-        print(f"prototypes skipped: they need slipdaq's internals of commit ef5d01e ({skipped_proto})", flush=True)
-        only = [s for s in only if s != "proto"]
     started = time.time()
     load0 = os.getloadavg()
     busy0 = busy_processes()
@@ -1347,14 +925,13 @@ def main(argv: list[str] | None = None) -> int:
     cmd = "python benchmarks/perf.py " + " ".join(argv)
     print(f"slipdaq performance benchmarks — {cmd.strip()}", flush=True)
     out: list[str] = []
-    ingest = None
     with tempfile.TemporaryDirectory(dir=a.tmp_dir, prefix="slipdaq-perf-") as td:
         tmp = Path(td)
         if "ingest" in only:
-            ingest = run_ingest(a, tmp, with_proto="proto" in only)
+            ingest = run_ingest(a, tmp)
             out.append("### 1. Ingest (live path minus the driver)\n\n" + ingest_table(ingest))
         if "replay" in only:
-            rep = run_replay(a, tmp, with_proto="proto" in only)
+            rep = run_replay(a, tmp)
             out.append("### 2. Replay\n\n" + replay_table(rep))
         lats: list[Latency] = []
         cpus: list[CpuResult] = []
@@ -1370,11 +947,6 @@ def main(argv: list[str] | None = None) -> int:
             if not a.quick:  # the same without pacing: every frame read as it comes
                 for rate, label in loads:
                     cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval 0 (every frame)", read_interval_s=0.0))
-            if "proto" in only:
-                for rate, label in loads:
-                    cpus.append(run_cpu(a, tmp, rate, label, mode="proto", tick_ms=0.0))
-                if not a.quick:
-                    cpus.append(run_cpu(a, tmp, 4000.0, loads[0][1], mode="proto", tick_ms=1.0))
             lats += [c.latency for c in cpus if c.latency is not None]
         if lats:
             out.append("### 3. Latency\n\n" + latency_table(lats))
@@ -1382,9 +954,6 @@ def main(argv: list[str] | None = None) -> int:
             out.append("### 4. CPU of `slipdaq run`\n\n" + cpu_table(cpus))
         if "profile" in only:
             out.append("### 5. Profile of the ingest path\n\n" + profile_table(run_profile(a, tmp)))
-        if "proto" in only:
-            out.append("### 6. Prototypes of the redesign (benchmarks/perf_proto.py)\n\n" +
-                       proto_tables(run_proto(a, tmp, ingest), ingest))
     elapsed = time.time() - started
     load1 = os.getloadavg()
     head = ("**Machine.** " + "; ".join(f"{k}: {v}" for k, v in mach.items() if v) +
@@ -1392,8 +961,6 @@ def main(argv: list[str] | None = None) -> int:
             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.\n\n**Load.** 1-minute load average "
             f"{load0[0]:.2f} at the start, {load1[0]:.2f} at the end, on {os.cpu_count()} CPUs" +
             (f"; other processes busy at the start: {busy0}" if busy0 else "") + ".")
-    if skipped_proto:
-        out.append(f"### 6. Prototypes\n\nSkipped: they use slipdaq's internals of commit ef5d01e ({skipped_proto}).")
     block = head + "\n\n" + "\n\n".join(out)
     print("\n" + block)
     if a.write:

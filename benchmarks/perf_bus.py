@@ -14,8 +14,6 @@ daemon.open_bus asks it for the large SO_RCVBUF as on a car.
         registers the interface name `slipdaq_bench_udp`, then runs slipdaq.cli.main(["run", ...]) (the code of
         `slipdaq run`, unchanged); with --probe it also records time.time() after each estimate is handed to the
         MCAP writer (20 calls/s: negligible).
-    python benchmarks/perf_bus.py proto-daemon --config CFG --log-dir D [--probe OUT.json] [--tick-ms T]
-        the redesign's live path (benchmarks/perf_proto.py) on the same bus and GPS source, for comparison.
     python benchmarks/perf_bus.py sender --port P --nmea-fd FD --wpt-rate-hz R --gps-rate-hz G --duration S
         generates the simulated drive (sim time 0 = --start-wall), waits for that time, then sends the CAN frames to
         127.0.0.1:P and writes the NMEA lines to the pseudo-terminal's master FD at their times; prints its counts.
@@ -136,95 +134,6 @@ def daemon_main(args: argparse.Namespace) -> int:
             Path(args.probe).write_text(json.dumps(probe))
 
 
-# ---- the prototype's live loop -----------------------------------------------------------------------------------
-def proto_daemon_main(args: argparse.Namespace) -> int:
-    """The redesign's live path (perf_proto.FastPipeline) on the same bus, GPS source and sender as `slipdaq run`.
-
-    tick_ms 0: read the socket when the loop says it is readable (as CanBusSource does with SocketCAN);
-    tick_ms > 0: drain it every tick_ms milliseconds instead (fewer wake-ups, a few frames each).
-    Probe rows: [write time, time_s, window_s, gps_latency_s, latency_source, source, released-by timestamp,
-    frames processed before it].
-    """
-    import asyncio
-    import signal as sig
-
-    register()
-    from perf_proto import BatchLog, FastPipeline
-
-    from slipdaq.config import load_config
-    from slipdaq.daemon import open_bus
-    from slipdaq.sources.serial_gps import SerialGpsSource
-
-    cfg = load_config(args.config)
-    log_dir = Path(args.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    path = log_dir / "proto-live.mcap"
-    bus = open_bus(cfg)
-    fp = FastPipeline(cfg, BatchLog(path, cfg, "live"))
-    rows: list[list[object]] = []
-    emit = fp._emit
-
-    def probed_emit(estimates, t):  # type: ignore[no-untyped-def]
-        emit(estimates, t)
-        now = time.time()
-        for e in estimates:
-            rows.append([now, e.time_s, e.window_s, e.gps_latency_s, e.latency_source, e.source, t, fp.can_index])
-
-    fp._emit = probed_emit  # type: ignore[method-assign]
-    recv = bus.recv
-
-    def drain() -> None:
-        msgs = []
-        for _ in range(256):
-            m = recv(timeout=0)
-            if m is None:
-                break
-            msgs.append(m)
-        if msgs:
-            fp.process_msgs(msgs)
-
-    async def main() -> None:
-        loop = asyncio.get_running_loop()
-        stop = asyncio.Event()
-        loop.add_signal_handler(sig.SIGTERM, stop.set)
-        loop.add_signal_handler(sig.SIGINT, stop.set)
-        gps = SerialGpsSource(cfg.gps.port, cfg.gps.baudrate)
-        tasks = [asyncio.create_task(gps.run(fp.process_nmea))]
-
-        async def flusher() -> None:  # as the live sink: the file is readable up to the last second
-            while True:
-                await asyncio.sleep(1.0)
-                fp.log.can.flush()
-                fp.log.wheels.flush()
-                fp.log._w.flush()
-
-        tasks.append(asyncio.create_task(flusher()))
-        if args.tick_ms > 0:
-            async def ticker() -> None:
-                while True:
-                    await asyncio.sleep(args.tick_ms / 1000.0)
-                    drain()
-
-            tasks.append(asyncio.create_task(ticker()))
-        else:
-            loop.add_reader(bus.fileno(), drain)
-        await stop.wait()
-        if args.tick_ms <= 0:
-            loop.remove_reader(bus.fileno())
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-
-    try:
-        asyncio.run(main())
-    finally:
-        fp.finish()
-        bus.shutdown()
-        if args.probe:
-            Path(args.probe).write_text(json.dumps(rows))
-    return 0
-
-
 # ---- the sender -------------------------------------------------------------------------------------------------
 def build_schedule(wpt_rate_hz: float, gps_rate_hz: float, duration_s: float, gps_latency_s: float,
                    start_utc_s: float) -> tuple[list[float], list[object]]:
@@ -311,11 +220,6 @@ def main() -> int:
     d.add_argument("--log-dir", required=True)
     d.add_argument("--duration", type=float)
     d.add_argument("--probe")
-    d = sub.add_parser("proto-daemon")
-    d.add_argument("--config", required=True)
-    d.add_argument("--log-dir", required=True)
-    d.add_argument("--probe")
-    d.add_argument("--tick-ms", type=float, default=0.0)
     s = sub.add_parser("sender")
     s.add_argument("--port", type=int, required=True)
     s.add_argument("--nmea-fd", type=int, required=True)
@@ -325,7 +229,7 @@ def main() -> int:
     s.add_argument("--duration", type=float, required=True)
     s.add_argument("--start-wall", type=float, required=True, help="time.time() of sim time 0")
     args = ap.parse_args()
-    return {"daemon": daemon_main, "proto-daemon": proto_daemon_main, "sender": sender_main}[args.cmd](args)
+    return {"daemon": daemon_main, "sender": sender_main}[args.cmd](args)
 
 
 if __name__ == "__main__":
