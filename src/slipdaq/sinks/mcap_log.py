@@ -6,14 +6,14 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 
 from __future__ import annotations
 
-import asyncio
 import datetime as dt
 import json
 import logging
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -29,6 +29,9 @@ from slipdaq.sinks import cdr
 from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
 from slipdaq.sinks.rotation import RotationPolicy, segment_path
 from slipdaq.sources.events import EventHandler, SourceEvent
+
+if TYPE_CHECKING:
+    import asyncio
 
 log = logging.getLogger(__name__)
 
@@ -401,10 +404,13 @@ class McapLogSink:
         """CAN frames received so far (the next frame's index; GPS lines record it as can_index)."""
         self._sample_index = 0
         self._in_flush = False
-        try:
-            self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
-        except RuntimeError:
-            self._loop = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        aio = sys.modules.get("asyncio")  # not imported: no event loop is running (offline runs do not import it)
+        if aio is not None:
+            try:
+                self._loop = aio.get_running_loop()
+            except RuntimeError:
+                pass
         try:
             self._open_segment(1)
         except LogWriteError as e:
