@@ -201,6 +201,8 @@ def _jnum(x: object) -> str:
 
 
 _JSON_STR = {w: json.dumps(w) for w in WHEELS}
+_json_string = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
+"""A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
 
 
 def can_frame_json(f: CanFrame) -> bytes:
@@ -266,6 +268,14 @@ def estimate_json(e: Estimate) -> bytes:
     parts += [f",{k[8]}{j(we.force_n)},{k[9]}{j(we.speed_mps)}" for k, we in wheels]  # type: ignore[index]
     parts.append("}")
     return "".join(parts).encode()
+
+
+def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
+    """/nmea/raw payload: equal to _dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
+    t, text = line.timestamp_s, line.line
+    if type(t) is float and type(text) is str and type(can_index) is int:
+        return f'{{"timestamp_s":{_jnum(t)},"line":{_json_string(text)},"can_index":{can_index}}}'.encode()
+    return _dumps({"timestamp_s": t, "line": text, "can_index": can_index})
 
 
 def fix_json(fix: GpsFix) -> bytes:
@@ -735,8 +745,7 @@ class McapLogSink:
                 self._flush_can()
         elif isinstance(record, NmeaLine):
             self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
-            self._write(TOPIC_NMEA, record.timestamp_s,
-                        _dumps({"timestamp_s": record.timestamp_s, "line": record.line, "can_index": self.can_index}))
+            self._write(TOPIC_NMEA, record.timestamp_s, nmea_line_json(record, self.can_index))
         elif isinstance(record, UbxFrame):
             self.flush_batches()
             self._write(TOPIC_UBX, record.timestamp_s,
