@@ -201,3 +201,72 @@ def test_pipeline_batches_equal_records(cut_seed: int, max_len: int, scalar_max:
         assert repr([c for c in got if c[0] == kind]) == repr([c for c in ref if c[0] == kind])
     assert p.diagnostics() == p_ref.diagnostics()
     assert sum(c[0] == "estimate" for c in ref) > 50 and sum(c[0] == "diagnostics" for c in ref) >= 10
+
+
+@functools.cache
+def _odd_drive() -> list:
+    """The drive with _random_frames' oddities mixed in (at the drive's times): resets, wraps, Seq gaps, bad DLC,
+    unknown, extended and error frames; the CAN frames come 150 ms after the GPS lines of their time, so that wheel
+    frames release estimates (in the middle of a batch)."""
+    odd = iter(_random_frames(3, n=4000))
+    out: list = []
+    for k, r in enumerate(_drive()):
+        out.append(r)
+        if k % 3 == 0:
+            f = next(odd, None)
+            if f is not None:
+                out.append(CanFrame(r.timestamp_s, f.arbitration_id, f.data, f.is_extended_id, f.is_error_frame))
+    order = sorted(range(len(out)), key=lambda k: (out[k].timestamp_s + (0.15 if isinstance(out[k], CanFrame) else 0),
+                                                    k))
+    return [out[k] for k in order]
+
+
+def _items(records: list, rng: random.Random, max_len: int, as_batches: bool) -> list:
+    """Runs of CAN frames cut at random (as CanFrameBatch or lists), the other records one by one."""
+    items: list = []
+    i = 0
+    while i < len(records):
+        if not isinstance(records[i], CanFrame):
+            items.append(records[i])
+            i += 1
+            continue
+        j = i
+        limit = rng.randint(1, max_len)
+        while j < len(records) and isinstance(records[j], CanFrame) and j - i < limit:
+            j += 1
+        run = list(records[i:j])
+        items.append(CanFrameBatch.from_frames(run) if as_batches else run)
+        i = j
+    return items
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([20, 120, 700]),
+       config=st.sampled_from(["wpt", "mixed"]), odd=st.booleans(), ahead=st.sampled_from([40, 8192]),
+       as_batches=st.booleans(), run_len=st.sampled_from([1, 7, 300]))
+def test_process_all_makes_the_same_calls_in_the_same_order(cut_seed: int, max_len: int, config: str, odd: bool,
+                                                            ahead: int, as_batches: bool, run_len: int) -> None:
+    """Pipeline.process_all (wheel frames decoded ahead, up to each diagnostics snapshot) against feeding the same
+    items one by one: every sink call in the same order, and the same counters."""
+    import slipdaq.pipeline as pipeline_module
+
+    records = _odd_drive() if odd else _drive()
+    rng = random.Random(cut_seed)
+    items = _items(records, rng, max_len, as_batches)
+    cfg = _configs()[config]
+    ref_sink, got_sink = _Recorder(), _Recorder()
+    ref, got = Pipeline(cfg, [ref_sink]), Pipeline(cfg, [got_sink])
+    for it in items:
+        ref.process_can_batch(it) if isinstance(it, (list, CanFrameBatch)) else ref.process(it)
+    ref.finish()
+    saved = pipeline_module.AHEAD_MAX_FRAMES
+    pipeline_module.AHEAD_MAX_FRAMES = ahead
+    try:
+        for k in range(0, len(items), run_len):
+            got.process_all(items[k : k + run_len])
+    finally:
+        pipeline_module.AHEAD_MAX_FRAMES = saved
+    got.finish()
+    assert repr(got_sink.calls) == repr(ref_sink.calls)
+    assert got.diagnostics() == ref.diagnostics()
+    assert sum(c[0] == "diagnostics" for c in ref_sink.calls) >= 10

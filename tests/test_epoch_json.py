@@ -38,3 +38,14 @@ def test_estimate_json_is_json_dumps(e: Estimate) -> None:
                  st.one_of(st.sampled_from(["RMC", "VTG", "UBX"]), st.text(max_size=5)), OPT_FLOAT))
 def test_fix_json_is_json_dumps(fix: GpsFix) -> None:
     assert fix_json(fix) == _dumps({k: getattr(fix, k) for k in fix.__slots__})
+
+
+@given(st.one_of(FLOAT, FLOAT.map(np.float64)), st.one_of(st.text(max_size=90), st.sampled_from(
+    ["$GPRMC,000012.10,A,5200.00000,N,01000.00000,E,25.123,90.0,010126,,,A*6B", 'a"b\\c\u00e9\u2028\x00'])),
+       st.integers(0, 2**63))
+def test_nmea_line_json_is_json_dumps(t: float, line: str, can_index: int) -> None:
+    from slipdaq.records import NmeaLine
+    from slipdaq.sinks.mcap_log import nmea_line_json
+
+    assert nmea_line_json(NmeaLine(t, line), can_index) == _dumps({"timestamp_s": t, "line": line,
+                                                                   "can_index": can_index})

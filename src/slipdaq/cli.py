@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import logging
 import sys
 from pathlib import Path
@@ -150,6 +149,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = _config(args.config)
     log_dir = Path(args.log_dir) if args.log_dir else cfg.resolve(cfg.log.dir)
     with open_bus(cfg) as bus:
+        import asyncio
+
         result = asyncio.run(run_daemon(cfg, bus, new_log_path(log_dir), duration_s=args.duration,
                                         metadata=_labels_meta(args) or None))
     print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "

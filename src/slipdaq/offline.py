@@ -8,8 +8,6 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TextIO
 
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
 from slipdaq.config import Config
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord
@@ -18,6 +16,9 @@ from slipdaq.sinks.mcap_log import McapLogSink
 
 BATCH_FRAMES = 512
 """Consecutive CAN frames of an input go through the pipeline in batches of up to this many."""
+READ_AHEAD_FRAMES = 4096
+"""The pipeline gets the input in runs of about this many CAN frames (Pipeline.process_all decodes them at once)."""
+READ_AHEAD_ITEMS = 1024
 
 
 def batched(records: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch | list[CanFrame]]:
@@ -34,6 +35,22 @@ def batched(records: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord 
             yield run
             run = []
         yield r
+    if run:
+        yield run
+
+
+def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
+               ) -> Iterator[list[RawRecord | CanFrameBatch | list[CanFrame]]]:
+    """The items in runs of about READ_AHEAD_FRAMES CAN frames (or READ_AHEAD_ITEMS items), for Pipeline.process_all."""
+    run: list[RawRecord | CanFrameBatch | list[CanFrame]] = []
+    frames = 0
+    for it in items:
+        run.append(it)
+        if isinstance(it, (list, CanFrameBatch)):
+            frames += len(it)
+        if frames >= READ_AHEAD_FRAMES or len(run) >= READ_AHEAD_ITEMS:
+            yield run
+            run, frames = [], 0
     if run:
         yield run
 
@@ -65,20 +82,25 @@ def process_to_log(
     pipeline = Pipeline(config, [sink])
     try:
         if stream.isatty():
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
             with Progress(
                 TextColumn(description or mode), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                 transient=True,
             ) as bar:
                 task = bar.add_task(mode, total=total)
-                for i, r in enumerate(batched(records), 1):
-                    feed(pipeline, r)
-                    if i % 500 == 0:
-                        bar.update(task, completed=i)
+                i = 0
+                for run in read_ahead(batched(records)):
+                    pipeline.process_all(run)
+                    i += len(run)
+                    bar.update(task, completed=i)
         else:
             last = time.monotonic()
-            for i, r in enumerate(batched(records), 1):
-                feed(pipeline, r)
-                if i % 2000 == 0 and time.monotonic() - last > 5:
+            i = 0
+            for run in read_ahead(batched(records)):
+                pipeline.process_all(run)
+                i += len(run)
+                if time.monotonic() - last > 5:
                     last = time.monotonic()
                     done = f"{i}/{total}" if total else str(i)
                     print(f"{description or mode}: {done} messages", file=stream, flush=True)

@@ -19,12 +19,36 @@ from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq import WHEELS
-from slipdaq.records import FLAG_ERROR, CanFrame, CanFrameBatch, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame
+from slipdaq.records import (
+    FLAG_ERROR, CanFrame, CanFrameBatch, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame, WheelSampleBatch,
+)
 from slipdaq.sinks import Sink
 
 DIAGNOSTICS_PERIOD_S = 1.0
 SCALAR_MAX_FRAMES = 48
 """process_can_batch takes frames one by one below this batch size (numpy's fixed cost per call dominates)."""
+AHEAD_MAX_FRAMES = 8192
+"""process_all decodes at most this many frames ahead at once."""
+
+
+class _Ahead:
+    """Wheel frames decoded ahead (Pipeline.process_all): frames [first, stop) of the run, counted as can_frames."""
+
+    __slots__ = ("first", "stop", "which", "samples", "sample_frame")
+
+    def __init__(self, first: int, which: np.ndarray, samples: WheelSampleBatch) -> None:
+        self.first = first
+        self.stop = first + len(which)
+        self.which = which
+        self.samples = samples
+        self.sample_frame = samples.frame  # index in the decoded run; in frame order
+
+    def take(self, first: int, n: int) -> tuple[np.ndarray, WheelSampleBatch]:
+        """wheel_frames and decode_batch of the n frames from `first` on, as if decoded alone."""
+        k = first - self.first
+        sf = self.sample_frame
+        i0, i1 = int(sf.searchsorted(k)), int(sf.searchsorted(k + n))
+        return self.which[k : k + n], self.samples.slice(i0, i1, frame_offset=-k)
 
 
 class Pipeline:
@@ -48,6 +72,10 @@ class Pipeline:
         self._frame_sinks = [s for s in self.sinks if not hasattr(s, "on_can_batch")]
         self._sample_batch_sinks = [s for s in self.sinks if hasattr(s, "on_wheel_batch")]
         self._sample_sinks = [s for s in self.sinks if not hasattr(s, "on_wheel_batch")]
+        self._queue: list[RawRecord | CanFrameBatch | Sequence[CanFrame]] | None = None  # process_all's items
+        self._queue_pos = 0
+        self._item_first = 0  # can_frames before the item being processed
+        self._ahead: _Ahead | None = None
 
     def waiting_for_wheels(self) -> bool:
         """An estimate waits only for wheel frames (a live CAN reader that pauses between reads should read now)."""
@@ -116,21 +144,80 @@ class Pipeline:
             self._can_segment(batch if (start, stop) == (0, n) else batch.slice(start, stop))
             start = stop
 
+    def process_all(self, items: Sequence[RawRecord | CanFrameBatch | Sequence[CanFrame]]) -> None:
+        """process_can_batch for each batch of CAN frames (a CanFrameBatch or a list of CanFrames) and process for
+        each other record, in turn: the same calls to every sink, in the same order, and the same counters at every
+        diagnostics snapshot. Offline runs read ahead: the wheel frames of consecutive batches (of at least
+        scalar_max_frames) up to where the next snapshot falls due are decoded at once (WheelDecoder.decode_batch
+        gives the same samples and counters whatever the batches), so numpy's fixed cost is paid once for many."""
+        queue = [CanFrameBatch.from_frames(x) if isinstance(x, list) and len(x) >= self.scalar_max_frames else x
+                 for x in items]
+        self._queue = queue
+        try:
+            for k, item in enumerate(queue):
+                if isinstance(item, (CanFrameBatch, list)):
+                    self._queue_pos, self._item_first = k, self.can_frames
+                    self.process_can_batch(item)
+                else:
+                    self.process(item)  # type: ignore[arg-type]
+        finally:
+            self._queue = self._ahead = None
+
+    def _decode_ahead(self, first: int) -> _Ahead | None:
+        """Decode the queued frames from `first` (in the item being processed) up to the frame that makes the next
+        diagnostics snapshot due, a batch below scalar_max_frames, or a GPS record that makes the snapshot due."""
+        due = self._next_diag_s
+        queue = self._queue
+        if due is None or queue is None:
+            return None
+        parts: list[CanFrameBatch] = []
+        n = 0
+        off = first - self._item_first
+        for it in queue[self._queue_pos:]:
+            if isinstance(it, CanFrameBatch):
+                if len(it) < self.scalar_max_frames:
+                    break
+                b = it.slice(off, len(it)) if off else it
+                off = 0
+                hit = np.flatnonzero(b.timestamp_s >= due)
+                if len(hit):
+                    parts.append(b.slice(0, int(hit[0]) + 1))
+                    break
+                parts.append(b)
+                n += len(b)
+                if n >= AHEAD_MAX_FRAMES:
+                    break
+            elif isinstance(it, list) or it.timestamp_s >= due:  # type: ignore[union-attr]
+                break
+        if not parts:
+            return None
+        run = parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
+        which = self.wheels.wheel_frames(run)
+        return _Ahead(first, which, self.wheels.decode_batch(run, which))
+
     def _can_segment(self, batch: CanFrameBatch) -> None:
         """Frames of which at most the last may make a diagnostics snapshot due."""
+        n = len(batch)
+        first = self.can_frames
+        ahead = self._ahead
+        if self._queue is not None and (ahead is None or not ahead.first <= first < ahead.stop):
+            ahead = self._ahead = self._decode_ahead(first)
+        if ahead is not None and ahead.first <= first < ahead.stop:
+            assert first + n <= ahead.stop, "a segment beyond the frames decoded ahead"  # they end where segments do
+            which, samples = ahead.take(first, n)
+        else:
+            which = self.wheels.wheel_frames(batch)
+            samples = self.wheels.decode_batch(batch, which)
         for s in self._can_batch_sinks:
             s.on_can_batch(batch)  # type: ignore[attr-defined]
         if self._frame_sinks:
             for f in batch.frames():
                 for s in self._frame_sinks:
                     s.on_raw(f)
-        n = len(batch)
         self.can_frames += n
-        which = self.wheels.wheel_frames(batch)
         error = (batch.flags & FLAG_ERROR) != 0
         self.error_frames += int(np.count_nonzero(error))
         self.unknown_frames += int(np.count_nonzero(~error & (which < 0)))
-        samples = self.wheels.decode_batch(batch, which)
         if len(samples):
             for s in self._sample_batch_sinks:
                 s.on_wheel_batch(samples)  # type: ignore[attr-defined]

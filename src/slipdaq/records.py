@@ -94,6 +94,16 @@ class CanFrameBatch:
         return CanFrameBatch(self.timestamp_s[start:stop], self.arbitration_id[start:stop], self.flags[start:stop],
                              self.dlc[start:stop], self.data[start:stop])
 
+    @classmethod
+    def concat(cls, parts: Sequence["CanFrameBatch"]) -> "CanFrameBatch":
+        """The batches' frames in order, as one batch (payloads zero-padded to the widest)."""
+        width = max(p.data.shape[1] for p in parts)
+        data = [p.data if p.data.shape[1] == width else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
+                for p in parts]
+        return cls(np.concatenate([p.timestamp_s for p in parts]), np.concatenate([p.arbitration_id for p in parts]),
+                   np.concatenate([p.flags for p in parts]), np.concatenate([p.dlc for p in parts]),
+                   np.concatenate(data))
+
 
 @dataclass(frozen=True, slots=True, eq=False)
 class WheelSampleBatch:
@@ -118,6 +128,13 @@ class WheelSampleBatch:
 
     def __len__(self) -> int:
         return len(self.timestamp_s)
+
+    def slice(self, start: int, stop: int, frame_offset: int = 0) -> "WheelSampleBatch":
+        """Samples start..stop, their frame indices moved by frame_offset."""
+        return WheelSampleBatch(self.frame[start:stop] + frame_offset, self.wheel[start:stop],
+                                self.timestamp_s[start:stop], self.revolutions[start:stop], self.count[start:stop],
+                                self.raw[start:stop], self.seq[start:stop], self.lost_frames[start:stop],
+                                self.flags[start:stop])
 
     def samples(self, wheels: Sequence[str]) -> Iterator["WheelSample"]:
         for w, t, rev, c, raw, q, lost, fl in zip(

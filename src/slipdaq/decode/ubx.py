@@ -12,7 +12,6 @@ from __future__ import annotations
 import calendar
 import datetime as dt
 
-from pyubx2 import UBXReader
 
 from slipdaq.decode.nmea import MAX_LINE_BYTES
 from slipdaq.records import GpsFix, NmeaLine, UbxFrame
@@ -97,6 +96,8 @@ class UbxDecoder:
         self.fixes = 0
 
     def decode(self, frame: UbxFrame) -> GpsFix | None:
+        from pyubx2 import UBXReader  # imported with the first UBX frame (most logs have none)
+
         self.frames += 1
         try:
             msg = UBXReader.parse(frame.data)

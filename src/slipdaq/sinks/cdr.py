@@ -8,6 +8,7 @@ Logs written before the batches (one JSON message per frame) are still read (sou
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -60,20 +61,31 @@ def _encode(first_index: int, arrays: list[np.ndarray]) -> bytes:
     return b"".join(parts)
 
 
-def _decode(buf: bytes, dtypes: tuple[str, ...]) -> tuple[int, list[np.ndarray]]:
+def _decode(buf: bytes, dtypes: tuple[str, ...], canonical: list[bool] | None = None) -> tuple[int, list[np.ndarray]]:
+    """canonical (if given) gets whether buf is exactly what _encode writes for the arrays: padding zero, nothing
+    after the last array."""
     if buf[:4] != _HEADER:
         raise ValueError("not a little-endian CDR message")
     first = struct.unpack_from("<Q", buf, 4)[0]
     pos = 8
     out = []
+    zero = True
     for dt in dtypes:
         d = np.dtype(dt)
-        pos += (-pos) % 4
+        pad = (-pos) % 4
+        if pad and canonical is not None:
+            zero = zero and not any(buf[4 + pos : 4 + pos + pad])
+        pos += pad
         n = struct.unpack_from("<I", buf, 4 + pos)[0]
         pos += 4
-        pos += (-pos) % d.itemsize
+        pad = (-pos) % d.itemsize
+        if pad and canonical is not None:
+            zero = zero and not any(buf[4 + pos : 4 + pos + pad])
+        pos += pad
         out.append(np.frombuffer(buf, dtype=d, count=n, offset=4 + pos))
         pos += n * d.itemsize
+    if canonical is not None:
+        canonical.append(zero and len(buf) == 4 + pos)
     return first, out
 
 
@@ -93,8 +105,18 @@ def encode_can_batch(first_index: int, batch: CanFrameBatch) -> bytes:
     ])
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class LoggedCanFrameBatch(CanFrameBatch):
+    """A batch read from a /can/raw message whose bytes are exactly what encode_can_batch writes for it: a log
+    writing the same frames as one batch again copies them (with its own first_index) instead of encoding them."""
+
+    message: bytes = b""
+
+
 def decode_can_batch(buf: bytes) -> tuple[int, CanFrameBatch]:
-    first, (ts, ids, flags, dlc, packed) = _decode(buf, _CAN_DTYPES)
+    """(first_index, frames); a LoggedCanFrameBatch when buf is as encode_can_batch writes it."""
+    canonical: list[bool] = []
+    first, (ts, ids, flags, dlc, packed) = _decode(buf, _CAN_DTYPES, canonical)
     n = len(ts)
     if n and bool((dlc == 8).all()) and len(packed) == 8 * n:
         data = packed.reshape(n, 8)
@@ -102,7 +124,17 @@ def decode_can_batch(buf: bytes) -> tuple[int, CanFrameBatch]:
         width = max(8, int(dlc.max())) if n else 8
         data = np.zeros((n, width), dtype=np.uint8)
         data[np.arange(width) < dlc[:, None]] = packed
+    if canonical[0]:
+        return first, LoggedCanFrameBatch(ts, ids, flags, dlc, data, bytes(buf))
     return first, CanFrameBatch(ts, ids, flags, dlc, data)
+
+
+def reencode_can_batch(first_index: int, batch: CanFrameBatch) -> bytes:
+    """encode_can_batch(first_index, batch); a LoggedCanFrameBatch's message bytes with first_index put in."""
+    if type(batch) is LoggedCanFrameBatch and batch.message:
+        m = batch.message
+        return m[:4] + struct.pack("<Q", first_index) + m[12:]
+    return encode_can_batch(first_index, batch)
 
 
 def encode_wheel_batch(first_index: int, s: WheelSampleBatch) -> bytes:

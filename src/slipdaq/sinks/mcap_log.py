@@ -6,16 +6,20 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 
 from __future__ import annotations
 
-import asyncio
 import datetime as dt
 import json
+import io
 import logging
+import struct
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 import slipdaq
@@ -29,6 +33,9 @@ from slipdaq.sinks import cdr
 from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
 from slipdaq.sinks.rotation import RotationPolicy, segment_path
 from slipdaq.sources.events import EventHandler, SourceEvent
+
+if TYPE_CHECKING:
+    import asyncio
 
 log = logging.getLogger(__name__)
 
@@ -194,6 +201,8 @@ def _jnum(x: object) -> str:
 
 
 _JSON_STR = {w: json.dumps(w) for w in WHEELS}
+_json_string = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
+"""A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
 
 
 def can_frame_json(f: CanFrame) -> bytes:
@@ -261,6 +270,14 @@ def estimate_json(e: Estimate) -> bytes:
     return "".join(parts).encode()
 
 
+def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
+    """/nmea/raw payload: equal to _dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
+    t, text = line.timestamp_s, line.line
+    if type(t) is float and type(text) is str and type(can_index) is int:
+        return f'{{"timestamp_s":{_jnum(t)},"line":{_json_string(text)},"can_index":{can_index}}}'.encode()
+    return _dumps({"timestamp_s": t, "line": text, "can_index": can_index})
+
+
 def fix_json(fix: GpsFix) -> bytes:
     """/gps/fix payload: equal to _dumps of the fix's fields in order."""
     return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
@@ -322,6 +339,92 @@ def samples_to_batch(samples: list[WheelSample]) -> WheelSampleBatch:
         np.array([(SAMPLE_HAS_COUNT if s.count is not None else 0) | (SAMPLE_HAS_SEQ if s.seq is not None else 0)
                   for s in samples], dtype=np.uint8),
     )
+
+
+# ---- appending a message: what mcap's Writer.add_message does, without a Message record object per message ----
+
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+"""A Message record's opcode and length, then channel id, sequence, log time, publish time (the data follows)."""
+
+
+class _Append:
+    """Writer.add_message(channel_id, log_time, data, publish_time=log_time, sequence) of a chunked writer: the same
+    statistics, chunk builder state, message index and bytes, written directly into the chunk's buffer. It uses the
+    writer's private state (mcap 1.x), so it is used only when fast_append_matches() showed that it writes the same
+    file as add_message; else the writer's own add_message."""
+
+    __slots__ = ("stats", "chunk", "finalize")
+
+    def __init__(self, writer: Writer) -> None:
+        self.stats = writer._Writer__statistics  # type: ignore[attr-defined]
+        self.chunk = writer._Writer__chunk_builder  # type: ignore[attr-defined]
+        self.finalize = writer._Writer__maybe_finalize_chunk  # type: ignore[attr-defined]
+        if self.chunk is None:
+            raise TypeError("not a chunked writer")
+
+    def __call__(self, channel_id: int, log_time: int, data: bytes, sequence: int) -> None:
+        st = self.stats
+        if st.message_count == 0:
+            st.message_start_time = log_time
+        elif log_time < st.message_start_time:
+            st.message_start_time = log_time
+        if log_time > st.message_end_time:
+            st.message_end_time = log_time
+        st.channel_message_counts[channel_id] += 1
+        st.message_count += 1
+        cb = self.chunk
+        if cb.num_messages == 0:
+            cb.message_start_time = log_time
+        elif log_time < cb.message_start_time:
+            cb.message_start_time = log_time
+        if log_time > cb.message_end_time:
+            cb.message_end_time = log_time
+        index = cb.message_indices.get(channel_id)
+        if index is None:
+            index = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+        buf = cb.record_writer._buffer
+        index.records.append((log_time, buf.tell()))
+        cb.num_messages += 1
+        buf.write(_MESSAGE_HEAD.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, log_time))
+        buf.write(data)
+        self.finalize()
+
+
+def _plain_append(writer: Writer) -> Callable[[int, int, bytes, int], None]:
+    def append(channel_id: int, log_time: int, data: bytes, sequence: int) -> None:
+        writer.add_message(channel_id, log_time=log_time, publish_time=log_time, sequence=sequence, data=data)
+    return append
+
+
+_FAST_APPEND: bool | None = None
+
+
+def fast_append_matches() -> bool:
+    """_Append writes byte for byte what Writer.add_message writes (checked once: several channels, chunks
+    closed on size, log times out of order, empty and large messages)."""
+    global _FAST_APPEND
+    if _FAST_APPEND is None:
+        outs = []
+        for fast in (False, True):
+            f = io.BytesIO()
+            w = Writer(f, chunk_size=700, compression=CompressionType.ZSTD)
+            w.start(profile=PROFILE, library="check")
+            sid = w.register_schema("s", "jsonschema", b"{}")
+            channels = [w.register_channel(f"/t{k}", "json", sid) for k in range(3)]
+            try:
+                append = _Append(w) if fast else _plain_append(w)
+                for k in range(120):
+                    t = 10**18 + 7919 * k * (-1 if k % 17 == 0 else 1)
+                    append(channels[k % 3 if k % 5 else 0], t, bytes([k % 251]) * (k * 37 % 300), k * 3 & 0xFFFFFFFF)
+                    if k == 60:
+                        w.add_metadata("m", {"k": "v"})
+                w.finish()
+            except Exception:
+                _FAST_APPEND = False
+                return False
+            outs.append(f.getvalue())
+        _FAST_APPEND = outs[0] == outs[1]
+    return _FAST_APPEND
 
 
 RETRY_AFTER_FAILURE_S = 5.0
@@ -388,6 +491,7 @@ class McapLogSink:
         self.closed = False
         self._file: CommitFile | None = None
         self._writer: Writer | None = None
+        self._append: Callable[[int, int, bytes, int], None] | None = None
         self._channels: dict[str, int] = {}
         self._unflushed = 0
         self._last_flush = self._mono()
@@ -401,10 +505,13 @@ class McapLogSink:
         """CAN frames received so far (the next frame's index; GPS lines record it as can_index)."""
         self._sample_index = 0
         self._in_flush = False
-        try:
-            self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
-        except RuntimeError:
-            self._loop = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        aio = sys.modules.get("asyncio")  # not imported: no event loop is running (offline runs do not import it)
+        if aio is not None:
+            try:
+                self._loop = aio.get_running_loop()
+            except RuntimeError:
+                pass
         try:
             self._open_segment(1)
         except LogWriteError as e:
@@ -441,6 +548,7 @@ class McapLogSink:
                 path.unlink(missing_ok=True)
             raise
         self._file, self._writer, self._channels = file, writer, channels
+        self._append = _Append(writer) if fast_append_matches() else _plain_append(writer)
         self.path = path
         self.segments.append(path)
         self._opened_at = self._mono()
@@ -545,8 +653,7 @@ class McapLogSink:
         self._seq += 1
         ns = _ns(log_time_s)
         try:
-            self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns,
-                                     sequence=self._seq & 0xFFFFFFFF, data=data)
+            self._append(self._channels[topic], ns, data, self._seq & 0xFFFFFFFF)  # type: ignore[misc]
             self.messages += 1
             self._unflushed += 1
             if (self._flush_every_s is not None and now - self._last_flush >= self._flush_every_s
@@ -638,8 +745,7 @@ class McapLogSink:
                 self._flush_can()
         elif isinstance(record, NmeaLine):
             self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
-            self._write(TOPIC_NMEA, record.timestamp_s,
-                        _dumps({"timestamp_s": record.timestamp_s, "line": record.line, "can_index": self.can_index}))
+            self._write(TOPIC_NMEA, record.timestamp_s, nmea_line_json(record, self.can_index))
         elif isinstance(record, UbxFrame):
             self.flush_batches()
             self._write(TOPIC_UBX, record.timestamp_s,
@@ -653,7 +759,7 @@ class McapLogSink:
     def _flush_can(self) -> None:
         p = self._can
         first, t0 = p.first_index, p.t0
-        self._write(TOPIC_CAN, t0, cdr.encode_can_batch(first, p.take()))
+        self._write(TOPIC_CAN, t0, cdr.reencode_can_batch(first, p.take()))
 
     def _flush_samples(self) -> None:
         q = self._samples

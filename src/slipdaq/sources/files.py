@@ -15,7 +15,6 @@ import can
 
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
-from slipdaq.sources.can_bus import to_frame
 
 _STAMPED = re.compile(r"^\s*\(\s*(?P<t>[-+]?\d+(?:\.\d*)?)\s*\)\s?(?P<line>.*)$")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
@@ -26,6 +25,8 @@ class ImportError_(Exception):
 
 
 def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
+    from slipdaq.sources.can_bus import to_frame  # here: the live source's imports (asyncio) only when needed
+
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such CAN log")

@@ -1,0 +1,310 @@
+#!/usr/bin/env python3
+"""Replay (and import) output identity: a base revision against this tree, file for file.
+
+Raw logs that exercise the replay path are written once (by the base's code): the benchmark's 4 x 500 Hz log, the
+drives of perf_epoch.py's --check (latency auto and fixed, grade, UBX velocity, GPS lost and back, NMEA jitter and
+RMC gaps, epochs out of order, CAN jitter), a drive with CAN faults (Seq gaps, a counter node reset, counts wrapping
+at 2^32, error, extended, unknown, short and CAN FD frames, a wheel silent for a while, samples out of order), the
+same drive in the old per-frame JSON format, an unfinished (torn) copy, and the RAV4 drive of tests/data imported
+(wheel-speed signals: the cantools path). The live logs are written with CAN frames batched at random sizes.
+
+Each log is then replayed by both sides (`python -m slipdaq replay`, the base from `git archive BASE src` on
+PYTHONPATH) and the two output files are compared byte for byte, except the value of the `created_utc` metadata
+key (the wall-clock time of the run: the only part that legitimately differs; it has the same length, so every
+other byte, offset and CRC of the summary must match). The RAV4 import (`slipdaq import`) is compared the same way.
+On a difference, the first differing message (topic, log time, bytes) is shown. Also checked: the replay's
+estimates, fixes, wheel samples and diagnostics equal those the live pipeline logged when it wrote the input
+(live = replay, whatever the batching).
+
+    python benchmarks/replay_check.py [--base 31a7796] [--work /tmp/replay-check] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pickle
+import random
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH = ROOT / "benchmarks"
+RAV4 = ROOT / "tests" / "data" / "rav4-comma2k19"
+EXCLUDED_METADATA = ("created_utc",)
+"""Metadata keys whose value names the time of the run (not compared; same length, so the file offsets agree)."""
+
+
+# ---- inputs (run under the base's code) ----------------------------------------------------------
+
+def _write_live(path: Path, cfg: Any, records: list[Any], seed: int) -> None:
+    """records through the pipeline into a log as a live run writes it, CAN frames in batches of random sizes."""
+    from slipdaq.pipeline import Pipeline
+    from slipdaq.records import CanFrame
+    from slipdaq.sinks.mcap_log import McapLogSink
+
+    rng = random.Random(seed)
+    sink = McapLogSink(path, cfg, mode="live")
+    p = Pipeline(cfg, [sink])
+    run: list[Any] = []
+    limit = rng.choice((1, 5, 60, 300))
+    for r in records + [None]:
+        if isinstance(r, CanFrame):
+            run.append(r)
+            if len(run) < limit:
+                continue
+        if run:
+            p.process_can_batch(run)
+            run = []
+            limit = rng.choice((1, 5, 60, 300, 1000))
+        if r is not None and not isinstance(r, CanFrame):
+            p.process(r)
+    p.finish()
+    sink.close()
+
+
+def _records_of(case: dict[str, Any]) -> list[Any]:
+    from slipdaq.records import CanFrame, NmeaLine, UbxFrame
+
+    out: list[Any] = []
+    for rec in case["records"]:
+        if rec[0] == "c":
+            out.append(CanFrame(rec[1], rec[2], rec[3], rec[4]))
+        elif rec[0] == "n":
+            out.append(NmeaLine(rec[1], rec[2]))
+        else:
+            out.append(UbxFrame(rec[1], rec[2]))
+    return out
+
+
+def _faults(records: list[Any]) -> list[Any]:
+    """Seq gaps, an FL counter node reset, error / extended / unknown / short / CAN FD frames, RR silent for 2 s,
+    a few samples out of order."""
+    import struct
+
+    from slipdaq.records import CanFrame
+
+    out: list[Any] = []
+    t0 = next(r.timestamp_s for r in records if isinstance(r, CanFrame))
+    base: tuple[int, int] | None = None
+    for k, r in enumerate(records):
+        if isinstance(r, CanFrame):
+            t = r.timestamp_s - t0
+            if r.arbitration_id == 0x311 and 4.0 <= t < 9.0 and k % 7 == 0:
+                continue  # FR: Seq gaps
+            if r.arbitration_id == 0x313 and 12.0 <= t < 14.0:
+                continue  # RR silent
+            if r.arbitration_id == 0x310 and t >= 16.0:  # FL node reset at 16 s: counts and Seq start again
+                count, seq = struct.unpack_from("<I", r.data)[0], r.data[7]
+                base = base or (count, seq)
+                r = CanFrame(r.timestamp_s, 0x310, struct.pack("<I3xB", (count - base[0]) % 2**32,
+                                                              (seq - base[1]) % 256))
+            if k % 613 == 0 and r.arbitration_id == 0x312:
+                r = CanFrame(r.timestamp_s - 0.03, r.arbitration_id, r.data)  # out of order
+            if k % 907 == 0 and r.arbitration_id == 0x310:
+                r = CanFrame(r.timestamp_s, r.arbitration_id, r.data[:5])  # short: a bad frame
+            out.append(r)
+            if k % 97 == 0:
+                out.append(CanFrame(r.timestamp_s, 0x18DAF110, bytes(range(k % 65)), is_extended_id=True))
+            if k % 131 == 0:
+                out.append(CanFrame(r.timestamp_s, 0x20000004, bytes(8), is_extended_id=True, is_error_frame=True))
+            if k % 151 == 0:
+                out.append(CanFrame(r.timestamp_s, 0x7DF, b""))
+        else:
+            out.append(r)
+    return out
+
+
+def _write_old_format(path: Path, cfg: Any, records: list[Any]) -> None:
+    import json
+
+    from mcap.writer import CompressionType, Writer
+
+    from slipdaq.records import CanFrame
+    from slipdaq.sinks.mcap_log import LEGACY_SCHEMAS, METADATA_NAME, SCHEMAS, TOPIC_CAN, TOPIC_NMEA, can_frame_json
+
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="slipdaq", library="slipdaq 0.x")
+        ch = {}
+        for topic, schema in (LEGACY_SCHEMAS | {TOPIC_NMEA: SCHEMAS[TOPIC_NMEA]}).items():
+            sid = w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+            ch[topic] = w.register_channel(topic, "json", sid)
+        w.add_metadata(METADATA_NAME, {"version": "0.x", "mode": "live", "config_toml": cfg.to_toml(),
+                                       "dbc": cfg.load_dbc_text()})
+        for seq, r in enumerate(records):
+            ns = int(round(r.timestamp_s * 1e9))
+            if isinstance(r, CanFrame):
+                w.add_message(ch[TOPIC_CAN], log_time=ns, publish_time=ns, sequence=seq, data=can_frame_json(r))
+            else:
+                data = json.dumps({"timestamp_s": r.timestamp_s, "line": r.line}, separators=(",", ":")).encode()
+                w.add_message(ch[TOPIC_NMEA], log_time=ns, publish_time=ns, sequence=seq, data=data)
+        w.finish()
+
+
+def make_inputs(work: Path, quick: bool) -> None:
+    sys.path.insert(0, str(BENCH))
+    import perf
+    import perf_epoch
+
+    from slipdaq.config import load_config, packaged_config_path
+    perf.write_raw_log(perf.base_config(), 0.5 if quick else 1.0, work / "in-perf-raw.mcap")
+    cases = perf_epoch.CHECK_CASES[:3] + perf_epoch.CHECK_CASES[5:6] if quick else perf_epoch.CHECK_CASES
+    for k, (name, overrides, settings, scenario, road, seconds, edit) in enumerate(cases):
+        tmp = work / f"case{k}.pkl"
+        perf_epoch.make_records(min(seconds, 20 if quick else 45), tmp, overrides, settings, scenario, road, edit)
+        case = pickle.loads(tmp.read_bytes())
+        tmp.unlink()
+        cfg = load_config(packaged_config_path()).with_overrides(**case["overrides"])
+        _write_live(work / f"in-drive{k}.mcap", cfg, _records_of(case), seed=k)
+        print(f"  in-drive{k}.mcap: {name}", flush=True)
+    tmp = work / "faults.pkl"
+    perf_epoch.make_records(24, tmp, {}, {"wpt_rate_hz": 250.0, "gps_rate_hz": 10.0, "gps_latency_s": 0.05,
+                                          "start_count": 2**32 - 3000}, "cycle", "paved", "gap")
+    cfg = load_config(packaged_config_path())
+    records = _faults(_records_of(pickle.loads(tmp.read_bytes())))
+    tmp.unlink()
+    _write_live(work / "in-faults.mcap", cfg, records, seed=99)
+    _write_old_format(work / "in-old-format.mcap", cfg, records)
+    data = (work / "in-faults.mcap").read_bytes()
+    (work / "in-torn.mcap").write_bytes(data[: int(len(data) * 0.6)])
+
+
+# ---- comparing ----------------------------------------------------------------------------------
+
+def _mask(data: bytes, value: str) -> bytes:
+    v = value.encode()
+    assert data.count(v) == 1, "created_utc value not found once"
+    return data.replace(v, b"X" * len(v))
+
+
+def _messages(path: Path) -> list[tuple[str, int, int, int, bytes]]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
+                for _s, c, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def _metadata(path: Path) -> dict[str, dict[str, str]]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+
+
+def compare(a: Path, b: Path) -> str:
+    """'' when identical (but for EXCLUDED_METADATA), else what differs first."""
+    ma, mb = _metadata(a), _metadata(b)
+    da, db = a.read_bytes(), b.read_bytes()
+    for key in EXCLUDED_METADATA:
+        va, vb = ma.get("slipdaq", {}).get(key), mb.get("slipdaq", {}).get(key)
+        if va is not None and vb is not None and len(va) == len(vb):
+            da, db = _mask(da, va), _mask(db, vb)
+    if da == db:
+        return ""
+    for m in (ma, mb):
+        for key in EXCLUDED_METADATA:
+            m.get("slipdaq", {}).pop(key, None)
+    if ma != mb:
+        return f"metadata differs: {ma} != {mb}"
+    xa, xb = _messages(a), _messages(b)
+    for i, (p, q) in enumerate(zip(xa, xb)):
+        if p != q:
+            return f"message {i} differs: base {p[:4]} {p[4][:200]!r} / new {q[:4]} {q[4][:200]!r}"
+    if len(xa) != len(xb):
+        return f"message counts differ: {len(xa)} != {len(xb)}"
+    return f"messages equal ({len(xa)}), but the files differ (chunking or summary): {len(da)} vs {len(db)} bytes"
+
+
+def live_vs_replay(inp: Path, out: Path) -> str:
+    """The derived topics the live pipeline logged into inp against the replay's."""
+    from collections import defaultdict
+
+    from slipdaq.sources.mcap_log import is_finished
+
+    if not is_finished(inp):
+        return "n/a (unfinished input)"
+    topics = ("/estimate", "/gps/fix", "/wpt/count", "/diagnostics")
+    got: dict[Path, dict[str, list[tuple[int, bytes]]]] = {}
+    for p in (inp, out):
+        d: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
+        for topic, log_time, _pt, _seq, data in _messages(p):
+            if topic in topics:
+                d[topic].append((log_time, data))
+        got[p] = d
+    if not got[inp]:
+        return "n/a (raw-only log)"
+    bad = [t for t in topics if got[inp][t] != got[out][t]]
+    return "equal " + ", ".join(f"{t} {len(got[out][t])}" for t in topics) if not bad else f"DIFFER: {bad}"
+
+
+def run(side: str, env: dict[str, str], args: list[str], cwd: Path) -> tuple[int, str]:
+    p = subprocess.run([sys.executable, "-m", "slipdaq", *args], env=env, cwd=cwd, capture_output=True, text=True)
+    return p.returncode, (p.stdout + p.stderr).replace(f"-{side}.mcap", "-SIDE.mcap")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--base", default="31a7796")
+    ap.add_argument("--work", type=Path, help="directory for the logs (default: a temporary one, removed)")
+    ap.add_argument("--quick", action="store_true", help="fewer and shorter drives")
+    ap.add_argument("--make-inputs", type=Path, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.make_inputs:
+        make_inputs(a.make_inputs, a.quick)
+        return 0
+    work = a.work or Path(tempfile.mkdtemp(prefix="replay-check-"))
+    work.mkdir(parents=True, exist_ok=True)
+    base_dir = work / f"base-{a.base}"
+    if not (base_dir / "src").is_dir():
+        base_dir.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", a.base, "src", "config"], check=True,
+                                 capture_output=True).stdout
+        with tarfile.open(fileobj=__import__("io").BytesIO(archive)) as tar:
+            tar.extractall(base_dir, filter="data")
+    env_base = dict(os.environ, PYTHONPATH=str(base_dir / "src"))
+    env_new = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    if not list(work.glob("in-*.mcap")):
+        print(f"writing the input logs with {a.base} in {work} ...", flush=True)
+        subprocess.run([sys.executable, __file__, "--make-inputs", str(work)] + (["--quick"] if a.quick else []),
+                       env=env_base, check=True)
+        for side, env in (("base", env_base), ("new", env_new)):
+            code, text = run(side, env, ["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea",
+                                         str(RAV4 / "rav4_ublox.nmea"), "--config",
+                                         str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"),
+                                         "-o", str(work / f"import-rav4-{side}.mcap")], work)
+            assert code == 0, text
+        shutil.copy(work / "import-rav4-base.mcap", work / "in-rav4.mcap")
+    failures = 0
+    diff = compare(work / "import-rav4-base.mcap", work / "import-rav4-new.mcap")
+    print(f"{'import rav4':<22} {'identical' if not diff else 'DIFFERENT: ' + diff}")
+    failures += bool(diff)
+    for inp in sorted(work.glob("in-*.mcap")):
+        outs, texts = {}, {}
+        for side, env in (("base", env_base), ("new", env_new)):
+            out = work / f"out-{inp.stem[3:]}-{side}.mcap"
+            code, texts[side] = run(side, env, ["replay", str(inp), "-o", str(out)], work)
+            assert code == 0, texts[side]
+            outs[side] = out
+        diff = compare(outs["base"], outs["new"])
+        if texts["base"] != texts["new"]:
+            diff += f" output text differs: {texts['base']!r} != {texts['new']!r}"
+        lvr = live_vs_replay(inp, outs["new"])
+        n = len(_messages(outs["new"]))
+        print(f"replay {inp.stem[3:]:<15} {'identical' if not diff else 'DIFFERENT: ' + diff} ({n} messages);"
+              f" live vs replay: {lvr}", flush=True)
+        failures += bool(diff)
+    print("all identical" if not failures else f"{failures} DIFFERENT")
+    if a.work is None:
+        shutil.rmtree(work)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
