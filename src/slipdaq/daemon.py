@@ -148,6 +148,8 @@ async def run_daemon(
                               keep_reading=lambda: pipeline.waiting_for_wheels())
     # u-blox velocity: the port carries UBX frames among NMEA lines
     framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
+    if config.gps.velocity == "ubx":
+        import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events, framer=framer)
     sink.extra += [can_source.status, gps_source.status]
     pipeline = Pipeline(config, [sink, status])

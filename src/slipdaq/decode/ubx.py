@@ -12,7 +12,6 @@ from __future__ import annotations
 import calendar
 import datetime as dt
 
-
 from slipdaq.decode.nmea import MAX_LINE_BYTES
 from slipdaq.records import GpsFix, NmeaLine, UbxFrame
 
