@@ -6,43 +6,14 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
 import struct
 import time
-
-import can
 
 from slipdaq.estimator.slip import EstimatorParams, SlipEstimator
 from slipdaq.records import CanFrame, CanFrameBatch, GpsFix, WheelSample
 from slipdaq.sources.can_bus import CanBusSource
 
-
-class _StampedBus:
-    """A bus with a file descriptor (read on the loop, as SocketCAN); each frame is stamped when it is put, as the
-    kernel stamps a frame on arrival."""
-
-    def __init__(self) -> None:
-        self.a, self.b = socket.socketpair()
-        self.a.setblocking(False)
-        self.stamps: dict[int, float] = {}
-
-    def fileno(self) -> int:
-        return self.a.fileno()
-
-    def put(self, n: int) -> None:
-        self.stamps[n] = time.time()
-        self.b.send(struct.pack("<id", n, self.stamps[n]))
-
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        try:
-            n, t = struct.unpack("<id", self.a.recv(struct.calcsize("<id")))
-        except BlockingIOError:
-            return None
-        return can.Message(timestamp=t, arbitration_id=0x310, data=struct.pack("<I3xB", n, n % 256))
-
-    def close(self) -> None:
-        self.a.close()
-        self.b.close()
+from fd_bus import FdBus
 
 
 def _numbers(frames: CanFrameBatch | list[CanFrame]) -> list[tuple[int, float]]:
@@ -50,13 +21,13 @@ def _numbers(frames: CanFrameBatch | list[CanFrame]) -> list[tuple[int, float]]:
     return [(struct.unpack_from("<I", f.data)[0], f.timestamp_s) for f in fs]
 
 
-def _source(bus: _StampedBus, **kw: object) -> tuple[CanBusSource, list[list[tuple[int, float]]]]:
+def _source(bus: FdBus, **kw: object) -> tuple[CanBusSource, list[list[tuple[int, float]]]]:
     """A source on bus and the list its batches go to (as (frame number, stamp))."""
     return CanBusSource(bus, **kw), []  # type: ignore[arg-type]
 
 
 def test_a_paced_reader_takes_frames_in_batches_with_their_arrival_stamps() -> None:
-    bus = _StampedBus()
+    bus = FdBus()
     src, batches = _source(bus, read_interval_s=0.1)
 
     async def run() -> None:
@@ -80,7 +51,7 @@ def test_a_paced_reader_takes_frames_in_batches_with_their_arrival_stamps() -> N
 
 
 def test_no_pause_while_an_estimate_waits_for_wheel_frames() -> None:
-    bus = _StampedBus()
+    bus = FdBus()
     src, batches = _source(bus, read_interval_s=5.0, keep_reading=lambda: True)
     delivered: list[float] = []
 
@@ -102,7 +73,7 @@ def test_no_pause_while_an_estimate_waits_for_wheel_frames() -> None:
 
 
 def test_read_now_ends_a_pause() -> None:
-    bus = _StampedBus()
+    bus = FdBus()
     src, batches = _source(bus, read_interval_s=5.0)
     seen: dict[str, int] = {}
 

@@ -15,47 +15,10 @@ import can
 
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 
-
-class _FdBus:
-    """A bus with a file descriptor (so CanBusSource reads it on the loop, as SocketCAN): frames are stamped when
-    put (as the kernel stamps them when sent); an error (python-can's for ENETDOWN) is raised by the next recv,
-    before the frames still queued, as SocketCAN does."""
-
-    def __init__(self) -> None:
-        self.a, self.b = socket.socketpair()
-        self.a.setblocking(False)
-        self.error_pending = False
-        self.stamps: dict[int, float] = {}
-
-    def fileno(self) -> int:
-        return self.a.fileno()
-
-    def put(self, n: int) -> None:
-        self.stamps[n] = time.time()
-        self.b.send(struct.pack("<id", n, self.stamps[n]))
-
-    def link_down(self) -> None:
-        self.error_pending = True
-        self.b.send(struct.pack("<id", -1, 0.0))  # wakes the reader; read (and skipped) after the error
-
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        if self.error_pending:
-            self.error_pending = False
-            raise can.CanOperationError("Error receiving: Network is down", 100)
-        while True:
-            try:
-                n, t = struct.unpack("<id", self.a.recv(struct.calcsize("<id")))
-            except BlockingIOError:
-                return None
-            if n >= 0:
-                return can.Message(timestamp=t, arbitration_id=0x310, data=struct.pack("<I3xB", n, n % 256))
-
-    def close(self) -> None:
-        self.a.close()
-        self.b.close()
+from fd_bus import FdBus  # tests/fd_bus.py (tests/ is on sys.path through tests/conftest.py)
 
 
-def _run(bus: _FdBus, steps: list[object]) -> tuple[CanBusSource, list[int], list[str], list[dict[str, object]]]:
+def _run(bus: FdBus, steps: list[object]) -> tuple[CanBusSource, list[int], list[str], list[dict[str, object]]]:
     """Start a source on bus, then per step: an int n puts frame n, "down" raises an error, "clock+2.5" advances
     the outage clock, "status" records status(), "wait" nothing; each followed by a short sleep."""
     lines: list[str] = []
@@ -88,7 +51,7 @@ def _run(bus: _FdBus, steps: list[object]) -> tuple[CanBusSource, list[int], lis
 
 
 def test_an_outage_is_reported_counted_and_ended_by_the_next_frame() -> None:
-    bus = _FdBus()
+    bus = FdBus()
     _, got, lines, (down, up) = _run(bus, [1, 2, "down", "down", "status", "clock+2.5", 3, 4, "status"])
     assert got == [1, 2, 3, 4]
     assert down["can_receiving"] is False and down["can_outages"] == 1 and down["can_reader_errors"] == 2
@@ -103,7 +66,7 @@ def test_an_outage_is_reported_counted_and_ended_by_the_next_frame() -> None:
 def test_frames_queued_before_the_error_do_not_end_the_outage() -> None:
     """SocketCAN answers ENETDOWN before the frames still queued from before the link went down: reading those
     does not mean the link is back; the first frame stamped after the error does."""
-    bus = _FdBus()
+    bus = FdBus()
     bus.put(1)
     bus.put(2)  # queued: the source starts reading only now, and the error comes first
     time.sleep(0.01)

@@ -236,7 +236,7 @@ class CanBusSource:
         recv = frame_reader(self.bus)  # SocketCAN: straight from the socket, no can.Message per frame
         resume: asyncio.TimerHandle | None = None
 
-        def add_reader() -> None:
+        def resume_reading() -> None:  # the pause's end (its timer) or read_now()
             nonlocal resume
             if resume is not None:
                 resume.cancel()
@@ -267,10 +267,10 @@ class CanBusSource:
             if drained and interval_s > 0 and not (keep_reading is not None and keep_reading()):
                 # pause: the next frames wait in the kernel's buffer, with their receive stamps, and come as a batch
                 loop.remove_reader(fd)
-                resume = loop.call_at(woke_s + interval_s, add_reader)
+                resume = loop.call_at(woke_s + interval_s, resume_reading)
 
         loop.add_reader(fd, readable)
-        self._read_now = add_reader
+        self._read_now = resume_reading
         try:
             await asyncio.Event().wait()
         finally:
