@@ -241,6 +241,7 @@ class SlipEstimator:
         self._rings = [self._wheels[w] for w in WHEELS]  # by wheel index (WHEELS order)
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
         self.bulk_min_samples = BULK_MIN_SAMPLES
+        self._wheel_bounds = np.arange(len(WHEELS) + 1)
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
@@ -298,7 +299,10 @@ class SlipEstimator:
         where one-by-one processing would emit. Small batches (below bulk_min_samples) and samples once GPS is
         lost go one by one."""
         n = len(time_s)
-        if n < self.bulk_min_samples or bool(np.isnan(time_s).any()):
+        if n == 0:
+            return []
+        t_max = float(time_s.max()) if n >= self.bulk_min_samples else math.nan  # NaN too with a NaN time
+        if t_max != t_max:
             out: list[tuple[int, Estimate]] = []
             add = self.add_wheel_at
             for i, (w, t, r) in enumerate(zip(wheel.tolist(), time_s.tolist(), revolutions.tolist())):
@@ -308,44 +312,52 @@ class SlipEstimator:
             return out
         rings = self._rings
         wheel = np.asarray(wheel)
-        keep: np.ndarray | None = None
-        sel_w: list[np.ndarray] = []
-        for w in range(len(rings)):
-            s = np.flatnonzero(wheel == w)
-            sel_w.append(s)
-            if len(s) == 0:
-                continue
-            tw = time_s[s]
-            if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
-                continue
-            run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
-            ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
-            if not ok.all():
-                if keep is None:
-                    keep = np.ones(n, dtype=bool)
-                keep[s] = ok
         index: np.ndarray | None = None  # kept position -> input index
-        if keep is not None:
-            index = np.flatnonzero(keep)
-            wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
-            sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
+        split = self._split_in_order(wheel, time_s, revolutions)
+        if split is not None:
+            sel_w, t_w, r_w = split
+        else:
+            keep: np.ndarray | None = None
+            sel_w = []
+            for w in range(len(rings)):
+                s = np.flatnonzero(wheel == w)
+                sel_w.append(s)
+                if len(s) == 0:
+                    continue
+                tw = time_s[s]
+                if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
+                    continue
+                run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
+                ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
+                if not ok.all():
+                    if keep is None:
+                        keep = np.ones(n, dtype=bool)
+                    keep[s] = ok
+            if keep is not None:
+                index = np.flatnonzero(keep)
+                wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
+                sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
+            t_w = [time_s[s] for s in sel_w]
+            r_w = [revolutions[s] for s in sel_w]
         m = len(time_s)
         ptr = [0] * len(rings)  # per wheel: samples of this batch already appended
 
         def append_upto(k: int) -> None:  # the samples at positions < k
             for w, s in enumerate(sel_w):
                 j = ptr[w]
-                e = int(np.searchsorted(s, k, side="left"))
+                e = len(s) if k >= m else int(s.searchsorted(k))
                 if e > j:
-                    rings[w].extend(time_s[s[j:e]], revolutions[s[j:e]])
+                    rings[w].extend(t_w[w][j:e], r_w[w][j:e])
                     ptr[w] = e
 
-        lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
-        stop = int(lost_at[0]) if len(lost_at) else m
+        stop = m
+        if t_max - self._gps.last_t > self.p.gps_lost_after_s:  # the latest sample's test decides for all
+            lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
+            stop = int(lost_at[0]) if len(lost_at) else m
         out = []
         pos = 0
         while pos < stop and self._pending:
-            k = self._ready_index(pos, stop, time_s, sel_w, ptr)
+            k = self._ready_index(pos, stop, t_w, sel_w, ptr)
             if k is None:
                 break
             append_upto(k + 1)
@@ -353,17 +365,47 @@ class SlipEstimator:
             out += [(i, e) for e in self._drain()]
             pos = k + 1
         append_upto(stop)
-        for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
-                                          revolutions[stop:].tolist()), stop):
-            e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
-            if e:
-                i = k if index is None else int(index[k])
-                out += [(i, x) for x in e]
+        if stop < m:
+            for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
+                                              revolutions[stop:].tolist()), stop):
+                e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
+                if e:
+                    i = k if index is None else int(index[k])
+                    out += [(i, x) for x in e]
         return out
 
-    def _ready_index(self, pos: int, stop: int, t: np.ndarray, sel_w: list[np.ndarray], ptr: list[int]) -> int | None:
+    def _split_in_order(
+        self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray,
+    ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]] | None:
+        """add_wheels: per wheel, the positions (np.flatnonzero(wheel == w)), times and revolutions of its samples,
+        by one stable sort; None unless every sample is a wheel's and no sample is out of order (times not NaN)."""
+        if wheel.dtype.kind not in "iu":
+            return None
+        rings = self._rings
+        order = wheel.argsort(kind="stable")
+        bounds = wheel[order].searchsorted(self._wheel_bounds).tolist()
+        if bounds[0] != 0 or bounds[-1] != len(wheel):
+            return None
+        t_sorted = time_s[order]
+        starts = bounds[1:-1]
+        for p in np.flatnonzero(t_sorted[1:] < t_sorted[:-1]).tolist():
+            if p + 1 not in starts:
+                return None  # a wheel's samples go back in time
+        firsts = t_sorted[[b if b < len(wheel) else 0 for b in bounds[:-1]]].tolist()
+        for w, ring in enumerate(rings):
+            if bounds[w] < bounds[w + 1] and not firsts[w] >= ring.last_t:
+                return None
+        r_sorted = revolutions[order]
+        ws = range(len(rings))
+        return ([order[bounds[w]:bounds[w + 1]] for w in ws], [t_sorted[bounds[w]:bounds[w + 1]] for w in ws],
+                [r_sorted[bounds[w]:bounds[w + 1]] for w in ws])
+
+    def _ready_index(
+        self, pos: int, stop: int, t_w: list[np.ndarray], sel_w: list[np.ndarray], ptr: list[int],
+    ) -> int | None:
         """add_wheels: the first position k in [pos, stop) after whose sample the head epoch is ready, else None.
-        The samples before pos are in the rings; each wheel's samples from ptr on are at positions >= pos."""
+        The samples before pos are in the rings; each wheel's samples from ptr on (times t_w) are at positions
+        >= pos."""
         mode, need, since = self._head or self._head_consts()
         if mode == 0:
             return None
@@ -376,13 +418,13 @@ class SlipEstimator:
             if lt >= need:
                 continue
             s = sel_w[w][ptr[w]:]
-            ts = t[s]
-            j = int(np.searchsorted(ts, need, side="left"))
+            ts = t_w[w][ptr[w]:]
+            j = int(ts.searchsorted(need))
             reach = int(s[j]) if j < len(ts) else never
             if lt >= since:
                 enter = -1
             else:
-                j = int(np.searchsorted(ts, since, side="left"))
+                j = int(ts.searchsorted(since))
                 enter = int(s[j]) if j < len(ts) else never
             if enter < reach:
                 blocks.append((enter, reach))
