@@ -52,6 +52,13 @@ class SeriesRing:
         """append() for each (t, v) in order, in bulk: _make_room runs at the same points, so the kept samples
         are the same as after one-by-one appends."""
         i, n = 0, len(ts)
+        end = self._end
+        if n and end + n <= len(self._t):  # room for all: the loop below in one step
+            self._t[end : end + n] = ts
+            self._v[end : end + n] = vs
+            self._end = end + n
+            self.last_t = float(ts[n - 1])
+            return
         while i < n:
             if self._end == len(self._t):
                 self._make_room()

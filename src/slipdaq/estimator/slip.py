@@ -224,6 +224,8 @@ class SlipEstimator:
         self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
         self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
+        self._pending_utc: deque[float] = deque()  # their fixes' UTC times (NaN without one), in step
+        self._last_utc_s = math.nan  # the newest fix's UTC time (NaN without one)
         self._utc = UtcLatency(params.max_latency_s)
         self._lag = WheelLatency(params.max_latency_s)
         self._lag_prev: tuple[float, float, np.ndarray] | None = None
@@ -301,7 +303,7 @@ class SlipEstimator:
         n = len(time_s)
         if n == 0:
             return []
-        t_max = float(time_s.max()) if n >= self.bulk_min_samples else math.nan  # NaN too with a NaN time
+        t_max = float(np.maximum.reduce(time_s)) if n >= self.bulk_min_samples else math.nan  # NaN with a NaN
         if t_max != t_max:
             out: list[tuple[int, Estimate]] = []
             add = self.add_wheel_at
@@ -381,24 +383,25 @@ class SlipEstimator:
         by one stable sort; None unless every sample is a wheel's and no sample is out of order (times not NaN)."""
         if wheel.dtype.kind not in "iu":
             return None
-        rings = self._rings
         order = wheel.argsort(kind="stable")
         bounds = wheel[order].searchsorted(self._wheel_bounds).tolist()
         if bounds[0] != 0 or bounds[-1] != len(wheel):
             return None
         t_sorted = time_s[order]
         starts = bounds[1:-1]
-        for p in np.flatnonzero(t_sorted[1:] < t_sorted[:-1]).tolist():
+        for p in (t_sorted[1:] < t_sorted[:-1]).nonzero()[0].tolist():
             if p + 1 not in starts:
                 return None  # a wheel's samples go back in time
-        firsts = t_sorted[[b if b < len(wheel) else 0 for b in bounds[:-1]]].tolist()
-        for w, ring in enumerate(rings):
-            if bounds[w] < bounds[w + 1] and not firsts[w] >= ring.last_t:
-                return None
         r_sorted = revolutions[order]
-        ws = range(len(rings))
-        return ([order[bounds[w]:bounds[w + 1]] for w in ws], [t_sorted[bounds[w]:bounds[w + 1]] for w in ws],
-                [r_sorted[bounds[w]:bounds[w + 1]] for w in ws])
+        sel_w, t_w, r_w = [], [], []
+        for w, ring in enumerate(self._rings):
+            lo, hi = bounds[w], bounds[w + 1]
+            if lo < hi and not t_sorted[lo] >= ring.last_t:
+                return None  # before the wheel's newest sample so far
+            sel_w.append(order[lo:hi])
+            t_w.append(t_sorted[lo:hi])
+            r_w.append(r_sorted[lo:hi])
+        return sel_w, t_w, r_w
 
     def _ready_index(
         self, pos: int, stop: int, t_w: list[np.ndarray], sel_w: list[np.ndarray], ptr: list[int],
@@ -448,26 +451,22 @@ class SlipEstimator:
             return []
         self._utc.add(a, fix.fix_time_utc_s)
         self._gps.append(a, fix.speed_mps)
-        self._gps_utc.append(a, fix.fix_time_utc_s if fix.fix_time_utc_s is not None else math.nan)
+        utc_s = float(fix.fix_time_utc_s) if fix.fix_time_utc_s is not None else math.nan
+        self._gps_utc.append(a, utc_s)
+        self._last_utc_s = utc_s
         self._gps_acc.append(a, fix.speed_accuracy_mps if fix.speed_accuracy_mps is not None else math.nan)
         self._latency = None
         self._head = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
         self._pending.append(a)
+        self._pending_utc.append(utc_s)
         self._next_wheel_only_s = None
         return self._drain()
 
     # ---- readiness ----------------------------------------------------------------------------------
     def _reporting(self, since_s: float) -> list[SeriesRing]:
         return [r for r in self._wheels.values() if len(r) and r.last_time >= since_s]
-
-    def _smooth_arrival(self, arrival_s: float) -> float:
-        """One fix's arrival time without read jitter (see _smooth_arrivals)."""
-        if self._utc_offset_s is None:
-            return arrival_s
-        utc = self._gps_utc.values[int(np.searchsorted(self._gps_utc.times, arrival_s))]
-        return arrival_s if math.isnan(utc) else float(utc) + self._utc_offset_s
 
     def _head_consts(self) -> tuple[int, float, float]:
         """The head epoch's readiness as (mode, need, since), cached until a fix, an estimate or GPS loss:
@@ -476,8 +475,17 @@ class SlipEstimator:
         lat = self.latency.latency_s
         arrival_s = self._pending[0]
         half = 0.5 * self.p.window_s
-        t1 = self._smooth_arrival(arrival_s) - lat + half
-        gps_last = self._smooth_arrival(self._gps.last_time) - lat  # on the same (jitter-free) time line as t1
+        offset = self._utc_offset_s  # as _smooth_arrival, from the UTC times kept with the epochs
+        smooth_head, smooth_last = arrival_s, self._gps.last_t
+        if offset is not None:
+            utc_s = self._pending_utc[0]
+            if utc_s == utc_s:
+                smooth_head = utc_s + offset
+            utc_s = self._last_utc_s
+            if utc_s == utc_s:
+                smooth_last = utc_s + offset
+        t1 = smooth_head - lat + half
+        gps_last = smooth_last - lat  # on the same (jitter-free) time line as t1
         if gps_last < t1 - TIME_TOL_S:
             head = (0, 0.0, 0.0)
         elif gps_last >= t1 + max(self.p.window_s, 0.5):
@@ -504,8 +512,11 @@ class SlipEstimator:
             if not self._ready():
                 break
             lat = self.latency
+            rows = self._lag.rows
+            self._pending_utc.popleft()
             out.append(self._estimate(self._pending.popleft(), lat))
-            self._latency = None  # the estimate may have moved the wheels' latency fit
+            if self._lag.rows != rows:
+                self._latency = None  # the estimate moved the wheels' latency fit
             self._head = None
         first = self._pending[0] if self._pending else self._gps.last_time
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
@@ -680,8 +691,9 @@ class SlipEstimator:
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
                     self._radius[w].add(d_gps, arc, weight)
         r0 = self._r0_all()
-        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight) for w in WHEELS}
-        wheels = self._with_reference_slip(wheels, arcs, r0)
+        slip_nd = self._reference_slip(arcs, r0)
+        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight, slip_nd.get(w))
+                  for w in WHEELS}
         self._last_center_s = t_c
         return Estimate(
             t_c, speed, accel, force, p.window_s, wheels,
@@ -691,7 +703,7 @@ class SlipEstimator:
 
     def _wheel(
         self, w: str, arc: float | None, r0: tuple[float, str], d_gps: float | None, force: float | None,
-        speed: float, weight: float = 1.0,
+        speed: float, weight: float = 1.0, slip_nd: float | None = None,
     ) -> WheelEstimate:
         p = self.p
         r0_m, r0_source = r0
@@ -701,7 +713,7 @@ class SlipEstimator:
         d_wpt = r0_m * arc
         wheel_speed = d_wpt / p.window_s
         if d_gps is None or d_gps < p.min_speed_mps * p.window_s or arc <= 0:
-            return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, None, fit.cx_n,
+            return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
                                  fit.confidence)
         slip = slip_from_distances(d_wpt, d_gps)
         re = d_gps / arc
@@ -710,26 +722,34 @@ class SlipEstimator:
             cx = force / slip
         if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
             fit.add(force, arc / d_gps, weight)
-        return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, None, fit.cx_n,
+        return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
                              fit.confidence if fit.cx_n is not None else None)
+
+    def _reference_slip(
+        self, arcs: dict[str, float | None], r0: dict[str, tuple[float, str]],
+    ) -> dict[str, float]:
+        """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely),
+        for the driven wheels that have one."""
+        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
+        if not refs or len(refs) < len(self._reference):
+            return {}
+        d_ref = sum(refs) / len(refs)
+        if d_ref < self.p.min_speed_mps * self.p.window_s:
+            return {}
+        return {w: slip_from_distances(r0[w][0] * arc, d_ref) for w in self._driven if (arc := arcs[w]) is not None}
 
     def _with_reference_slip(
         self, wheels: dict[str, WheelEstimate], arcs: dict[str, float | None], r0: dict[str, tuple[float, str]],
     ) -> dict[str, WheelEstimate]:
-        """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely)."""
-        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
-        if not refs or len(refs) < len(self._reference):
-            return wheels
-        d_ref = sum(refs) / len(refs)
-        if d_ref < self.p.min_speed_mps * self.p.window_s:
+        """The wheels' estimates with the driven wheels' reference slip (_reference_slip) set."""
+        slip_nd = self._reference_slip(arcs, r0)
+        if not slip_nd:
             return wheels
         out = dict(wheels)
-        for w in self._driven:
-            arc = arcs[w]
-            if arc is not None:
-                e = wheels[w]
-                out[w] = WheelEstimate(e.slip, e.re_m, e.r0_m, e.cx_n, e.force_n, e.speed_mps, e.r0_source,
-                                       slip_from_distances(r0[w][0] * arc, d_ref), e.cx_fit_n, e.cx_fit_conf)
+        for w, s_nd in slip_nd.items():
+            e = wheels[w]
+            out[w] = WheelEstimate(e.slip, e.re_m, e.r0_m, e.cx_n, e.force_n, e.speed_mps, e.r0_source,
+                                   s_nd, e.cx_fit_n, e.cx_fit_conf)
         return out
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
@@ -738,6 +758,7 @@ class SlipEstimator:
         out: list[Estimate] = []
         lat = self.latency
         while self._pending:
+            self._pending_utc.popleft()
             out.append(self._estimate(self._pending.popleft(), lat))
         self._head = None
         return out + self._wheel_only()
