@@ -96,3 +96,22 @@ def test_head_consts(fixes: list[tuple[float, float, str]], latency: float | Non
         if est._pending:
             est._head = None
             assert est._head_consts() == _head_reference(est)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    samples=st.lists(st.tuples(st.integers(0, 3), st.floats(0.0, 0.02), st.floats(-0.01, 0.05)), max_size=200),
+    window=st.tuples(st.floats(-0.1, 1.5), st.floats(0.0, 0.6)),
+)
+def test_arcs_m(samples: list[tuple[int, float, float]], window: tuple[float, float]) -> None:
+    """All wheels' arcs over a window at once equal _arc_m wheel by wheel (np.interp on the ring's views)."""
+    est = SlipEstimator(EstimatorParams())
+    t, rev = [0.0] * 4, [0.0] * 4
+    for w, dt, drev in samples:
+        t[w] += dt
+        rev[w] += drev
+        est._rings[w].append(t[w], rev[w])
+    t0, width = window
+    got = est._arcs_m(t0, t0 + width)
+    want = {w: est._arc_m(w, t0, t0 + width) for w in WHEELS}
+    assert repr(got) == repr(want)

@@ -560,6 +560,15 @@ class SlipEstimator:
         rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
         return TWO_PI * (rev1 - rev0)
 
+    def _arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
+        """_arc_m of every wheel over the same window."""
+        ends = np.array((t0, t1))
+        out: dict[str, float | None] = {}
+        for w, ring in self._wheels.items():
+            revs = ring.at(ends, t0, t1)
+            out[w] = None if revs is None else TWO_PI * (revs[1] - revs[0])
+        return out
+
     def _grade_sin(
         self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float, ordered: bool = True,
     ) -> float:
@@ -681,7 +690,7 @@ class SlipEstimator:
         if accel is not None:
             force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s, ordered))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
-        arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
+        arcs = self._arcs_m(t0, t1)
         weight = self._weight(fix_times, t0, t1)
         if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
             # While accelerating, the GPS latency must be known; at steady speed it does not matter.
