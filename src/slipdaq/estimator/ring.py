@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+try:  # np.interp's compiled core: what np.interp calls for real values, without its checks of the arguments' types
+    from numpy._core.multiarray import interp as _interp
+except ImportError:  # another numpy layout: np.interp itself
+    _interp = np.interp
+
 
 class SeriesRing:
     """Samples in time order; `times`/`values` are contiguous views of the kept samples.
@@ -40,6 +45,14 @@ class SeriesRing:
     def first_time(self) -> float:
         return float(self._t[self._start]) if self._end > self._start else np.inf
 
+    def at(self, times: np.ndarray, t_first: float, t_last: float) -> list[float] | None:
+        """The values interpolated linearly at `times` (from t_first to t_last), or None unless two samples or more
+        span [t_first, t_last]."""
+        s, e = self._start, self._end
+        if e - s < 2 or self._t[s] > t_first or self.last_t < t_last:
+            return None
+        return _interp(times, self._t[s:e], self._v[s:e]).tolist()
+
     def append(self, t: float, v: float) -> None:
         if self._end == len(self._t):
             self._make_room()
@@ -52,6 +65,13 @@ class SeriesRing:
         """append() for each (t, v) in order, in bulk: _make_room runs at the same points, so the kept samples
         are the same as after one-by-one appends."""
         i, n = 0, len(ts)
+        end = self._end
+        if n and end + n <= len(self._t):  # room for all: the loop below in one step
+            self._t[end : end + n] = ts
+            self._v[end : end + n] = vs
+            self._end = end + n
+            self.last_t = float(ts[n - 1])
+            return
         while i < n:
             if self._end == len(self._t):
                 self._make_room()

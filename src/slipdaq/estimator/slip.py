@@ -224,6 +224,8 @@ class SlipEstimator:
         self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
         self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
+        self._pending_utc: deque[float] = deque()  # their fixes' UTC times (NaN without one), in step
+        self._last_utc_s = math.nan  # the newest fix's UTC time (NaN without one)
         self._utc = UtcLatency(params.max_latency_s)
         self._lag = WheelLatency(params.max_latency_s)
         self._lag_prev: tuple[float, float, np.ndarray] | None = None
@@ -241,6 +243,7 @@ class SlipEstimator:
         self._rings = [self._wheels[w] for w in WHEELS]  # by wheel index (WHEELS order)
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
         self.bulk_min_samples = BULK_MIN_SAMPLES
+        self._wheel_bounds = np.arange(len(WHEELS) + 1)
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
@@ -298,7 +301,10 @@ class SlipEstimator:
         where one-by-one processing would emit. Small batches (below bulk_min_samples) and samples once GPS is
         lost go one by one."""
         n = len(time_s)
-        if n < self.bulk_min_samples or bool(np.isnan(time_s).any()):
+        if n == 0:
+            return []
+        t_max = float(np.maximum.reduce(time_s)) if n >= self.bulk_min_samples else math.nan  # NaN with a NaN
+        if t_max != t_max:
             out: list[tuple[int, Estimate]] = []
             add = self.add_wheel_at
             for i, (w, t, r) in enumerate(zip(wheel.tolist(), time_s.tolist(), revolutions.tolist())):
@@ -308,44 +314,52 @@ class SlipEstimator:
             return out
         rings = self._rings
         wheel = np.asarray(wheel)
-        keep: np.ndarray | None = None
-        sel_w: list[np.ndarray] = []
-        for w in range(len(rings)):
-            s = np.flatnonzero(wheel == w)
-            sel_w.append(s)
-            if len(s) == 0:
-                continue
-            tw = time_s[s]
-            if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
-                continue
-            run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
-            ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
-            if not ok.all():
-                if keep is None:
-                    keep = np.ones(n, dtype=bool)
-                keep[s] = ok
         index: np.ndarray | None = None  # kept position -> input index
-        if keep is not None:
-            index = np.flatnonzero(keep)
-            wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
-            sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
+        split = self._split_in_order(wheel, time_s, revolutions)
+        if split is not None:
+            sel_w, t_w, r_w = split
+        else:
+            keep: np.ndarray | None = None
+            sel_w = []
+            for w in range(len(rings)):
+                s = np.flatnonzero(wheel == w)
+                sel_w.append(s)
+                if len(s) == 0:
+                    continue
+                tw = time_s[s]
+                if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
+                    continue
+                run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
+                ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
+                if not ok.all():
+                    if keep is None:
+                        keep = np.ones(n, dtype=bool)
+                    keep[s] = ok
+            if keep is not None:
+                index = np.flatnonzero(keep)
+                wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
+                sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
+            t_w = [time_s[s] for s in sel_w]
+            r_w = [revolutions[s] for s in sel_w]
         m = len(time_s)
         ptr = [0] * len(rings)  # per wheel: samples of this batch already appended
 
         def append_upto(k: int) -> None:  # the samples at positions < k
             for w, s in enumerate(sel_w):
                 j = ptr[w]
-                e = int(np.searchsorted(s, k, side="left"))
+                e = len(s) if k >= m else int(s.searchsorted(k))
                 if e > j:
-                    rings[w].extend(time_s[s[j:e]], revolutions[s[j:e]])
+                    rings[w].extend(t_w[w][j:e], r_w[w][j:e])
                     ptr[w] = e
 
-        lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
-        stop = int(lost_at[0]) if len(lost_at) else m
+        stop = m
+        if t_max - self._gps.last_t > self.p.gps_lost_after_s:  # the latest sample's test decides for all
+            lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
+            stop = int(lost_at[0]) if len(lost_at) else m
         out = []
         pos = 0
         while pos < stop and self._pending:
-            k = self._ready_index(pos, stop, time_s, sel_w, ptr)
+            k = self._ready_index(pos, stop, t_w, sel_w, ptr)
             if k is None:
                 break
             append_upto(k + 1)
@@ -353,17 +367,48 @@ class SlipEstimator:
             out += [(i, e) for e in self._drain()]
             pos = k + 1
         append_upto(stop)
-        for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
-                                          revolutions[stop:].tolist()), stop):
-            e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
-            if e:
-                i = k if index is None else int(index[k])
-                out += [(i, x) for x in e]
+        if stop < m:
+            for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
+                                              revolutions[stop:].tolist()), stop):
+                e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
+                if e:
+                    i = k if index is None else int(index[k])
+                    out += [(i, x) for x in e]
         return out
 
-    def _ready_index(self, pos: int, stop: int, t: np.ndarray, sel_w: list[np.ndarray], ptr: list[int]) -> int | None:
+    def _split_in_order(
+        self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray,
+    ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]] | None:
+        """add_wheels: per wheel, the positions (np.flatnonzero(wheel == w)), times and revolutions of its samples,
+        by one stable sort; None unless every sample is a wheel's and no sample is out of order (times not NaN)."""
+        if wheel.dtype.kind not in "iu":
+            return None
+        order = wheel.argsort(kind="stable")
+        bounds = wheel[order].searchsorted(self._wheel_bounds).tolist()
+        if bounds[0] != 0 or bounds[-1] != len(wheel):
+            return None
+        t_sorted = time_s[order]
+        starts = bounds[1:-1]
+        for p in (t_sorted[1:] < t_sorted[:-1]).nonzero()[0].tolist():
+            if p + 1 not in starts:
+                return None  # a wheel's samples go back in time
+        r_sorted = revolutions[order]
+        sel_w, t_w, r_w = [], [], []
+        for w, ring in enumerate(self._rings):
+            lo, hi = bounds[w], bounds[w + 1]
+            if lo < hi and not t_sorted[lo] >= ring.last_t:
+                return None  # before the wheel's newest sample so far
+            sel_w.append(order[lo:hi])
+            t_w.append(t_sorted[lo:hi])
+            r_w.append(r_sorted[lo:hi])
+        return sel_w, t_w, r_w
+
+    def _ready_index(
+        self, pos: int, stop: int, t_w: list[np.ndarray], sel_w: list[np.ndarray], ptr: list[int],
+    ) -> int | None:
         """add_wheels: the first position k in [pos, stop) after whose sample the head epoch is ready, else None.
-        The samples before pos are in the rings; each wheel's samples from ptr on are at positions >= pos."""
+        The samples before pos are in the rings; each wheel's samples from ptr on (times t_w) are at positions
+        >= pos."""
         mode, need, since = self._head or self._head_consts()
         if mode == 0:
             return None
@@ -376,13 +421,13 @@ class SlipEstimator:
             if lt >= need:
                 continue
             s = sel_w[w][ptr[w]:]
-            ts = t[s]
-            j = int(np.searchsorted(ts, need, side="left"))
+            ts = t_w[w][ptr[w]:]
+            j = int(ts.searchsorted(need))
             reach = int(s[j]) if j < len(ts) else never
             if lt >= since:
                 enter = -1
             else:
-                j = int(np.searchsorted(ts, since, side="left"))
+                j = int(ts.searchsorted(since))
                 enter = int(s[j]) if j < len(ts) else never
             if enter < reach:
                 blocks.append((enter, reach))
@@ -406,26 +451,22 @@ class SlipEstimator:
             return []
         self._utc.add(a, fix.fix_time_utc_s)
         self._gps.append(a, fix.speed_mps)
-        self._gps_utc.append(a, fix.fix_time_utc_s if fix.fix_time_utc_s is not None else math.nan)
+        utc_s = float(fix.fix_time_utc_s) if fix.fix_time_utc_s is not None else math.nan
+        self._gps_utc.append(a, utc_s)
+        self._last_utc_s = utc_s
         self._gps_acc.append(a, fix.speed_accuracy_mps if fix.speed_accuracy_mps is not None else math.nan)
         self._latency = None
         self._head = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
         self._pending.append(a)
+        self._pending_utc.append(utc_s)
         self._next_wheel_only_s = None
         return self._drain()
 
     # ---- readiness ----------------------------------------------------------------------------------
     def _reporting(self, since_s: float) -> list[SeriesRing]:
         return [r for r in self._wheels.values() if len(r) and r.last_time >= since_s]
-
-    def _smooth_arrival(self, arrival_s: float) -> float:
-        """One fix's arrival time without read jitter (see _smooth_arrivals)."""
-        if self._utc_offset_s is None:
-            return arrival_s
-        utc = self._gps_utc.values[int(np.searchsorted(self._gps_utc.times, arrival_s))]
-        return arrival_s if math.isnan(utc) else float(utc) + self._utc_offset_s
 
     def _head_consts(self) -> tuple[int, float, float]:
         """The head epoch's readiness as (mode, need, since), cached until a fix, an estimate or GPS loss:
@@ -434,8 +475,17 @@ class SlipEstimator:
         lat = self.latency.latency_s
         arrival_s = self._pending[0]
         half = 0.5 * self.p.window_s
-        t1 = self._smooth_arrival(arrival_s) - lat + half
-        gps_last = self._smooth_arrival(self._gps.last_time) - lat  # on the same (jitter-free) time line as t1
+        offset = self._utc_offset_s  # as _smooth_arrival, from the UTC times kept with the epochs
+        smooth_head, smooth_last = arrival_s, self._gps.last_t
+        if offset is not None:
+            utc_s = self._pending_utc[0]
+            if utc_s == utc_s:
+                smooth_head = utc_s + offset
+            utc_s = self._last_utc_s
+            if utc_s == utc_s:
+                smooth_last = utc_s + offset
+        t1 = smooth_head - lat + half
+        gps_last = smooth_last - lat  # on the same (jitter-free) time line as t1
         if gps_last < t1 - TIME_TOL_S:
             head = (0, 0.0, 0.0)
         elif gps_last >= t1 + max(self.p.window_s, 0.5):
@@ -462,8 +512,11 @@ class SlipEstimator:
             if not self._ready():
                 break
             lat = self.latency
+            rows = self._lag.rows
+            self._pending_utc.popleft()
             out.append(self._estimate(self._pending.popleft(), lat))
-            self._latency = None  # the estimate may have moved the wheels' latency fit
+            if self._lag.rows != rows:
+                self._latency = None  # the estimate moved the wheels' latency fit
             self._head = None
         first = self._pending[0] if self._pending else self._gps.last_time
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
@@ -506,6 +559,15 @@ class SlipEstimator:
             return None
         rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
         return TWO_PI * (rev1 - rev0)
+
+    def _arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
+        """_arc_m of every wheel over the same window."""
+        ends = np.array((t0, t1))
+        out: dict[str, float | None] = {}
+        for w, ring in self._wheels.items():
+            revs = ring.at(ends, t0, t1)
+            out[w] = None if revs is None else TWO_PI * (revs[1] - revs[0])
+        return out
 
     def _grade_sin(
         self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float, ordered: bool = True,
@@ -628,7 +690,7 @@ class SlipEstimator:
         if accel is not None:
             force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s, ordered))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
-        arcs = {w: self._arc_m(w, t0, t1) for w in WHEELS}
+        arcs = self._arcs_m(t0, t1)
         weight = self._weight(fix_times, t0, t1)
         if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
             # While accelerating, the GPS latency must be known; at steady speed it does not matter.
@@ -638,8 +700,9 @@ class SlipEstimator:
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
                     self._radius[w].add(d_gps, arc, weight)
         r0 = self._r0_all()
-        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight) for w in WHEELS}
-        wheels = self._with_reference_slip(wheels, arcs, r0)
+        slip_nd = self._reference_slip(arcs, r0)
+        wheels = {w: self._wheel(w, arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight, slip_nd.get(w))
+                  for w in WHEELS}
         self._last_center_s = t_c
         return Estimate(
             t_c, speed, accel, force, p.window_s, wheels,
@@ -649,7 +712,7 @@ class SlipEstimator:
 
     def _wheel(
         self, w: str, arc: float | None, r0: tuple[float, str], d_gps: float | None, force: float | None,
-        speed: float, weight: float = 1.0,
+        speed: float, weight: float = 1.0, slip_nd: float | None = None,
     ) -> WheelEstimate:
         p = self.p
         r0_m, r0_source = r0
@@ -659,7 +722,7 @@ class SlipEstimator:
         d_wpt = r0_m * arc
         wheel_speed = d_wpt / p.window_s
         if d_gps is None or d_gps < p.min_speed_mps * p.window_s or arc <= 0:
-            return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, None, fit.cx_n,
+            return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
                                  fit.confidence)
         slip = slip_from_distances(d_wpt, d_gps)
         re = d_gps / arc
@@ -668,26 +731,34 @@ class SlipEstimator:
             cx = force / slip
         if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
             fit.add(force, arc / d_gps, weight)
-        return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, None, fit.cx_n,
+        return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
                              fit.confidence if fit.cx_n is not None else None)
+
+    def _reference_slip(
+        self, arcs: dict[str, float | None], r0: dict[str, tuple[float, str]],
+    ) -> dict[str, float]:
+        """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely),
+        for the driven wheels that have one."""
+        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
+        if not refs or len(refs) < len(self._reference):
+            return {}
+        d_ref = sum(refs) / len(refs)
+        if d_ref < self.p.min_speed_mps * self.p.window_s:
+            return {}
+        return {w: slip_from_distances(r0[w][0] * arc, d_ref) for w in self._driven if (arc := arcs[w]) is not None}
 
     def _with_reference_slip(
         self, wheels: dict[str, WheelEstimate], arcs: dict[str, float | None], r0: dict[str, tuple[float, str]],
     ) -> dict[str, WheelEstimate]:
-        """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely)."""
-        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
-        if not refs or len(refs) < len(self._reference):
-            return wheels
-        d_ref = sum(refs) / len(refs)
-        if d_ref < self.p.min_speed_mps * self.p.window_s:
+        """The wheels' estimates with the driven wheels' reference slip (_reference_slip) set."""
+        slip_nd = self._reference_slip(arcs, r0)
+        if not slip_nd:
             return wheels
         out = dict(wheels)
-        for w in self._driven:
-            arc = arcs[w]
-            if arc is not None:
-                e = wheels[w]
-                out[w] = WheelEstimate(e.slip, e.re_m, e.r0_m, e.cx_n, e.force_n, e.speed_mps, e.r0_source,
-                                       slip_from_distances(r0[w][0] * arc, d_ref), e.cx_fit_n, e.cx_fit_conf)
+        for w, s_nd in slip_nd.items():
+            e = wheels[w]
+            out[w] = WheelEstimate(e.slip, e.re_m, e.r0_m, e.cx_n, e.force_n, e.speed_mps, e.r0_source,
+                                   s_nd, e.cx_fit_n, e.cx_fit_conf)
         return out
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
@@ -696,6 +767,7 @@ class SlipEstimator:
         out: list[Estimate] = []
         lat = self.latency
         while self._pending:
+            self._pending_utc.popleft()
             out.append(self._estimate(self._pending.popleft(), lat))
         self._head = None
         return out + self._wheel_only()

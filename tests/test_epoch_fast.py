@@ -1,0 +1,117 @@
+"""The estimator's fast paths give what the code they replaced gives, bit for bit (random inputs)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slipdaq import WHEELS
+from slipdaq.estimator import EstimatorParams, SlipEstimator
+from slipdaq.estimator.slip import TIME_TOL_S
+from slipdaq.records import GpsFix
+
+
+def _split_reference(est: SlipEstimator, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray):  # type: ignore[no-untyped-def]
+    """add_wheels' split as before _split_in_order: np.flatnonzero per wheel, fancy indexing, the order test."""
+    sel = [np.flatnonzero(wheel == w) for w in range(len(WHEELS))]
+    in_order = len(np.flatnonzero((wheel < 0) | (wheel >= len(WHEELS)))) == 0
+    for w, s in enumerate(sel):
+        tw = time_s[s]
+        if len(s) and not (tw[0] >= est._rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all()))):
+            in_order = False
+    return in_order, sel, [time_s[s] for s in sel], [revolutions[s] for s in sel]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    wheels=st.lists(st.integers(0, 3) | st.sampled_from([4, 9]), min_size=1, max_size=120),
+    steps=st.data(),
+    last_t=st.lists(st.sampled_from([-math.inf, 0.0, 0.5, 2.0]), min_size=4, max_size=4),
+    dtype=st.sampled_from([np.uint8, np.int64, np.int16]),
+)
+def test_split_in_order(wheels: list[int], steps: st.DataObject, last_t: list[float], dtype: type) -> None:
+    n = len(wheels)
+    dt = steps.draw(st.lists(st.sampled_from([0.0, 0.001, 0.002, 0.01, -0.003]), min_size=n, max_size=n))
+    time_s = 0.5 + np.cumsum(np.array(dt, dtype=np.float64))
+    revolutions = np.arange(n, dtype=np.float64) * 0.25
+    wheel = np.array(wheels, dtype=dtype)
+    est = SlipEstimator(EstimatorParams())
+    for ring, t in zip(est._rings, last_t):
+        ring.last_t = t
+    in_order, sel, t_ref, r_ref = _split_reference(est, wheel, time_s, revolutions)
+    got = est._split_in_order(wheel, time_s, revolutions)
+    assert (got is not None) == in_order
+    if got is not None:
+        for a, b in zip(got, (sel, t_ref, r_ref)):
+            for x, y in zip(a, b):
+                assert x.tobytes() == y.tobytes()
+
+
+def _head_reference(est: SlipEstimator) -> tuple[int, float, float]:
+    """_head_consts as before the UTC times were kept with the epochs: each smoothed arrival looked up in the ring."""
+
+    def smooth(arrival_s: float) -> float:
+        if est._utc_offset_s is None:
+            return arrival_s
+        utc = est._gps_utc.values[int(np.searchsorted(est._gps_utc.times, arrival_s))]
+        return arrival_s if math.isnan(utc) else float(utc) + est._utc_offset_s
+
+    lat = est.latency.latency_s
+    arrival_s = est._pending[0]
+    half = 0.5 * est.p.window_s
+    t1 = smooth(arrival_s) - lat + half
+    gps_last = smooth(est._gps.last_time) - lat
+    if gps_last < t1 - TIME_TOL_S:
+        return (0, 0.0, 0.0)
+    if gps_last >= t1 + max(est.p.window_s, 0.5):
+        return (1, 0.0, 0.0)
+    return (2, max(t1, arrival_s) if est.p.gps_latency_s is None else t1, t1 - 3 * half)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    fixes=st.lists(
+        st.tuples(st.floats(0.02, 0.3), st.floats(-0.05, 0.2), st.sampled_from(["utc", "none"])),
+        min_size=1, max_size=60,
+    ),
+    latency=st.sampled_from([None, 0.0, 0.08]),
+    wheel_every=st.integers(1, 7),
+)
+def test_head_consts(fixes: list[tuple[float, float, str]], latency: float | None, wheel_every: int) -> None:
+    """The head epoch's readiness constants, after every fix and estimate, equal the ring-based computation."""
+    est = SlipEstimator(EstimatorParams(gps_latency_s=latency))
+    t, rev = 1000.0, 0.0
+    for k, (step, lag, utc_kind) in enumerate(fixes):
+        for _ in range(int(step / 0.002)):
+            t += 0.002
+            rev += 0.02
+            for w in range(len(WHEELS)):
+                if k % wheel_every or w:  # now and then a wheel stays silent
+                    est.add_wheel_at(w, t, rev)
+        utc = round(t - 0.05 - lag, 2) if utc_kind == "utc" else None  # (a NaN UTC time fails the base too)
+        est.add_gps(GpsFix(t, 10.0, utc))
+        if est._pending:
+            est._head = None
+            assert est._head_consts() == _head_reference(est)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    samples=st.lists(st.tuples(st.integers(0, 3), st.floats(0.0, 0.02), st.floats(-0.01, 0.05)), max_size=200),
+    window=st.tuples(st.floats(-0.1, 1.5), st.floats(0.0, 0.6)),
+)
+def test_arcs_m(samples: list[tuple[int, float, float]], window: tuple[float, float]) -> None:
+    """All wheels' arcs over a window at once equal _arc_m wheel by wheel (np.interp on the ring's views)."""
+    est = SlipEstimator(EstimatorParams())
+    t, rev = [0.0] * 4, [0.0] * 4
+    for w, dt, drev in samples:
+        t[w] += dt
+        rev[w] += drev
+        est._rings[w].append(t[w], rev[w])
+    t0, width = window
+    got = est._arcs_m(t0, t0 + width)
+    want = {w: est._arc_m(w, t0, t0 + width) for w in WHEELS}
+    assert repr(got) == repr(want)
