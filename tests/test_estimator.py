@@ -191,3 +191,24 @@ def test_estimate_released_by_the_fix_that_ends_its_window(gps_latency_s: float 
         centre_k = round((t_c - utc0) / 0.05)
         assert k == centre_k + 5, f"estimate at epoch {centre_k} waited for fix {k}"
     assert not [e for e in by_wheels if e.time_s > utc0 + 1.0]  # the wheels were there before the fix
+
+
+def test_a_fix_with_a_nan_utc_time_counts_as_one_without() -> None:
+    """A decoder that hands over NaN for the UTC time (instead of None) must not crash the estimate (it did:
+    max() of an empty sequence in the coverage check); the estimates equal those of fixes without UTC."""
+    def run(utc_of_k):  # type: ignore[no-untyped-def]
+        est = SlipEstimator(EstimatorParams(window_s=0.5, r_ref_m=0.3, gps_latency_s=None))
+        out = []
+        rev = 20.0 / (2 * math.pi * 0.3)
+        for k in range(1, 4000):
+            t = k * 1e-3
+            for w in WHEELS:
+                out += est.add_wheel(WheelSample(t, w, rev * t, int(rev * t * 1000), 0, 0, 0))
+            if k % 50 == 0:
+                out += est.add_gps(GpsFix(t + 0.0005, 20.0, fix_time_utc_s=utc_of_k(k)))
+        return out
+
+    with_nan = run(lambda k: math.nan if k % 100 == 0 else k * 1e-3)  # the host clock keeps UTC here
+    without = run(lambda k: None if k % 100 == 0 else k * 1e-3)
+    assert len(with_nan) > 50
+    assert with_nan == without

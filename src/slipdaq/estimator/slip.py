@@ -449,9 +449,12 @@ class SlipEstimator:
         if a <= self._gps.last_time:
             self.rejected_fixes += 1
             return []
-        self._utc.add(a, fix.fix_time_utc_s)
+        utc = fix.fix_time_utc_s
+        if utc is not None and not math.isfinite(utc):
+            utc = None  # a NaN or infinite UTC time is no UTC time
+        self._utc.add(a, utc)
         self._gps.append(a, fix.speed_mps)
-        utc_s = float(fix.fix_time_utc_s) if fix.fix_time_utc_s is not None else math.nan
+        utc_s = float(utc) if utc is not None else math.nan
         self._gps_utc.append(a, utc_s)
         self._last_utc_s = utc_s
         self._gps_acc.append(a, fix.speed_accuracy_mps if fix.speed_accuracy_mps is not None else math.nan)
