@@ -26,7 +26,7 @@ import can
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
-from slipdaq.sources.socketcan_raw import RawFrame, frame_reader, message_to_raw
+from slipdaq.sources.socketcan_raw import RawFrame, frame_reader
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +56,13 @@ def to_frame(msg: can.Message) -> CanFrame:
 def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch | list[CanFrame]:
     """One reader wake-up's messages as the pipeline takes them (Pipeline.process_can_batch); timestamps_s replaces
     their own stamps (the log's clock)."""
-    raws = [message_to_raw(m) for m in msgs]  # as the reader does for a bus read through python-can
-    return raw_to_frames(raws, [r[0] for r in raws] if timestamps_s is None else timestamps_s)
+    ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
+    if len(msgs) < BATCH_COLUMNS_FROM:
+        return [CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
+                for t, m in zip(ts, msgs)]
+    return CanFrameBatch.from_columns(ts, [m.arbitration_id for m in msgs],
+                                      [m.is_extended_id | (m.is_error_frame << 1) for m in msgs],
+                                      [m.data for m in msgs])
 
 
 def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch | list[CanFrame]:
@@ -177,11 +182,11 @@ class CanBusSource:
         else:
             await self._run_in_thread(emit_batch)
 
-    def _stamps(self, raws: list[RawFrame]) -> list[float]:
-        """The frames' timestamps in the log's clock, in order (see the class's docstring)."""
+    def _stamps(self, bus_stamps_s: list[float]) -> list[float]:
+        """The frames' bus timestamps in the log's clock, in order (see the class's docstring)."""
         if self.stamp is None:
-            return [r[0] for r in raws]
-        out = self.stamp.from_wall_many([r[0] for r in raws], self._last_t)
+            return bus_stamps_s
+        out = self.stamp.from_wall_many(bus_stamps_s, self._last_t)
         self._last_t = out[-1]
         return out
 
@@ -227,7 +232,7 @@ class CanBusSource:
         if not raws:
             return
         self.frames += len(raws)
-        emit_batch(raw_to_frames(raws, self._stamps(raws)))
+        emit_batch(raw_to_frames(raws, self._stamps([r[0] for r in raws])))
 
     async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
         loop = asyncio.get_running_loop()
@@ -284,11 +289,12 @@ class CanBusSource:
         stop = threading.Event()
 
         def deliver(batch: list[can.Message]) -> None:
-            raws = [message_to_raw(m) for m in batch]
-            for raw in raws:
+            stamps = [m.timestamp for m in batch]
+            for t in stamps:
                 if self.outage_since is not None:
-                    self._during_outage(raw[0])
-            self._deliver(raws, emit_batch)
+                    self._during_outage(t)
+            self.frames += len(batch)
+            emit_batch(to_frames(batch, self._stamps(stamps)))
 
         def reader() -> None:
             while not stop.is_set():
