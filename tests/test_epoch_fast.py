@@ -60,7 +60,7 @@ def _head_reference(est: SlipEstimator) -> tuple[int, float, float]:
         return arrival_s if math.isnan(utc) else float(utc) + est._utc_offset_s
 
     lat = est.latency.latency_s
-    arrival_s = est._pending[0]
+    arrival_s = est._pending[0][0]
     half = 0.5 * est.p.window_s
     t1 = smooth(arrival_s) - lat + half
     gps_last = smooth(est._gps.last_time) - lat

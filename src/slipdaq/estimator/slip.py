@@ -209,6 +209,12 @@ def phase_of(speed_mps: float, accel_mps2: float | None, threshold_mps2: float, 
     return "accelerate" if accel_mps2 > 0 else "brake"
 
 
+def _smooth_arrival(arrival_s: float, utc_s: float, offset_s: float | None) -> float:
+    """One fix's arrival time without read jitter: UTC + median(arrival - UTC) where it has a UTC time (NaN: none);
+    SlipEstimator._smooth_arrivals for all fixes at once."""
+    return arrival_s if offset_s is None or utc_s != utc_s else utc_s + offset_s
+
+
 class SlipEstimator:
     """Feed wheel samples and GPS fixes in record order; each call returns the estimates that became ready.
 
@@ -223,8 +229,7 @@ class SlipEstimator:
         self._gps_acc = SeriesRing(256)  # arrival time -> the receiver's speed accuracy (NaN without one); in step
         self._alt = SeriesRing(256)  # arrival time -> altitude
         self._wheels = {w: SeriesRing(4096) for w in WHEELS}
-        self._pending: deque[float] = deque()  # arrival times of epochs still to estimate
-        self._pending_utc: deque[float] = deque()  # their fixes' UTC times (NaN without one), in step
+        self._pending: deque[tuple[float, float]] = deque()  # epochs still to estimate: (arrival, UTC or NaN)
         self._last_utc_s = math.nan  # the newest fix's UTC time (NaN without one)
         self._utc = UtcLatency(params.max_latency_s)
         self._lag = WheelLatency(params.max_latency_s)
@@ -462,8 +467,7 @@ class SlipEstimator:
         self._head = None
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._alt.append(a, fix.altitude_m)
-        self._pending.append(a)
-        self._pending_utc.append(utc_s)
+        self._pending.append((a, utc_s))
         self._next_wheel_only_s = None
         return self._drain()
 
@@ -476,19 +480,11 @@ class SlipEstimator:
         mode 0: not before a later fix; 1: ready; 2: ready once every reporting wheel (newest sample at or after
         `since`) has a sample at or after `need`."""
         lat = self.latency.latency_s
-        arrival_s = self._pending[0]
+        arrival_s, utc_s = self._pending[0]
         half = 0.5 * self.p.window_s
-        offset = self._utc_offset_s  # as _smooth_arrival, from the UTC times kept with the epochs
-        smooth_head, smooth_last = arrival_s, self._gps.last_t
-        if offset is not None:
-            utc_s = self._pending_utc[0]
-            if utc_s == utc_s:
-                smooth_head = utc_s + offset
-            utc_s = self._last_utc_s
-            if utc_s == utc_s:
-                smooth_last = utc_s + offset
-        t1 = smooth_head - lat + half
-        gps_last = smooth_last - lat  # on the same (jitter-free) time line as t1
+        offset = self._utc_offset_s
+        t1 = _smooth_arrival(arrival_s, utc_s, offset) - lat + half
+        gps_last = _smooth_arrival(self._gps.last_t, self._last_utc_s, offset) - lat  # on t1's time line
         if gps_last < t1 - TIME_TOL_S:
             head = (0, 0.0, 0.0)
         elif gps_last >= t1 + max(self.p.window_s, 0.5):
@@ -516,12 +512,11 @@ class SlipEstimator:
                 break
             lat = self.latency
             rows = self._lag.rows
-            self._pending_utc.popleft()
-            out.append(self._estimate(self._pending.popleft(), lat))
+            out.append(self._estimate(self._pending.popleft()[0], lat))
             if self._lag.rows != rows:
                 self._latency = None  # the estimate moved the wheels' latency fit
             self._head = None
-        first = self._pending[0] if self._pending else self._gps.last_time
+        first = self._pending[0][0] if self._pending else self._gps.last_time
         keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
         self._gps.drop_before = keep
         self._gps_utc.drop_before = keep
@@ -770,8 +765,7 @@ class SlipEstimator:
         out: list[Estimate] = []
         lat = self.latency
         while self._pending:
-            self._pending_utc.popleft()
-            out.append(self._estimate(self._pending.popleft(), lat))
+            out.append(self._estimate(self._pending.popleft()[0], lat))
         self._head = None
         return out + self._wheel_only()
 
