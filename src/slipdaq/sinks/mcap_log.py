@@ -283,14 +283,49 @@ def fix_json(fix: GpsFix) -> bytes:
     return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
 
 
-class _PendingCan:
-    """Frames waiting for their /can/raw batch: whole batches and single frames, in order."""
+class _Pending:
+    """Records waiting for their batch message (/can/raw, /wpt/count): whole batches and runs of single records, in
+    order. A batch is full at MAX_BATCH_FRAMES records, or with the first record MAX_BATCH_SPAN_S after its first."""
 
     def __init__(self) -> None:
-        self.parts: list[CanFrameBatch | list[CanFrame]] = []
+        self.parts: list[Any] = []
         self.n = 0
         self.first_index = 0
         self.t0 = 0.0
+
+    def add_one(self, record: object, t: float, index: int) -> bool:
+        """One record (log time t, number index in its stream); True when the batch is now full."""
+        if not self.n:
+            self.first_index, self.t0 = index, t
+            self.parts.append([])
+        elif not isinstance(self.parts[-1], list):
+            self.parts.append([])
+        self.parts[-1].append(record)
+        self.n += 1
+        return self.n >= MAX_BATCH_FRAMES or t - self.t0 >= MAX_BATCH_SPAN_S
+
+    def add_run(self, ts: np.ndarray, first_index: int, piece: Callable[[int, int], object],
+                flush: Callable[[], None]) -> None:
+        """Consecutive records with log times ts, the first numbered first_index: piece(i, k) is records i..k-1;
+        flush() is called after each piece that fills the batch, as add_one one by one would."""
+        i, n = 0, len(ts)
+        while i < n:
+            if not self.n:
+                self.first_index, self.t0 = first_index + i, float(ts[i])
+            k = min(n, i + MAX_BATCH_FRAMES - self.n)
+            full = self.n + k - i >= MAX_BATCH_FRAMES
+            late = np.flatnonzero(ts[i:k] - self.t0 >= MAX_BATCH_SPAN_S)
+            if len(late):
+                k, full = i + int(late[0]) + 1, True
+            self.parts.append(piece(i, k))
+            self.n += k - i
+            i = k
+            if full:
+                flush()
+
+
+class _PendingCan(_Pending):
+    """Frames waiting for their /can/raw batch."""
 
     def take(self) -> CanFrameBatch:
         parts = [p if isinstance(p, CanFrameBatch) else CanFrameBatch.from_frames(p) for p in self.parts]
@@ -298,14 +333,8 @@ class _PendingCan:
         return parts[0] if len(parts) == 1 else concat_can_batches(parts)
 
 
-class _PendingSamples:
+class _PendingSamples(_Pending):
     """Wheel samples waiting for their /wpt/count batch."""
-
-    def __init__(self) -> None:
-        self.parts: list[WheelSampleBatch | list[WheelSample]] = []
-        self.n = 0
-        self.first_index = 0
-        self.t0 = 0.0
 
     def take(self) -> WheelSampleBatch:
         parts = [p if isinstance(p, WheelSampleBatch) else samples_to_batch(p) for p in self.parts]
@@ -731,17 +760,9 @@ class McapLogSink:
     # ---- Sink ----
     def on_raw(self, record: RawRecord) -> None:
         if isinstance(record, CanFrame):
-            p = self._can
-            t = record.timestamp_s
-            if not p.n:
-                p.first_index, p.t0 = self.can_index, t
-                p.parts.append([])
-            elif not isinstance(p.parts[-1], list):
-                p.parts.append([])
-            p.parts[-1].append(record)  # type: ignore[union-attr]
-            p.n += 1
+            full = self._can.add_one(record, record.timestamp_s, self.can_index)
             self.can_index += 1
-            if p.n >= MAX_BATCH_FRAMES or t - p.t0 >= MAX_BATCH_SPAN_S:
+            if full:
                 self._flush_can()
         elif isinstance(record, NmeaLine):
             self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
@@ -768,57 +789,25 @@ class McapLogSink:
 
     def on_can_batch(self, batch: CanFrameBatch) -> None:
         """Consecutive frames (Pipeline.process_can_batch): into /can/raw batches by the same rule as on_raw."""
-        ts = batch.timestamp_s
-        i, n = 0, len(batch)
-        while i < n:
-            p = self._can
-            if not p.n:
-                p.first_index, p.t0 = self.can_index, float(ts[i])
-            k = min(n, i + MAX_BATCH_FRAMES - p.n)
-            full = p.n + k - i >= MAX_BATCH_FRAMES
-            late = np.flatnonzero(ts[i:k] - p.t0 >= MAX_BATCH_SPAN_S)
-            if len(late):
-                k, full = i + int(late[0]) + 1, True
-            p.parts.append(batch if (i, k) == (0, n) else batch.slice(i, k))
-            p.n += k - i
-            self.can_index += k - i
-            i = k
-            if full:
-                self._flush_can()
+        n = len(batch)
+        self._can.add_run(batch.timestamp_s, self.can_index,
+                          lambda i, k: batch if (i, k) == (0, n) else batch.slice(i, k), self._flush_can)
+        self.can_index += n
 
     def on_wheel(self, sample: WheelSample) -> None:
-        q = self._samples
-        t = sample.timestamp_s
-        if not q.n:
-            q.first_index, q.t0 = self._sample_index, t
-            q.parts.append([])
-        elif not isinstance(q.parts[-1], list):
-            q.parts.append([])
-        q.parts[-1].append(sample)  # type: ignore[union-attr]
-        q.n += 1
+        full = self._samples.add_one(sample, sample.timestamp_s, self._sample_index)
         self._sample_index += 1
-        if q.n >= MAX_BATCH_FRAMES or t - q.t0 >= MAX_BATCH_SPAN_S:
+        if full:
             self._flush_samples()
 
     def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
-        ts = samples.timestamp_s
-        i, n = 0, len(samples)
-        while i < n:
-            q = self._samples
-            if not q.n:
-                q.first_index, q.t0 = self._sample_index, float(ts[i])
-            k = min(n, i + MAX_BATCH_FRAMES - q.n)
-            full = q.n + k - i >= MAX_BATCH_FRAMES
-            late = np.flatnonzero(ts[i:k] - q.t0 >= MAX_BATCH_SPAN_S)
-            if len(late):
-                k, full = i + int(late[0]) + 1, True
-            q.parts.append(samples if (i, k) == (0, n) else
-                           WheelSampleBatch(*(getattr(samples, f)[i:k] for f in WheelSampleBatch.__slots__)))
-            q.n += k - i
-            self._sample_index += k - i
-            i = k
-            if full:
-                self._flush_samples()
+        n = len(samples)
+        self._samples.add_run(
+            samples.timestamp_s, self._sample_index,
+            lambda i, k: samples if (i, k) == (0, n) else
+            WheelSampleBatch(*(getattr(samples, f)[i:k] for f in WheelSampleBatch.__slots__)),
+            self._flush_samples)
+        self._sample_index += n
 
     def on_fix(self, fix: GpsFix) -> None:
         self._write(TOPIC_GPS, fix.timestamp_s, fix_json(fix))
