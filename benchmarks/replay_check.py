@@ -120,33 +120,6 @@ def _faults(records: list[Any]) -> list[Any]:
     return out
 
 
-def _write_old_format(path: Path, cfg: Any, records: list[Any]) -> None:
-    import json
-
-    from mcap.writer import CompressionType, Writer
-
-    from slipdaq.records import CanFrame
-    from slipdaq.sinks.mcap_log import LEGACY_SCHEMAS, METADATA_NAME, SCHEMAS, TOPIC_CAN, TOPIC_NMEA, can_frame_json
-
-    with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        w.start(profile="slipdaq", library="slipdaq 0.x")
-        ch = {}
-        for topic, schema in (LEGACY_SCHEMAS | {TOPIC_NMEA: SCHEMAS[TOPIC_NMEA]}).items():
-            sid = w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
-            ch[topic] = w.register_channel(topic, "json", sid)
-        w.add_metadata(METADATA_NAME, {"version": "0.x", "mode": "live", "config_toml": cfg.to_toml(),
-                                       "dbc": cfg.load_dbc_text()})
-        for seq, r in enumerate(records):
-            ns = int(round(r.timestamp_s * 1e9))
-            if isinstance(r, CanFrame):
-                w.add_message(ch[TOPIC_CAN], log_time=ns, publish_time=ns, sequence=seq, data=can_frame_json(r))
-            else:
-                data = json.dumps({"timestamp_s": r.timestamp_s, "line": r.line}, separators=(",", ":")).encode()
-                w.add_message(ch[TOPIC_NMEA], log_time=ns, publish_time=ns, sequence=seq, data=data)
-        w.finish()
-
-
 def make_inputs(work: Path, quick: bool) -> None:
     sys.path.insert(0, str(BENCH))
     import perf
@@ -170,7 +143,10 @@ def make_inputs(work: Path, quick: bool) -> None:
     records = _faults(_records_of(pickle.loads(tmp.read_bytes())))
     tmp.unlink()
     _write_live(work / "in-faults.mcap", cfg, records, seed=99)
-    _write_old_format(work / "in-old-format.mcap", cfg, records)
+    sys.path.insert(0, str(ROOT / "tests"))
+    from legacy_log import write_old_format_log  # the compatibility tests' writer (under the base's slipdaq here)
+
+    write_old_format_log(work / "in-old-format.mcap", cfg, records)
     data = (work / "in-faults.mcap").read_bytes()
     (work / "in-torn.mcap").write_bytes(data[: int(len(data) * 0.6)])
 

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 
 from slipdaq.cli import main
@@ -18,12 +17,12 @@ from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.cdr import decode_can_batch, decode_wheel_batch
 from slipdaq.sinks.mcap_log import (
-    LEGACY_SCHEMAS, MAX_BATCH_FRAMES, MAX_BATCH_SPAN_S, METADATA_NAME, SCHEMAS, TOPIC_CAN, TOPIC_ESTIMATE,
-    TOPIC_NMEA, TOPIC_WPT, McapLogSink, can_frame_json,
+    MAX_BATCH_FRAMES, MAX_BATCH_SPAN_S, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_NMEA, TOPIC_WPT, McapLogSink,
 )
 from slipdaq.sources.mcap_log import iter_raw_batches, iter_raw_records, iter_topic
 
 from conftest import CONFIG
+from legacy_log import write_old_format_log
 from reliability_support import sim_records
 
 
@@ -103,32 +102,10 @@ def test_cdr_batches_read_by_mcap_ros2_support(tmp_path: Path) -> None:
     assert checked[TOPIC_CAN] > 10 and checked[TOPIC_WPT] > 10
 
 
-def _write_old_format(path: Path, records: list) -> None:
-    """A log as slipdaq wrote it before the batches: one JSON message per frame, NMEA without can_index."""
-    cfg = load_config(CONFIG)
-    with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        w.start(profile="slipdaq", library="slipdaq 0.x")
-        ch = {}
-        for topic, schema in (LEGACY_SCHEMAS | {TOPIC_NMEA: SCHEMAS[TOPIC_NMEA]}).items():
-            sid = w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
-            ch[topic] = w.register_channel(topic, "json", sid)
-        w.add_metadata(METADATA_NAME, {"version": "0.x", "mode": "live", "config_toml": cfg.to_toml(),
-                                       "dbc": cfg.load_dbc_text()})
-        for seq, r in enumerate(records):
-            ns = int(round(r.timestamp_s * 1e9))
-            if isinstance(r, CanFrame):
-                w.add_message(ch[TOPIC_CAN], log_time=ns, publish_time=ns, sequence=seq, data=can_frame_json(r))
-            else:
-                data = json.dumps({"timestamp_s": r.timestamp_s, "line": r.line}, separators=(",", ":")).encode()
-                w.add_message(ch[TOPIC_NMEA], log_time=ns, publish_time=ns, sequence=seq, data=data)
-        w.finish()
-
-
 def test_old_per_frame_log_replays_to_the_same_estimates(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     records = [r for r in sim_records(6.0, wpt_rate_hz=200.0) if isinstance(r, (CanFrame, NmeaLine))]
     old = tmp_path / "old.mcap"
-    _write_old_format(old, records)
+    write_old_format_log(old, load_config(CONFIG), records)
     assert list(iter_raw_records(old)) == records
     items = list(iter_raw_batches(old))
     assert any(isinstance(i, CanFrameBatch) and len(i) > 1 for i in items)
