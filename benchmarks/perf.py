@@ -902,6 +902,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--latency-seconds", type=float, default=None, help="default 20")
     ap.add_argument("--cpu-seconds", type=float, default=None, help="seconds per CPU run (default 20)")
     ap.add_argument("--profile-seconds", type=float, default=None, help="default 3")
+    ap.add_argument("--read-intervals-ms", type=lambda v: [float(x) for x in v.split(",")], default=None,
+                    metavar="MS,MS,...", help="cpu section: instead of its default loads, 4 x 1 kHz with each of these "
+                                              "can.read_interval_s in turn (e.g. 20,0,20,0,20,50)")
     ap.add_argument("--cpu-profile", default=None, metavar="DIR",
                     help="with the cpu section: py-spy record the daemon over its sending window into DIR "
                          "(raw collapsed stacks, one file per run; the CPU share then includes py-spy's pauses)")
@@ -942,11 +945,17 @@ def main(argv: list[str] | None = None) -> int:
             default_s = Config().can.read_interval_s
             if a.quick:
                 loads = loads[:1]
-            for rate, label in loads:
-                cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval {default_s * 1e3:g} ms (default)"))
-            if not a.quick:  # the same without pacing: every frame read as it comes
+            if a.read_intervals_ms:  # these intervals in turn at 4 x 1 kHz (repeats and alternations show the spread)
+                for ms in a.read_intervals_ms:
+                    cpus.append(run_cpu(a, tmp, 4000.0, f"{loads[0][1]}, read interval {ms:g} ms",
+                                        read_interval_s=ms / 1e3))
+            else:
                 for rate, label in loads:
-                    cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval 0 (every frame)", read_interval_s=0.0))
+                    cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval {default_s * 1e3:g} ms (default)"))
+                if not a.quick:  # the same without pacing: every frame read as it comes
+                    for rate, label in loads:
+                        cpus.append(run_cpu(a, tmp, rate, f"{label}, read interval 0 (every frame)",
+                                            read_interval_s=0.0))
             lats += [c.latency for c in cpus if c.latency is not None]
         if lats:
             out.append("### 3. Latency\n\n" + latency_table(lats))
