@@ -9,7 +9,8 @@ import pytest
 
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.config import load_config
-from slipdaq.decode.nmea import KNOT_MPS, MAX_LINE_BYTES, NmeaDecoder, NmeaFramer
+from slipdaq.decode.framing import MAX_LINE_BYTES, GpsFramer
+from slipdaq.decode.nmea import KNOT_MPS, NmeaDecoder
 from slipdaq.records import CanFrame, NmeaLine
 
 from conftest import ROOT
@@ -136,7 +137,7 @@ def test_invalid_rmc_status_marks_fix_invalid() -> None:
 
 
 def test_framer_splits_across_reads_and_cuts_overlong() -> None:
-    f = NmeaFramer()
+    f = GpsFramer()
     data = (RMC + "\r\n" + GGA + "\r\n").encode()
     out = f.feed(data[:17], 1.0) + f.feed(data[17:90], 2.0) + f.feed(data[90:], 3.0)
     assert [x.line for x in out] == [RMC, GGA]

@@ -18,7 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from slipdaq.daemon import new_log_path, open_bus, run_daemon
-from slipdaq.decode.nmea import MAX_LINE_BYTES, NmeaDecoder
+from slipdaq.decode.framing import MAX_FRAME_BYTES
+from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.demo import demo_config
 from slipdaq.records import NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
@@ -330,17 +331,17 @@ def test_a_pipeline_that_raises_does_not_stop_the_gps() -> None:
 @given(st.lists(st.tuples(st.binary(max_size=700), st.floats(0.0, 2.0)), max_size=40))
 def test_any_bytes_through_the_serial_source(chunks: list[tuple[bytes, float]]) -> None:
     """The source's whole byte path (framing, sentence check, baud-rate monitor, decoder) takes any bytes at any
-    pace: no exception, the framer holds at most MAX_LINE_BYTES, the monitor a few seconds of buckets."""
+    pace: no exception, the framer holds at most MAX_FRAME_BYTES, the monitor a few seconds of buckets."""
     clock = [0.0]
     src = SerialGpsSource("/dev/ttyUSB0", 115200, monotonic=lambda: clock[0])
     src._port_opened()
     decoder = NmeaDecoder()
     for data, dt in chunks:
         clock[0] += dt
-        src.feed(data, decoder.decode)
+        src.feed(data, lambda r: decoder.decode(r) if isinstance(r, NmeaLine) else None)
         if dt > 1.5:
             src._watch()
-        assert src.framer.pending_bytes <= MAX_LINE_BYTES
+        assert src.framer.pending_bytes <= MAX_FRAME_BYTES
         assert len(src.quality._buckets) <= src.quality.window_s + 1
         assert src.state in ("connected", "silent", "unreadable")
     assert decoder.lines == decoder.ignored_lines + decoder.bad_sentences + decoder.sentences

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slipdaq.decode.ubx import MAX_FRAME_BYTES, GpsFramer, UbxDecoder, ubx_checksum
+from slipdaq.decode.framing import MAX_FRAME_BYTES, GpsFramer
+from slipdaq.decode.ubx import UbxDecoder, ubx_checksum
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import NmeaLine, UbxFrame
 from slipdaq.sim.emit import SimSettings, generate, nav_pvt_frame

@@ -18,8 +18,6 @@ from typing import TextIO
 import can
 
 from slipdaq.config import Config, ConfigError
-from slipdaq.decode.nmea import NmeaFramer
-from slipdaq.decode.ubx import GpsFramer
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import RawRecord
 from slipdaq.sinks.mcap_log import McapLogSink
@@ -146,11 +144,9 @@ async def run_daemon(
     can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events,
                               read_interval_s=config.can.read_interval_s,
                               keep_reading=lambda: pipeline.waiting_for_wheels())
-    # u-blox velocity: the port carries UBX frames among NMEA lines
-    framer = GpsFramer if config.gps.velocity == "ubx" else NmeaFramer
-    if config.gps.velocity == "ubx":
-        import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
-    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events, framer=framer)
+    # the port may carry UBX frames among NMEA lines whatever gps.velocity says: they are framed, logged and decoded
+    import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
+    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events)
     sink.extra += [can_source.status, gps_source.status]
     pipeline = Pipeline(config, [sink, status])
     installed: list[int] = []

@@ -1,4 +1,4 @@
-"""NMEA 0183: bytes -> lines (framing), lines -> GpsFix (pynmea2 for syntax and checksum, fields read here).
+"""NMEA 0183: lines -> GpsFix (pynmea2 for syntax and checksum, fields read here).
 
 What the decoder does with what receivers send (checked against gpsd's twelve regression captures in
 tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
@@ -6,8 +6,8 @@ tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
 - Talkers: any two-letter talker (GP, GN, GL, GA, BD, GB, QZ, ...); the sentence type decides, the talker does not.
 - Lines: `#` comment lines and blank lines are ignored and counted (ignored_lines, comment_lines). A line that is not a
   sentence with a good checksum is counted in bad_sentences (binary noise, cut or corrupt sentences, no checksum).
-  Noise before a sentence on the same line (`r$GPRMC,...`) is skipped when the sentence after the last `$` checks out
-  (resynced_lines). Valid sentences of other types (GSV, GSA, TXT, HDT, proprietary $P..., unknown types) are counted in
+  Noise before a sentence on the same line (`r$GPRMC,...`: lines logged before the framer cut lines at `$`, or given
+  by other callers) is skipped when the sentence after the last `$` checks out (resynced_lines). Valid sentences of other types (GSV, GSA, TXT, HDT, proprietary $P..., unknown types) are counted in
   unused_sentences. Nothing here raises on any input: a sentence whose handling fails is counted as bad.
 - Epoch: the UTC time of day of the latest timed sentence (RMC, GGA, GNS, GLL, ZDA). One GpsFix per epoch at most.
 - Speed: from RMC (with NMEA 4.x fields); from VTG only when the receiver sends no RMC (none for VTG_ONLY_AFTER_S host
@@ -46,65 +46,8 @@ import pynmea2
 from slipdaq.records import GpsFix, NmeaLine
 
 KNOT_MPS = 1852.0 / 3600.0
-MAX_LINE_BYTES = 256
-"""NMEA allows 82 characters; longer lines are cut here and counted as overlong."""
 
 _DAY_S = 86400.0
-
-
-class NmeaFramer:
-    """Splits a byte stream into lines; a line longer than MAX_LINE_BYTES is cut there and counted.
-
-    An overlong line yields its first MAX_LINE_BYTES bytes once (as soon as they are known to be too many) and the rest
-    of it, up to its newline, is dropped. So the lines out do not depend on how the bytes were split into reads, and
-    the framer never holds more than MAX_LINE_BYTES bytes between calls.
-    """
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self._skipping = False  # inside the dropped tail of an overlong line
-        self.overlong_lines = 0
-
-    @property
-    def pending_bytes(self) -> int:
-        """Bytes held for a line whose end has not come yet (at most MAX_LINE_BYTES)."""
-        return len(self._buf)
-
-    def feed(self, data: bytes, timestamp_s: float) -> list[NmeaLine]:
-        if not isinstance(data, (bytes, bytearray)):
-            data = bytes(data)
-        lines: list[NmeaLine] = []
-        pos, n = 0, len(data)
-        while pos < n:
-            nl = data.find(b"\n", pos)
-            stop = n if nl < 0 else nl
-            if self._skipping:
-                if nl < 0:
-                    break
-                self._skipping = False
-                pos = nl + 1
-                continue
-            take = min(stop - pos, MAX_LINE_BYTES + 1 - len(self._buf))
-            self._buf += data[pos : pos + take]
-            pos += take
-            if len(self._buf) > MAX_LINE_BYTES:
-                self.overlong_lines += 1
-                self._emit(lines, bytes(self._buf[:MAX_LINE_BYTES]), timestamp_s)
-                self._buf.clear()
-                self._skipping = True
-                continue
-            if nl < 0:
-                break
-            self._emit(lines, bytes(self._buf), timestamp_s)
-            self._buf.clear()
-            pos = nl + 1
-        return lines
-
-    @staticmethod
-    def _emit(lines: list[NmeaLine], raw: bytes, timestamp_s: float) -> None:
-        text = raw.rstrip(b"\r").decode("latin-1")
-        if text:
-            lines.append(NmeaLine(timestamp_s, text))
 
 
 # ---- field parsing: the receiver's text, read strictly; anything malformed is None ----

@@ -1,7 +1,9 @@
 """Import sources: CAN log files (any format python-can reads) and timestamped NMEA logs.
 
 NMEA log lines are `(EPOCH_SECONDS) $SENTENCE` in the CAN log's clock; bare `$SENTENCE` lines are
-accepted too and take the time of the sentence itself (RMC date + time), else of the line before.
+accepted too and take the time of the sentence itself (RMC date + time), else of the line before. The bytes after the
+time stamps are framed as the live serial reader frames them (decode/framing.py): a receiver's raw capture that mixes
+UBX or RTCM with NMEA gives the same records as it would live.
 """
 
 from __future__ import annotations
@@ -9,14 +11,17 @@ from __future__ import annotations
 import heapq
 import re
 from collections.abc import Iterator
+from dataclasses import replace
+from itertools import chain
 from pathlib import Path
 
 import can
 
+from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
-from slipdaq.records import CanFrame, NmeaLine, RawRecord
+from slipdaq.records import CanFrame, NmeaLine, RawRecord, UbxFrame
 
-_STAMPED = re.compile(r"^\s*\(\s*(?P<t>[-+]?\d+(?:\.\d*)?)\s*\)\s?(?P<line>.*)$")
+_STAMPED = re.compile(rb"[ \t]*\([ \t]*(?P<t>[-+]?\d+(?:\.\d*)?)[ \t]*\)[ \t]?")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
 
 
@@ -39,35 +44,34 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
             yield to_frame(msg)
 
 
-def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine]:
+def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such NMEA log")
     last_t: float | None = None
-    pending: list[str] = []  # bare lines before the first time is known
+    pending: list[NmeaLine | UbxFrame] = []  # records before the first time is known
     probe = NmeaDecoder()
+    framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
-        for raw in f:
-            text = raw.rstrip(b"\r\n").decode("latin-1")
-            if not text.strip():
-                continue
-            m = _STAMPED.match(text)
+        for raw in chain(f, [None]):
+            m = _STAMPED.match(raw) if raw is not None else None
             if m:
                 last_t = float(m["t"])
-                text = m["line"]
-            else:
-                fix = probe.decode(NmeaLine(last_t or 0.0, text))
-                if fix is not None and fix.fix_time_utc_s is not None:
-                    last_t = fix.fix_time_utc_s
-            if last_t is None:
-                pending.append(text)
-                continue
-            for earlier in pending:
-                yield NmeaLine(last_t, earlier)
-            pending.clear()
-            yield NmeaLine(last_t, text)
+                raw = raw[m.end() :]
+            for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():
+                if m is None and isinstance(record, NmeaLine):
+                    fix = probe.decode(record)
+                    if fix is not None and fix.fix_time_utc_s is not None:
+                        last_t = fix.fix_time_utc_s
+                if last_t is None:
+                    pending.append(record)
+                    continue
+                for earlier in pending:
+                    yield replace(earlier, timestamp_s=last_t)
+                pending.clear()
+                yield replace(record, timestamp_s=last_t)
     for earlier in pending:  # a file with no time at all
-        yield NmeaLine(0.0, earlier)
+        yield earlier
 
 
 def merge_by_time(*streams: Iterator[RawRecord]) -> Iterator[RawRecord]:

@@ -1,7 +1,7 @@
 """GPS source: NMEA lines from a serial port (pyserial), read from the asyncio loop without blocking.
 
 The port is opened non-blocking and read when the loop says it is readable; each chunk of bytes is framed into
-lines stamped with `clock` (the host receive time; a SteadyClock in live runs, so that a step of the host clock does
+records (NMEA lines and UBX frames, decode/framing.py, whatever gps.velocity says) stamped with `clock` (the host receive time; a SteadyClock in live runs, so that a step of the host clock does
 not reach the records). What the car does to a GPS, and what the source does about it:
 
 - Unplugged (the device disappears; pyserial then raises "device reports readiness to read but returned no data",
@@ -34,7 +34,7 @@ from typing import Any, Protocol
 
 import serial
 
-from slipdaq.decode.nmea import NmeaFramer
+from slipdaq.decode.framing import GpsFramer
 from slipdaq.records import NmeaLine
 from slipdaq.sources.events import EventHandler, SourceEvent
 
@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 
 class Framer(Protocol):
-    """Bytes -> raw records (NmeaFramer: lines; a framer for a mixed binary/NMEA stream works the same way)."""
+    """Bytes -> raw records (GpsFramer: UBX frames and NMEA lines)."""
 
     def feed(self, data: bytes, timestamp_s: float) -> list[Any]: ...
 
@@ -125,10 +125,10 @@ class SerialGpsSource:
         *,
         on_event: EventHandler | None = None,
         monotonic: Callable[[], float] = time.monotonic,
-        framer: Callable[[], Framer] = NmeaFramer,
+        framer: Callable[[], Framer] = GpsFramer,
     ) -> None:
         """clock stamps the lines (the log's clock); monotonic measures gaps, backoff and the quality window;
-        framer makes the byte -> record framer for each connection (NMEA lines by default)."""
+        framer makes the byte -> record framer for each connection (UBX frames and NMEA lines by default)."""
         self.port = port
         self.baudrate = baudrate
         self.clock = clock
