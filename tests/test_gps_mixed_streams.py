@@ -12,14 +12,17 @@ import asyncio
 import calendar
 import datetime as dt
 import io
+import json
 import zlib
 from functools import cache
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 from pyubx2 import NMEA_PROTOCOL, UBX_PROTOCOL, UBXReader
 
-from slipdaq.decode.nmea import KNOT_MPS, NmeaDecoder
+from slipdaq.cli import main
+from slipdaq.decode.nmea import DROP_REASONS, KNOT_MPS, NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.records import GpsFix, NmeaLine, UbxFrame
 from slipdaq.sources.files import iter_nmea_log
@@ -36,6 +39,16 @@ _FIX_MODES = ("A", "D", "F", "P", "R")
 def _utc(date: dt.date, time: dt.time) -> float:
     return calendar.timegm(date.timetuple()) + time.hour * 3600 + time.minute * 60 + time.second \
         + time.microsecond * 1e-6
+
+
+@cache
+def identities(capture: Path) -> dict[str, int]:
+    """How many messages of each kind (NMEA sentence type, UBX message) pyubx2 and pynmeagps find in the bytes."""
+    out: dict[str, int] = {}
+    for _raw, msg in UBXReader(io.BytesIO(capture.read_bytes()), protfilter=NMEA_PROTOCOL | UBX_PROTOCOL, quitonerror=0):
+        kind = msg.identity[2:] if len(msg.identity) == 5 else msg.identity  # GNRMC -> RMC, NAV-PVT
+        out[kind] = out.get(kind, 0) + 1
+    return out
 
 
 @cache
@@ -101,3 +114,26 @@ def test_live_and_import_keep_every_fix(capture: Path, max_chunk: int) -> None:
     assert sorted(tpv) == [ms(f.fix_time_utc_s) for f in rmc[1:]]  # type: ignore[arg-type]
     for f in rmc[1:]:
         assert abs(tpv[ms(f.fix_time_utc_s)] - f.speed_mps) <= SPEED_TOL_MPS  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("capture", CAPTURES, ids=lambda p: p.stem)
+def test_import_logs_every_frame_and_counts_every_dropped_sentence(capture: Path, tmp_path: Path) -> None:
+    """`slipdaq import` of the raw capture: every UBX frame in /gps/ubx/raw, and /diagnostics counts the sentences
+    that gave the estimator nothing by reason, as many as pyubx2 finds of each kind."""
+    can = tmp_path / "one.log"
+    can.write_text("(1700000000.000000) can0 123#00\n")  # the verb wants a CAN log; one frame of no wheel
+    out = tmp_path / "mixed.mcap"
+    assert main(["import", "--can", str(can), "--nmea", str(capture), "-o", str(out)]) == 0
+    with open(out, "rb") as f:
+        messages = [(ch.topic, msg.data) for _schema, ch, msg in make_reader(f).iter_messages()]
+    ubx = [bytes.fromhex(json.loads(data)["data"]) for topic, data in messages if topic == "/gps/ubx/raw"]
+    assert ubx == reference(capture)[0]
+    diag = [json.loads(data) for topic, data in messages if topic == "/diagnostics"][-1]
+    dropped = diag["dropped_sentences"]
+    kinds = identities(capture)
+    assert set(dropped) == set(DROP_REASONS)
+    assert dropped["unsupported"] == sum(kinds.get(k, 0) for k in ("GSV", "GSA", "GST", "GBS"))
+    assert dropped["duplicate"] == kinds["VTG"]  # VTG beside RMC, one per epoch
+    assert diag["bad_sentences"] == dropped["bad_checksum"] + dropped["unparsable"]  # noise between the frames
+    assert dropped["status_void"] == dropped["mode_invalid"] == dropped["empty_speed"] == 0
+    assert diag["gps_fixes"] == kinds["RMC"] + kinds["NAV-PVT"]

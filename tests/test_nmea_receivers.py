@@ -15,12 +15,13 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
+import pynmea2
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from slipdaq.decode.framing import MAX_FRAME_BYTES, MAX_LINE_BYTES, GpsFramer
-from slipdaq.decode.nmea import KNOT_MPS, NmeaDecoder
+from slipdaq.decode.nmea import DROP_REASONS, KNOT_MPS, NmeaDecoder
 from slipdaq.records import GpsFix, NmeaLine
 
 from conftest import DATA
@@ -78,9 +79,10 @@ def nmea(body: str) -> str:
 _RMC_RE = re.compile(r"\$(?P<body>[A-Z]{2}RMC,[^*$]*)\*(?P<cs>[0-9A-Fa-f]{2})\s*$")
 
 
-def oracle_valid_rmc(lines: list[str]) -> int:
-    """Valid RMC sentences in the lines, counted without the decoder: checksum good, status A, a speed."""
-    n = 0
+def oracle_rmc(lines: list[str]) -> tuple[int, int]:
+    """RMC sentences in the lines, counted without the decoder: (valid: checksum good, status A, a speed, a mode of a
+    GNSS fix if it has one, navigational status not U; void: checksum good, status not A)."""
+    valid = void = 0
     for text in lines:
         m = _RMC_RE.search(text)
         if m is None:
@@ -88,10 +90,13 @@ def oracle_valid_rmc(lines: list[str]) -> int:
         cs = 0
         for ch in m["body"]:
             cs ^= ord(ch)
+        if cs != int(m["cs"], 16):
+            continue
         f = m["body"].split(",")
-        if cs == int(m["cs"], 16) and f[2] == "A" and f[7] != "" and (len(f) < 13 or f[12] not in ("N", "E")):
-            n += 1
-    return n
+        void += f[2] != "A"
+        valid += f[2] == "A" and f[7] != "" and (len(f) < 13 or f[12] in "ADFPR" and f[12] != "") \
+            and (len(f) < 14 or f[13] != "U")
+    return valid, void
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
@@ -118,7 +123,9 @@ def test_capture_through_pty_matches_gpsd(name: str) -> None:
     times = [f.fix_time_utc_s for f in fixes if f.fix_time_utc_s is not None]
     assert len(times) == len(set(times)), "an epoch gave two fixes"
     rmc = [f for f in fixes if f.sentence == "RMC" and f.valid]
-    assert len(rmc) == oracle_valid_rmc(direct) == exp.valid_rmc
+    valid, void = oracle_rmc(direct)
+    assert len(rmc) == valid == exp.valid_rmc
+    assert d.dropped["status_void"] == void  # every RMC without a fix counted, none more
     assert all(f.fix_time_utc_s is not None for f in rmc)
 
     # speed and UTC time equal gpsd's TPV at that time
@@ -262,7 +269,115 @@ def test_lines_counted_by_kind() -> None:
     ]
     d, fixes = decode_all(lines)
     assert (d.ignored_lines, d.comment_lines, d.bad_sentences, d.sentences) == (2, 1, 4, 5)
+    assert {k: v for k, v in d.dropped.items() if v} == {"unparsable": 1, "bad_checksum": 3, "unsupported": 4}
     assert (d.resynced_lines, d.unused_sentences, d.fixes, len(fixes)) == (1, 4, 1, 1)
+
+
+# ---- validity and what is dropped, against pynmea2's own RMC validity cases ----
+
+# pynmea2's test_types.py test_RMC_valid: 39 RMC sentences, all without a speed, in its order (status, mode indicator,
+# navigational status; None = the sentence does not have that field), with pynmea2's verdict (is_valid) and
+# slipdaq's reason to drop it. Then cases pynmea2 does not have. With a speed the same sentences give a fix whose
+# `valid` is True exactly when the only reason was the missing speed.
+_A, _V, _X = "A", "V", ""
+_PYNMEA2_RMC = [
+    # status, mode, nav, pynmea2 is_valid, slipdaq's reason without a speed
+    (_A, None, None, True, "empty_speed"),  # status A and no mode: valid, but no speed, so no fix
+    (_V, None, None, False, "status_void"),
+    (_X, None, None, False, "status_void"),
+    (_A, "S", None, True, "mode_invalid"),  # S = the receiver's simulator, not a measurement (pynmea2: valid)
+    (_A, "N", None, False, "mode_invalid"),
+    (_A, "", None, False, "mode_invalid"),  # the field sent empty: no fix mode stated (pynmea2: invalid; gpsd: ignored)
+    *[(st, m, None, False, "status_void") for st in (_V, _X) for m in ("S", "N", "")],
+    *[(st, m, nav, st == _A and m == "S" and nav == "S", "status_void" if st != _A else "mode_invalid")
+      for st in (_A, _V, _X) for m, nav in (("S", "S"), ("S", "V"), ("S", ""), ("N", "A"), ("N", "V"), ("N", ""),
+                                            ("", "A"), ("", "V"), ("", ""))],
+]
+_MORE_RMC = [
+    (_A, "A", "V", False, "empty_speed"),  # nav status V = not provided (every u-blox, Quectel): valid (pynmea2: not)
+    (_A, "D", "C", True, "empty_speed"),  # caution: still valid
+    (_A, "R", "S", True, "empty_speed"),
+    (_A, "F", "", False, "empty_speed"),  # nav status sent empty: not provided (pynmea2: invalid)
+    (_A, "A", "U", True, "nav_status_unsafe"),  # unsafe: invalid (pynmea2: valid)
+    (_A, "E", "V", False, "mode_invalid"),  # dead reckoning (pynmea2: valid, without the V)
+    (_A, "M", None, True, "mode_invalid"),  # manual input (pynmea2: valid)
+    (_V, "A", "V", False, "status_void"),
+]
+
+
+def _rmc(status: str, mode: str | None, nav: str | None, speed: str = "") -> str:
+    fields = ["GPRMC", "123519.00", status, "4807.038", "N", "01131.000", "E", speed, "84.4" if speed else "",
+              "230394", "", ""]
+    fields += [mode] if mode is not None else []
+    fields += [nav] if nav is not None else []
+    return nmea(",".join(fields))
+
+
+def test_pynmea2_rmc_cases_are_its_own() -> None:
+    assert len(_PYNMEA2_RMC) == 39
+    assert [i for i, case in enumerate(_PYNMEA2_RMC) if case[3]] == [0, 3, 12]  # "only the first of each section"
+    assert _rmc(*_PYNMEA2_RMC[0][:3]) == "$GPRMC,123519.00,A,4807.038,N,01131.000,E,,,230394,,*33"  # as in its file
+    assert _rmc(*_PYNMEA2_RMC[-1][:3]) == "$GPRMC,123519.00,,4807.038,N,01131.000,E,,,230394,,,,*72"
+    for status, mode, nav, pynmea2_valid, _reason in _PYNMEA2_RMC + _MORE_RMC:
+        assert pynmea2.parse(_rmc(status, mode, nav), check=True).is_valid == pynmea2_valid
+
+
+@pytest.mark.parametrize("case", _PYNMEA2_RMC + _MORE_RMC, ids=lambda c: f"{c[0] or '-'}{c[1] or '-'}{c[2] or '-'}")
+def test_rmc_validity_decisions_and_drop_reasons(case: tuple[str, str | None, str | None, bool, str]) -> None:
+    status, mode, nav, _pynmea2_valid, reason = case
+    d, fixes = decode_all([_rmc(status, mode, nav)])
+    assert fixes == [] and d.fixes == 0
+    assert {k: v for k, v in d.dropped.items() if v} == {reason: 1}  # no speed: no fix, and counted
+    d, fixes = decode_all([_rmc(status, mode, nav, speed="22.4")])
+    assert len(fixes) == 1 and fixes[0].speed_mps == pytest.approx(22.4 * KNOT_MPS)
+    assert fixes[0].valid == (reason == "empty_speed")  # a fix the estimator takes exactly when only the speed lacked
+    assert {k: v for k, v in d.dropped.items() if v} == ({} if fixes[0].valid else {reason: 1})
+
+
+@pytest.mark.parametrize(
+    ("vtg", "valid", "reason"),
+    [
+        ("GPVTG,84.4,T,,M,22.4,N,41.5,K", True, None),  # NMEA 2.2: no mode field
+        ("GPVTG,84.4,T,,M,22.4,N,41.5,K,D", True, None),
+        ("GPVTG,84.4,T,,M,22.4,N,41.5,K,", False, "mode_invalid"),
+        ("GPVTG,84.4,T,,M,22.4,N,41.5,K,S", False, "mode_invalid"),
+        ("GPVTG,,T,,M,,N,,K,N", None, "mode_invalid"),  # a receiver without a fix
+        ("GPVTG,,T,,M,,N,,K,A", None, "empty_speed"),
+    ],
+)
+def test_vtg_validity_and_drop_reasons(vtg: str, valid: bool | None, reason: str | None) -> None:
+    d, fixes = decode_all([nmea(vtg)])
+    assert [f.valid for f in fixes] == ([] if valid is None else [valid])
+    assert {k: v for k, v in d.dropped.items() if v} == ({} if reason is None else {reason: 1})
+
+
+def test_every_dropped_line_is_counted_once_with_its_reason() -> None:
+    gga0 = nmea("GPGGA,120000.00,5200.0,N,01000.0,E,0,03,9.9,100.0,M,0.0,M,,")
+    rmc = nmea(RMC_T)
+    lines = [
+        "# a comment",  # ignored, not dropped
+        "",
+        "\x00\xff\x13\x7f garbage",  # unparsable
+        "$GPRMC,1,2*00",  # bad_checksum: wrong
+        "$GPTXT,TELIT SW Version: SL869",  # bad_checksum: missing
+        nmea("GPGSV,1,1,00"),  # unsupported
+        gga0,  # used: this epoch's GGA
+        rmc,  # gga_invalid: its epoch's GGA, first, says quality 0 (a fix, valid=False)
+        nmea(RMC_T.replace("GPRMC", "GNRMC")),  # duplicate: the epoch has its fix
+        nmea("GPRMC,120001.00,A,5200.0,N,01000.0,E,,90.0,010126,,,A"),  # empty_speed
+        nmea("GPRMC,120002.00,V,,,,,,,010126,,,N"),  # status_void
+        nmea("GPRMC,120003.00,A,5200.0,N,01000.0,E,20.0,90.0,010126,,,A,V"),  # a valid fix
+    ]
+    d, fixes = decode_all(lines, dt_s=0.1)
+    assert [f.valid for f in fixes] == [False, True]
+    assert d.dropped == dict.fromkeys(DROP_REASONS, 0) | {
+        "unparsable": 1, "bad_checksum": 2, "unsupported": 1, "gga_invalid": 1, "duplicate": 1, "empty_speed": 1,
+        "status_void": 1,
+    }
+    assert d.bad_sentences == d.dropped["bad_checksum"] + d.dropped["unparsable"] == 3
+    assert (d.unused_sentences, d.duplicate_sentences) == (d.dropped["unsupported"], d.dropped["duplicate"]) == (1, 1)
+    # every line: ignored, dropped for one reason, or used (the GGA, the valid fix)
+    assert d.lines == d.ignored_lines + sum(d.dropped.values()) + 2
 
 
 def test_framer_cuts_overlong_lines_the_same_however_read() -> None:

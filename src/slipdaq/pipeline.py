@@ -264,6 +264,7 @@ class Pipeline:
             bad_frames=self.wheels.bad_frames,
             nmea_lines=self.nmea.lines,
             bad_sentences=self.nmea.bad_sentences,
+            dropped_sentences=dict(self.nmea.dropped),
             gps_fixes=self.nmea.fixes + self.ubx.fixes,
             ubx_frames=self.ubx.frames,
             bad_ubx_frames=self.ubx.bad_frames,

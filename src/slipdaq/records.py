@@ -264,6 +264,9 @@ class Diagnostics:
     bad_frames: int = 0
     nmea_lines: int = 0
     bad_sentences: int = 0
+    dropped_sentences: dict[str, int] = field(default_factory=dict)
+    """NMEA lines that gave the estimator nothing, by reason (NmeaDecoder.dropped; bad_sentences is bad_checksum +
+    unparsable)."""
     gps_fixes: int = 0
     ubx_frames: int = 0
     bad_ubx_frames: int = 0
@@ -284,6 +287,7 @@ class Diagnostics:
             "bad_frames": self.bad_frames,
             "nmea_lines": self.nmea_lines,
             "bad_sentences": self.bad_sentences,
+            "dropped_sentences": dict(self.dropped_sentences),
             "gps_fixes": self.gps_fixes,
             "ubx_frames": self.ubx_frames,
             "bad_ubx_frames": self.bad_ubx_frames,

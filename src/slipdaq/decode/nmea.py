@@ -7,8 +7,10 @@ tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
 - Lines: `#` comment lines and blank lines are ignored and counted (ignored_lines, comment_lines). A line that is not a
   sentence with a good checksum is counted in bad_sentences (binary noise, cut or corrupt sentences, no checksum).
   Noise before a sentence on the same line (`r$GPRMC,...`: lines logged before the framer cut lines at `$`, or given
-  by other callers) is skipped when the sentence after the last `$` checks out (resynced_lines). Valid sentences of other types (GSV, GSA, TXT, HDT, proprietary $P..., unknown types) are counted in
-  unused_sentences. Nothing here raises on any input: a sentence whose handling fails is counted as bad.
+  by other callers) is skipped when the sentence after the last `$` checks out (resynced_lines). Valid sentences of
+  other types (GSV, GSA, TXT, HDT, proprietary $P..., unknown types) are counted in unused_sentences. Nothing here
+  raises on any input: a sentence whose handling fails is counted as bad. Every line that gives the estimator nothing
+  is counted once in `dropped`, by reason (NmeaDecoder).
 - Epoch: the UTC time of day of the latest timed sentence (RMC, GGA, GNS, GLL, ZDA). One GpsFix per epoch at most.
 - Speed: from RMC (with NMEA 4.x fields); from VTG only when the receiver sends no RMC (none for VTG_ONLY_AFTER_S host
   seconds), since VTG carries no time and RMC does. A fix is emitted as soon as its sentence arrives (no added latency),
@@ -16,10 +18,15 @@ tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
 - Not double-counted: an RMC or VTG from another talker for an epoch that already has its fix (GNRMC + GPRMC for the
   same time), and VTG beside RMC, are counted in duplicate_sentences. The same talker repeating the same time is a new
   report (receivers without a fix may repeat their time), not a duplicate.
-- Validity: RMC status A, and its mode indicator (NMEA 2.3+) neither N (no fix) nor E (dead reckoning, not a GNSS
-  measurement); VTG mode neither N nor E; and this epoch's GGA, when it came first, not quality 0 (invalid) or
-  6 (estimated). The NMEA 4.1 navigational status (last RMC field) does not affect validity: u-blox and others always
-  send V there, which means "status not provided", not "fix invalid" (gpsd reports those fixes: quectel-l76k-nmea).
+- Validity: RMC status A; the mode indicator (RMC and VTG, NMEA 2.3+), when the sentence has that field, one of a
+  GNSS fix (A, D, F, P, R), so not N (no fix), E (dead reckoning), M (manual input), S (simulator) or empty (as
+  pynmea2; gpsd ignores an empty one, but a receiver that sends the field and leaves it empty has not said it has a
+  fix: in 189 of gpsd's captures, the one receiver that does so sends status V with it); the NMEA 4.1 navigational
+  status (last RMC field) not U (unsafe). Its V means "the equipment does not provide a navigational status" (u-blox
+  documents it as fixed), not "fix invalid": in those captures 15 receivers (u-blox, Quectel, Furuno, SkyTraq, Telit)
+  send V with every valid fix, one (ST Teseo) sends C, none U (gpsd ignores the field and reports those fixes; pynmea2
+  would reject all of them). And this epoch's GGA, when it came first, not quality 0 (invalid) or 6 (estimated). A sentence with status A but no speed gives no fix (and is counted
+  as empty_speed).
 - GGA fields (fix quality, satellites, altitude): from this epoch's GGA when it came before the fix; otherwise from the
   previous GGA if it came less than VTG_ONLY_AFTER_S host seconds ago (receivers that send GGA after RMC, e.g. u-blox:
   their fixes carry the previous epoch's GGA fields; a previous epoch's quality never invalidates a fix). With two GGA
@@ -170,7 +177,20 @@ def _parse_plain(candidate: str) -> tuple[str, str, list[str]] | str | object | 
 
 
 _INVALID_GGA_QUALITY = (0, 6)  # 0 = no fix, 6 = estimated (dead reckoning)
-_INVALID_MODES = ("N", "E")  # FAA mode indicator (NMEA 2.3+): N = not valid, E = estimated (dead reckoning)
+_FIX_MODES = ("A", "D", "F", "P", "R")
+"""FAA mode indicators (NMEA 2.3+) of a GNSS fix: autonomous, differential, RTK float, precise, RTK integer. Not:
+N (not valid), E (estimated: dead reckoning), M (manual input), S (simulator), empty, or anything else."""
+_UNSAFE_NAV_STATUS = "U"
+"""NMEA 4.1 navigational status U (unsafe): the receiver's integrity monitoring says do not use it. S (safe),
+C (caution) and V ("navigational status not valid": the equipment does not provide one; u-blox and Quectel always
+send V with their valid fixes) leave validity to status and mode."""
+_RMC_MODE, _RMC_NAV_STATUS, _VTG_MODE = 11, 12, 8  # field indexes after the address field
+
+DROP_REASONS = (
+    "bad_checksum", "unparsable", "unsupported", "duplicate",
+    "status_void", "mode_invalid", "nav_status_unsafe", "gga_invalid", "empty_speed",
+)
+"""Why a line gave the estimator nothing (NmeaDecoder.dropped): see the class docstring."""
 _TIMED = ("RMC", "GGA", "GNS", "GLL", "ZDA")
 
 
@@ -180,6 +200,15 @@ class NmeaDecoder:
     Counters: lines = ignored_lines + bad_sentences + sentences. Of the sentences (checksum good), unused_sentences are
     of types not used and duplicate_sentences were not used because their epoch has its speed from another sentence.
     comment_lines is the part of ignored_lines that starts with `#`; resynced_lines the sentences decoded after noise.
+
+    dropped counts, by reason, every line that is not ignored and gave the estimator nothing (no valid fix, and no
+    epoch, date or GGA fields either), under one reason:
+    bad_checksum (wrong or missing checksum) and unparsable (not a sentence: noise, cut, or fields that broke the
+    handling) make bad_sentences; unsupported (a type not used) is unused_sentences; duplicate is duplicate_sentences;
+    then the RMC and VTG that give no valid fix, under the first of: status_void (RMC status not A), mode_invalid (a
+    mode indicator not in _FIX_MODES), nav_status_unsafe (NMEA 4.1 status U), gga_invalid (this epoch's GGA, sent
+    before it, says quality 0 or 6), empty_speed (valid, but no speed: empty, malformed or negative). An invalid
+    sentence with a speed is still a GpsFix (valid=False: logged, and skipped by the estimator).
     """
 
     VTG_ONLY_AFTER_S = 1.5
@@ -190,12 +219,10 @@ class NmeaDecoder:
         self._fast_path = fast_path
         self.lines = 0
         self.sentences = 0
-        self.bad_sentences = 0
         self.ignored_lines = 0
         self.fixes = 0
         self.comment_lines = 0
-        self.unused_sentences = 0
-        self.duplicate_sentences = 0
+        self.dropped = dict.fromkeys(DROP_REASONS, 0)
         self.resynced_lines = 0
         self._last_rmc_s: float | None = None
         self._epoch_tod: float | None = None
@@ -204,6 +231,19 @@ class NmeaDecoder:
         self._last_gga: _Gga | None = None
         self._date: dt.date | None = None
         self._date_tod = 0.0
+
+    @property
+    def bad_sentences(self) -> int:
+        """Lines that are not a sentence with a good checksum (and checked sentences whose handling failed)."""
+        return self.dropped["bad_checksum"] + self.dropped["unparsable"]
+
+    @property
+    def unused_sentences(self) -> int:
+        return self.dropped["unsupported"]
+
+    @property
+    def duplicate_sentences(self) -> int:
+        return self.dropped["duplicate"]
 
     # ---- entry point ----
 
@@ -214,27 +254,31 @@ class NmeaDecoder:
             text = str(line.line).strip()
             timestamp_s = float(line.timestamp_s)
         except Exception:  # not even a line: count it, never raise
-            self.bad_sentences += 1
+            self._drop("unparsable")
             return None
         if not text or text.startswith("#"):
             self.ignored_lines += 1
             self.comment_lines += text.startswith("#")
             return None
         msg = self._parse(text)
-        if msg is None:
-            self.bad_sentences += 1
+        if msg is _BAD or msg is None:
+            self._drop("bad_checksum" if msg is _BAD else "unparsable")
             return None
         self.sentences += 1
         try:
-            return self._dispatch(msg, timestamp_s)
+            return self._dispatch(msg, timestamp_s)  # type: ignore[arg-type]
         except Exception:  # a checked sentence whose fields broke the handling: counted as bad, never raised
-            self.sentences -= 1
-            self.bad_sentences += 1
+            self.sentences -= 1  # (the handlers count a drop only as their last step, when nothing can raise)
+            self._drop("unparsable")
             return None
 
-    def _parse(self, text: str) -> tuple[str, str, list[str]] | pynmea2.NMEASentence | str | None:
+    def _drop(self, reason: str) -> None:
+        self.dropped[reason] += 1
+
+    def _parse(self, text: str) -> tuple[str, str, list[str]] | pynmea2.NMEASentence | str | object | None:
         """(talker, type, fields) or the pynmea2 sentence; "unknown" for a good sentence of a type pynmea2 does not
-        know; None when bad."""
+        know; _BAD when no candidate parsed and one failed its checksum (or had none); None when none parsed."""
+        checksum_failed = False
         candidates = [text]
         cut = text.rfind("$")
         if cut > 0:  # noise before the sentence, or a sentence whose line end was lost
@@ -242,17 +286,21 @@ class NmeaDecoder:
         for i, candidate in enumerate(candidates):
             msg = _parse_plain(candidate) if self._fast_path else None
             if msg is _BAD:
+                checksum_failed = True
                 continue
             if msg is None:
                 try:
                     msg = pynmea2.parse(candidate, check=True)
                 except pynmea2.SentenceTypeError:  # checksum was good (checked first), the type is unknown to pynmea2
                     msg = _UNKNOWN
-                except Exception:  # pynmea2 raises ParseError/ChecksumError, and odd ones on odd input
+                except pynmea2.ChecksumError:  # wrong or missing
+                    checksum_failed = True
+                    continue
+                except Exception:  # pynmea2 raises ParseError, and odd ones on odd input
                     continue
             self.resynced_lines += i > 0
-            return msg  # type: ignore[return-value]
-        return None
+            return msg
+        return _BAD if checksum_failed else None
 
     def _dispatch(
         self, msg: tuple[str, str, list[str]] | pynmea2.NMEASentence | str, timestamp_s: float,
@@ -264,7 +312,7 @@ class NmeaDecoder:
             talker = str(getattr(msg, "talker", "")).upper()
             data = [str(x) for x in msg.data]
         else:
-            self.unused_sentences += 1
+            self._drop("unsupported")
             return None
         if kind == "RMC":
             return self._rmc(talker, data, timestamp_s)
@@ -279,7 +327,7 @@ class NmeaDecoder:
         elif kind == "GLL":
             self._enter_epoch(_tod(_field(data, 4)))
         else:
-            self.unused_sentences += 1
+            self._drop("unsupported")
         return None
 
     # ---- epochs, dates, GGA ----
@@ -300,7 +348,7 @@ class NmeaDecoder:
         """
         key = (talker, kind)
         if self._epoch_fix is not None and self._epoch_fix != key:
-            self.duplicate_sentences += 1
+            self._drop("duplicate")
             return False
         self._epoch_fix = key
         return True
@@ -328,7 +376,7 @@ class NmeaDecoder:
             altitude_m=_float(_field(data, 8)),
         )
         if self._epoch_gga is not None and self._epoch_gga.talker != talker and tod is not None:
-            self.duplicate_sentences += 1  # a second talker's GGA for the same epoch (GPGGA + GLGGA): the first is used
+            self._drop("duplicate")  # a second talker's GGA for the same epoch (GPGGA + GLGGA): the first is used
             return
         self._epoch_gga = gga
         self._last_gga = gga
@@ -353,21 +401,39 @@ class NmeaDecoder:
             return last, False
         return None, False
 
-    def _fix(self, timestamp_s: float, speed_mps: float, valid: bool, sentence: str, **kw: object) -> GpsFix:
+    def _why_invalid(
+        self, data: list[str], timestamp_s: float, mode_at: int, status: str | None = None, nav_at: int | None = None,
+    ) -> str | None:
+        """Why a speed sentence gives no valid fix (a DROP_REASONS entry), or None when it does. A mode indicator or
+        navigational status field that the sentence does not have (an older NMEA version) does not count."""
+        if status is not None and status.upper() != "A":
+            return "status_void"
+        if len(data) > mode_at and _field(data, mode_at).upper() not in _FIX_MODES:
+            return "mode_invalid"
+        if nav_at is not None and _field(data, nav_at).upper() == _UNSAFE_NAV_STATUS:
+            return "nav_status_unsafe"
         gga, own = self._gga_for_fix(timestamp_s)
         if gga is not None and own and gga.quality in _INVALID_GGA_QUALITY:
-            valid = False
-        self.fixes += 1
-        return GpsFix(
+            return "gga_invalid"
+        return None
+
+    def _fix(self, timestamp_s: float, speed_mps: float, invalid: str | None, sentence: str, **kw: object) -> GpsFix:
+        """The epoch's fix; one that is not valid is counted as dropped for its reason."""
+        gga, _own = self._gga_for_fix(timestamp_s)
+        fix = GpsFix(
             timestamp_s=timestamp_s,
             speed_mps=speed_mps,
-            valid=valid,
+            valid=invalid is None,
             sentence=sentence,
             fix_quality=gga.quality if gga else None,
             satellites=gga.satellites if gga else None,
             altitude_m=gga.altitude_m if gga else None,
             **kw,  # type: ignore[arg-type]
         )
+        self.fixes += 1
+        if invalid is not None:
+            self._drop(invalid)
+        return fix
 
     # ---- speed sentences ----
 
@@ -379,7 +445,9 @@ class NmeaDecoder:
         if date is not None and tod is not None:
             self._remember_date(date, tod)
         speed_kn = _float(_field(data, 6))
+        invalid = self._why_invalid(data, timestamp_s, _RMC_MODE, _field(data, 1), _RMC_NAV_STATUS)
         if speed_kn is None or speed_kn < 0:
+            self._drop(invalid or "empty_speed")
             return None
         if not self._claim_epoch(talker, "RMC"):
             return None
@@ -388,12 +456,11 @@ class NmeaDecoder:
         else:
             day = date if date is not None else self._date_for(tod)
             fix_time = _utc(day, tod) if day is not None else None
-        valid = _field(data, 1).upper() == "A" and _field(data, 11).upper() not in _INVALID_MODES
         course = _float(_field(data, 7))
         return self._fix(
             timestamp_s,
             speed_kn * KNOT_MPS,
-            valid,
+            invalid,
             "RMC",
             fix_time_utc_s=fix_time,
             course_deg=course,
@@ -403,22 +470,23 @@ class NmeaDecoder:
 
     def _vtg(self, talker: str, data: list[str], timestamp_s: float) -> GpsFix | None:
         if self._last_rmc_s is not None and timestamp_s - self._last_rmc_s < self.VTG_ONLY_AFTER_S:
-            self.duplicate_sentences += 1  # the receiver sends RMC, the better sentence (it has the time)
+            self._drop("duplicate")  # the receiver sends RMC, the better sentence (it has the time)
             return None
         kmph = _float(_field(data, 6))
         speed_mps = kmph / 3.6 if kmph is not None and kmph >= 0 else None
         if speed_mps is None:
             kn = _float(_field(data, 4))
             speed_mps = kn * KNOT_MPS if kn is not None and kn >= 0 else None
+        invalid = self._why_invalid(data, timestamp_s, _VTG_MODE)
         if speed_mps is None:
+            self._drop(invalid or "empty_speed")
             return None
         if not self._claim_epoch(talker, "VTG"):
             return None
-        mode = _field(data, 8).upper()
         return self._fix(
             timestamp_s,
             speed_mps,
-            mode not in _INVALID_MODES,
+            invalid,
             "VTG",
             course_deg=_float(_field(data, 0)),
         )

@@ -25,6 +25,7 @@ from mcap.writer import CompressionType, Writer
 import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
+from slipdaq.decode.nmea import DROP_REASONS
 from slipdaq.records import (
     SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, Estimate, GpsFix, NmeaLine, RawRecord, UbxFrame,
     WheelSample, WheelSampleBatch,
@@ -124,6 +125,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "count_wraps": _per_wheel("wraps"),
         "counter_resets": _per_wheel("resets"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
         "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "estimates": _INT,
+        "dropped_sentences": _obj("dropped_sentences", dict.fromkeys(DROP_REASONS, _INT)),
         "estimator": _obj("estimator", {
             "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
             "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
