@@ -1,11 +1,13 @@
 """Inputs that must destroy nothing and crash nothing (issue 13): an output path that is an input, malformed and
-empty inputs, outputs that are in place only when complete.
+empty inputs, outputs that are in place only when complete, and live logs that never overwrite a file.
 
 Every failing case is checked the same way: the exit status, one line on stderr naming the file, no traceback, and
 the directory exactly as before (inputs byte-identical, no output, no temporary file, no new directory)."""
 
 from __future__ import annotations
 
+import asyncio
+import datetime as dt
 import os
 import random
 import shutil
@@ -13,13 +15,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+import can
 import pytest
 from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.config import load_config
+from slipdaq.daemon import new_log_path, run_daemon
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
+from slipdaq.sinks.rotation import segment_path
 from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, read_metadata
 
 from conftest import CONFIG, DATA
@@ -276,3 +281,38 @@ def test_replay_and_export_of_a_log_with_nothing_in_it_fail_unless_allowed(
     assert main(["replay", "none.mcap", "-o", "out.mcap", "--allow-empty"]) == 0
     assert main(["export", "none.mcap", "--csv", "out.csv", "--allow-empty"]) == 0
     assert (work / "out.csv").read_text().count("\n") == 1  # the header
+
+
+# ---- run and demo: a new log never overwrites a file ----
+
+def test_a_new_log_name_is_clear_of_every_segment_name(tmp_path: Path) -> None:
+    """Files named like the second segment of the run about to start (a clock without a battery comes back to the
+    same time): the new run takes a name none of whose segments exists."""
+    now = dt.datetime.now(dt.timezone.utc)
+    taken = {}
+    for s in range(-2, 30):
+        stamp = (now + dt.timedelta(seconds=s)).strftime("%Y%m%d-%H%M%S")
+        p = tmp_path / f"demo-{stamp}_002.mcap"
+        p.write_bytes(b"an earlier run's second segment " + stamp.encode())
+        taken[p] = p.read_bytes()
+    path = new_log_path(tmp_path, "demo")
+    assert not path.exists()
+    assert all(not segment_path(path, n).exists() for n in range(2, 5))
+    assert all(p.read_bytes() == b for p, b in taken.items())
+
+
+def test_the_live_log_never_overwrites_a_file(tmp_path: Path) -> None:
+    """run_daemon given a path that is there: FileExistsError before anything is read, the file untouched."""
+    path = tmp_path / "slipdaq-20260101-000000.mcap"
+    path.write_bytes(b"yesterday's log")
+    cfg = load_config(CONFIG).with_overrides(can={"interface": "virtual", "channel": f"bad-inputs-{os.getpid()}"},
+                                             gps={"port": str(tmp_path / "no-such-port")})
+
+    async def run() -> None:
+        with can.Bus(interface="virtual", channel=cfg.can.channel) as bus:
+            await run_daemon(cfg, bus, path, duration_s=0.3, status_stream=open(os.devnull, "w"))
+
+    with pytest.raises(FileExistsError):
+        asyncio.run(run())
+    assert path.read_bytes() == b"yesterday's log"
+    assert sorted(tmp_path.iterdir()) == [path]

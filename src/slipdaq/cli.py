@@ -78,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Read WPT frames from the configured CAN bus and NMEA from the GPS serial port, "
                        "estimate slip, Re, Fx and Cx online, log everything to a new MCAP file in the log dir and "
                        "show a live status view (one status line every few seconds when stdout is not a terminal). "
-                       "SIGINT/SIGTERM finish the log cleanly.")
+                       "SIGINT/SIGTERM finish the log cleanly. The log gets a name no file or segment has: a file is "
+                       "never written over.")
     _add_config(p)
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--log-dir", metavar="D", help="write the MCAP log here (default: log.dir of the config)")
@@ -123,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("replay", help="re-run the estimator over a log's raw CAN and NMEA",
                        description="Re-run decode and estimator over the raw CAN and NMEA channels of a slipdaq log, "
-                       "in the order they were recorded, with the config stored in the log (or --config)." + OUTPUT_RULES)
+                       "in the order they were recorded, with the config stored in the log (or --config)."
+                       + OUTPUT_RULES)
     p.add_argument("log", metavar="RAW.mcap")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
