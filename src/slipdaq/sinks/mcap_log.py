@@ -471,6 +471,9 @@ class McapLogSink:
     RETRY_AFTER_FAILURE_S a new segment is tried. `rotation` cuts the log into segments (sinks.rotation).
     """
 
+    new_files_only = False
+    """Refuse (FileExistsError) to write a segment over a file that is there (the live daemon's log)."""
+
     def __init__(
         self,
         path: str | Path,
@@ -552,7 +555,7 @@ class McapLogSink:
     # ---- segments ----
     def _open_segment(self, number: int) -> None:
         path = segment_path(self.first_path, number)
-        file = CommitFile(path, fsync=self._fsync)
+        file = CommitFile(path, fsync=self._fsync, new_file=self.new_files_only)
         try:
             writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
             writer.start(profile=PROFILE, library=f"slipdaq {slipdaq.__version__}")

@@ -15,12 +15,13 @@ import can
 
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
+from slipdaq.sources.read_errors import InputError, guarded
 
 _STAMPED = re.compile(r"^\s*\(\s*(?P<t>[-+]?\d+(?:\.\d*)?)\s*\)\s?(?P<line>.*)$")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
 
 
-class ImportError_(Exception):
+class ImportError_(InputError):
     """A file that cannot be imported; the message names the file."""
 
 
@@ -32,10 +33,11 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
         raise ImportError_(f"{p}: no such CAN log")
     try:
         reader = can.LogReader(str(p))
-    except (ValueError, OSError) as e:
-        raise ImportError_(f"{p}: python-can cannot read it ({e}); formats: {', '.join(CAN_SUFFIXES)}") from None
+    except Exception as e:  # an unknown suffix, or a file that does not start like its format (BLFParseError)
+        formats = "" if p.suffix.lower() in CAN_SUFFIXES else f"; formats: {', '.join(CAN_SUFFIXES)}"
+        raise ImportError_(f"{p}: python-can cannot read it ({e}){formats}") from None
     with reader:
-        for msg in reader:
+        for msg in guarded(p, reader):
             yield to_frame(msg)
 
 
@@ -47,7 +49,7 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine]:
     pending: list[str] = []  # bare lines before the first time is known
     probe = NmeaDecoder()
     with open(p, "rb") as f:
-        for raw in f:
+        for raw in guarded(p, f, "line"):
             text = raw.rstrip(b"\r\n").decode("latin-1")
             if not text.strip():
                 continue
