@@ -52,6 +52,7 @@ def _write_live_log(path: Path, records, commit_every_s: float = 1.0, **sink_kw)
     commit_every_s of records); returns (sink, estimates as dicts)."""
     cfg = load_config(CONFIG)
     mono = FakeMonotonic()
+    sink_kw = {"can_channels": [None]} | sink_kw  # as a live run: its bus's channel known from the start
     sink = McapLogSink(path, cfg, mode="live", flush_every_s=commit_every_s, monotonic=mono, fsync=False, **sink_kw)
     collect = CollectingSink()
     p = Pipeline(cfg, [sink, collect])
