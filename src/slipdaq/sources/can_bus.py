@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import FLAG_DLC, FLAG_REMOTE, CanFrame, CanFrameBatch, channel_name, kept_dlc, pack_flags
+from slipdaq.records import CanFrame, CanFrameBatch, channel_name, kept_dlc
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
 from slipdaq.sources.socketcan_raw import RawFrame, frame_reader
@@ -53,9 +53,12 @@ def to_frame(msg: can.Message, timestamp_s: float | None = None) -> CanFrame:
     """python-can's Message as a CanFrame, every field kept; timestamp_s replaces its own stamp (the log's clock)."""
     remote = msg.is_remote_frame
     data = b"" if remote else bytes(msg.data)
+    dlc = msg.dlc
+    channel = msg.channel
     return CanFrame(msg.timestamp if timestamp_s is None else timestamp_s, msg.arbitration_id, data,
                     msg.is_extended_id, msg.is_error_frame, remote, msg.is_fd, msg.bitrate_switch,
-                    msg.error_state_indicator, msg.is_rx, channel_name(msg.channel), kept_dlc(remote, data, msg.dlc))
+                    msg.error_state_indicator, msg.is_rx, channel if type(channel) is str else channel_name(channel),
+                    None if dlc == len(data) and not remote else kept_dlc(remote, data, dlc))
 
 
 def to_message(frame: CanFrame, timestamp_s: float = 0.0) -> can.Message:
@@ -73,14 +76,7 @@ def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) 
     ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
     if len(msgs) < BATCH_COLUMNS_FROM:
         return [to_frame(m, t) for t, m in zip(ts, msgs)]
-    flags = [pack_flags(m) for m in msgs]
-    if any(fl & (FLAG_REMOTE | FLAG_DLC) for fl in flags):
-        payloads = [b"" if m.is_remote_frame else m.data for m in msgs]
-        dlc: list[int] | None = [m.dlc if fl & (FLAG_REMOTE | FLAG_DLC) else len(m.data) for m, fl in zip(msgs, flags)]
-    else:
-        payloads, dlc = [m.data for m in msgs], None
-    return CanFrameBatch.from_columns(ts, [m.arbitration_id for m in msgs], flags, payloads, dlc,
-                                      [channel_name(m.channel) for m in msgs])
+    return CanFrameBatch.from_frames(msgs, ts)
 
 
 def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch | list[CanFrame]:
