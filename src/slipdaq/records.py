@@ -29,7 +29,7 @@ class CanFrame:
     bitrate_switch: bool = False
     error_state_indicator: bool = False
     is_rx: bool = True
-    """False: transmitted by the receiving node itself (python-can's direction)."""
+    """False: transmitted (python-can's direction: a log's Tx; on SocketCAN, sent from this host)."""
     channel: str | None = None
     """The bus channel as python-can names it (an int channel as its str)."""
     dlc: int | None = None
@@ -88,7 +88,7 @@ FLAG_BRS = 16
 FLAG_ESI = 32
 """CAN FD error state indicator."""
 FLAG_TX = 64
-"""Transmitted by the receiving node itself (python-can's is_rx False)."""
+"""Transmitted (python-can's is_rx False)."""
 FLAG_DLC = 128
 """An 8-byte payload whose frame gave another DLC (a classic frame's DLC 9..15, as python-can gives it): the batch's
 dlc is that DLC."""
@@ -102,13 +102,6 @@ def pack_flags(frame: CanFrame | Any) -> int:
     if dlc is not None and dlc != 8 and not frame.is_remote_frame and len(frame.data) == 8:
         flags |= FLAG_DLC
     return flags
-
-
-def kept_dlc(is_remote_frame: bool, data: bytes, dlc: int) -> int | None:
-    """CanFrame.dlc for python-can's dlc: a remote frame's, or an 8-byte payload's other DLC; else None."""
-    if is_remote_frame:
-        return dlc
-    return dlc if dlc != 8 and len(data) == 8 else None
 
 
 def payload_lengths(flags: np.ndarray, dlc: np.ndarray) -> np.ndarray:

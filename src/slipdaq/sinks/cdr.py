@@ -21,7 +21,7 @@ uint64 first_index      # frames processed before the first one (NMEA and UBX li
 float64[] timestamp_s   # receive timestamps
 uint32[] id             # arbitration id
 uint8[] flags           # bit 0: extended id, 1: error frame, 2: remote frame, 3: CAN FD, 4: FD bit rate switch,
-                        # 5: FD error state indicator, 6: transmitted by the logging node (python-can is_rx false)
+                        # 5: FD error state indicator, 6: transmitted (python-can is_rx false: Tx, or sent from this host)
                         # 7: the DLC is not the payload's length (8 bytes of payload, dlc the frame's DLC, e.g. 9..15)
 uint8[] dlc             # payload length in bytes; a remote frame: the length it asks for
 uint8[] data            # the payloads back to back: frame i's dlc[i] bytes (none for a remote frame, 8 with bit 7)

@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import CanFrame, CanFrameBatch, channel_name, kept_dlc
+from slipdaq.records import FLAG_DLC, FLAG_REMOTE, CanFrame, CanFrameBatch, channel_name, pack_flags
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
 from slipdaq.sources.socketcan_raw import RawFrame, frame_reader
@@ -58,7 +58,8 @@ def to_frame(msg: can.Message, timestamp_s: float | None = None) -> CanFrame:
     return CanFrame(msg.timestamp if timestamp_s is None else timestamp_s, msg.arbitration_id, data,
                     msg.is_extended_id, msg.is_error_frame, remote, msg.is_fd, msg.bitrate_switch,
                     msg.error_state_indicator, msg.is_rx, channel if type(channel) is str else channel_name(channel),
-                    None if dlc == len(data) and not remote else kept_dlc(remote, data, dlc))
+                    None if dlc == len(data) and not remote else
+                    dlc if pack_flags(msg) & (FLAG_REMOTE | FLAG_DLC) else None)
 
 
 def to_message(frame: CanFrame, timestamp_s: float = 0.0) -> can.Message:
