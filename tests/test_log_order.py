@@ -132,3 +132,24 @@ def test_the_order_does_not_depend_on_how_frames_were_grouped(tmp_path: Path) ->
             logs.append([(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(
                 log_time_order=False) if c.topic != "/diagnostics/events"])
     assert sum(t == "/estimate" for t, _, _ in logs[0]) > 40 and logs[0] == logs[1]
+
+
+def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follows(tmp_path: Path) -> None:
+    """A live log: 512 frames fill a /can/raw batch, then the bus and the GPS go quiet. The batch is written (in its
+    turn, after the samples of its frames) with the next chunk, not held until another record comes."""
+    from slipdaq.sources.mcap_log import ScanResult, iter_raw_records
+
+    path = tmp_path / "quiet.mcap"
+
+    async def run() -> list:
+        sink = McapLogSink(path, load_config(CONFIG), mode="live", flush_every_s=0.2, fsync=False)
+        for k in range(512):
+            sink.on_raw(CanFrame(1000.0 + k * 5e-5, 0x123, bytes(8)))  # one batch, closed by its 512th frame
+        await asyncio.sleep(0.6)  # two flush periods with nothing to do but the timer
+        scanned = ScanResult(path)
+        got = [r for r in iter_raw_records(path, scanned) if isinstance(r, CanFrame)]
+        assert not scanned.has_summary  # read from the file as it is on disk, unfinished
+        sink.close()
+        return got
+
+    assert len(asyncio.run(run())) == 512

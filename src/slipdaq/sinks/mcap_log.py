@@ -788,11 +788,15 @@ class McapLogSink:
         self._unflushed = 0
         self._last_flush = self._mono()
 
+    def _to_flush(self) -> bool:
+        """Anything not on disk yet: messages since the last flush, batches open or closed and not written."""
+        return bool(self._unflushed or self._can.n or self._samples.n or self._ready)
+
     def _arm_timer(self) -> None:
         if self._loop is None or self._flush_every_s is None or self.closed or self._loop.is_closed():
             return
         delay = max(0.0, self._last_flush + self._flush_every_s - self._mono())
-        if delay <= 0.0 and not (self._unflushed or self._can.n or self._samples.n):
+        if delay <= 0.0 and not self._to_flush():
             delay = self._flush_every_s  # nothing to flush (no record for a while): look again later, do not spin
         if self._writer is None:  # failed: look again when a retry is due
             delay = max(0.05, self._last_try + RETRY_AFTER_FAILURE_S - self._mono())
@@ -819,7 +823,7 @@ class McapLogSink:
             self._try_resume()
         elif self._rotation is not None and self._rotation_due(now):
             self._rotate()
-        elif ((self._unflushed or self._can.n or self._samples.n)
+        elif (self._to_flush()
               and now - self._last_flush >= self._flush_every_s - 1e-3):  # type: ignore[operator]
             self.flush()
         self._arm_timer()
