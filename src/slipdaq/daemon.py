@@ -21,7 +21,7 @@ from slipdaq.config import Config, ConfigError
 from slipdaq.decode.nmea import NmeaFramer
 from slipdaq.decode.ubx import GpsFramer
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import RawRecord
+from slipdaq.records import RawRecord, channel_name
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.rotation import RotationPolicy, later_segments_glob
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
@@ -78,6 +78,7 @@ class _LiveLogSink(McapLogSink):
         super().__init__(
             path, config, mode="live", metadata=metadata, flush_every_s=1.0, clock=clock, on_event=on_event,
             rotation=RotationPolicy(config.log.rotate_size_bytes, config.log.rotate_duration_s),
+            can_channels=[channel_name(config.can.channel)],
         )
         self.extra: list[Callable[[], dict[str, object]]] = []
         """The sources' status() functions, merged into each diagnostics record."""

@@ -201,8 +201,9 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
     """Everything readable of `inputs` (in order) into one finished MCAP file `output`.
 
     Channels are matched by topic; the first input's metadata is kept (with `recovered_from` added to the slipdaq
-    record). Inputs of different runs (a different config) are refused, and so is an output that is one of the inputs
-    (OutputError); the output is in place only once it is complete (outputs.atomic_output)."""
+    record), and a later input's longer list of CAN channels (can_channels) too. Inputs of different runs (a
+    different config) are refused, and so is an output that is one of the inputs (OutputError); the output is in
+    place only once it is complete (outputs.atomic_output)."""
     if not inputs:
         raise RecoverError("no input")
     out = Path(output)
@@ -223,6 +224,7 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile=metadata_name, library="slipdaq recover")
         schema_ids: dict[tuple[str, str, bytes], int] = {}
+        channels: str | None = None  # the can_channels of the last slipdaq record written
         channel_ids: dict[tuple[str, str], int] = {}
         for n, p in enumerate(inputs):
             res = ScanResult(Path(p))
@@ -244,11 +246,17 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
                     local_channel[c.id] = channel_ids[ckey]
                 elif kind == "metadata":
                     m: Metadata = item  # type: ignore[assignment]
-                    if n == 0:
-                        data = dict(m.metadata)
-                        if m.name == metadata_name:
-                            data["recovered_from"] = json.dumps([str(Path(i).name) for i in inputs])
-                        writer.add_metadata(m.name, data)
+                    data = dict(m.metadata)
+                    if m.name == metadata_name:
+                        if n and data.get("can_channels") == channels:
+                            continue
+                        if n:  # a later segment's longer list of CAN channels: the first's record with it
+                            data = dict(first_meta or {}) | {"can_channels": data.get("can_channels", "")}
+                        channels = data.get("can_channels")
+                        data["recovered_from"] = json.dumps([str(Path(i).name) for i in inputs])
+                    elif n:
+                        continue
+                    writer.add_metadata(m.name, data)
                 elif kind == "message":
                     channel: Channel
                     msg: Message
