@@ -155,7 +155,7 @@ def make_inputs(work: Path, quick: bool) -> None:
 
 def _mask(data: bytes, value: str) -> bytes:
     v = value.encode()
-    assert data.count(v) == 1, "created_utc value not found once"
+    assert data.count(v) >= 1, "created_utc value not found"  # in each copy of the slipdaq record
     return data.replace(v, b"X" * len(v))
 
 

@@ -83,6 +83,34 @@ def test_wrong_type_and_unknown_key_via_the_cli(tmp_path: Path, capsys, text: st
     _one_line(err, str(cfg), key, words)
 
 
+# Strict types (issue 13): a value of another type is refused, never converted ("1000" is not 1000, 1 is not true).
+@pytest.mark.parametrize("text, key, words", [
+    ('[wpt]\npulses_per_rev = "1000"\n', "wpt.pulses_per_rev", "integer"),
+    ('[vehicle]\nmass_kg = "1300"\n', "vehicle.mass_kg", "number"),
+    ("[estimator]\ncalibrate_r0 = 1\n", "estimator.calibrate_r0", "boolean"),
+    ('[estimator]\nwindow_s = "0.5"\n', "estimator.window_s", "number"),
+    ('[gps]\nlatency_s = "0.1"\n', "gps.latency_s", "'auto'"),
+    ("[gps]\nbaudrate = 115200.0\n", "gps.baudrate", "integer"),
+    ('[log]\nrotate_size_bytes = "5000000"\n', "log.rotate_size_bytes", "integer"),
+    ('[wheels.FL]\nmessage = "M"\nsignal = "S"\npulses_per_rev = "100"\n', "wheels.FL.pulses_per_rev", "integer"),
+    ("[tire]\nsize = 195\n", "tire.size", "string"),
+])
+def test_a_value_of_another_type_is_refused_not_converted(tmp_path: Path, capsys, text: str, key: str,  # type: ignore[no-untyped-def]
+                                                          words: str) -> None:
+    cfg = write_config(tmp_path, text)
+    rc, err = _run(capsys, "run", "--config", str(cfg), "--duration", "1")
+    assert rc == 2
+    _one_line(err, str(cfg), f": {key}: ", words)
+    assert "literal" not in err and ".float" not in err  # the TOML key, not pydantic's union tags
+
+
+def test_an_integer_is_a_number(tmp_path: Path) -> None:
+    from slipdaq.config import load_config
+
+    cfg = load_config(write_config(tmp_path, "[vehicle]\nmass_kg = 1500\n[gps]\nlatency_s = 0\n"))
+    assert cfg.vehicle.mass_kg == 1500.0 and cfg.latency_fixed_s == 0.0
+
+
 def test_config_that_is_not_utf8(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     cfg = tmp_path / "latin1.toml"
     cfg.write_bytes('[vehicle]\n# Fahrzeug für die Messung\nmass_kg = 1300.0\n'.encode("latin-1"))

@@ -38,8 +38,25 @@ def _classic(can_id: int, data: bytes) -> bytes:
     return struct.pack("=IB3x8s", can_id, len(data), data)
 
 
-def _fd(can_id: int, data: bytes) -> bytes:
-    return struct.pack("=IBBxx64s", can_id, len(data), 0, data)
+def _fd(can_id: int, data: bytes, fd_flags: int = 0) -> bytes:
+    return struct.pack("=IBBxx64s", can_id, len(data), fd_flags, data)
+
+
+FIELDS = ("arbitration_id", "is_extended_id", "is_error_frame", "is_remote_frame", "is_fd", "bitrate_switch",
+          "error_state_indicator", "is_rx", "dlc", "data", "channel")
+
+
+def _message_fields(msg: can.Message) -> dict:
+    return {k: bytes(msg.data) if k == "data" else getattr(msg, k) for k in FIELDS}
+
+
+def _raw_fields(raw: tuple) -> dict:
+    """A RawFrame as python-can's Message fields (the flag bits as slipdaq's README states them)."""
+    _t, aid, flags, data, dlc, channel = raw
+    return {"arbitration_id": aid, "is_extended_id": bool(flags & 1), "is_error_frame": bool(flags & 2),
+            "is_remote_frame": bool(flags & 4), "is_fd": bool(flags & 8), "bitrate_switch": bool(flags & 16),
+            "error_state_indicator": bool(flags & 32), "is_rx": not flags & 64, "dlc": dlc, "data": data,
+            "channel": channel}
 
 
 frames = st.one_of(
@@ -60,23 +77,34 @@ def test_a_classic_frame_reads_as_python_can_reads_it(pair, frame) -> None:  # t
     before = time.time()
     tx.send(raw)
     tx.send(raw)
-    msg = capture_message(rx)
+    msg = capture_message(rx, get_channel=True)
     got = RawSocketCanReader(rx).recv()
     after = time.time()
     assert msg is not None and got is not None
-    t, aid, ext, err, payload = got
-    assert (aid, ext, err, payload) == (msg.arbitration_id, msg.is_extended_id, msg.is_error_frame, bytes(msg.data))
-    assert before - 1e-3 <= msg.timestamp <= t <= after + 1e-3  # the kernel's stamps of the two datagrams
+    assert _raw_fields(got) == _message_fields(msg)  # a remote frame: no data, its DLC kept
+    assert before - 1e-3 <= msg.timestamp <= got[0] <= after + 1e-3  # the kernel's stamps of the two datagrams
 
 
-def test_a_can_fd_frame_goes_through_python_can_s_dissector(pair) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("fd_flags", [0, 1, 2, 3])  # CANFD_BRS, CANFD_ESI
+def test_a_can_fd_frame_goes_through_python_can_s_dissector(pair, fd_flags) -> None:  # type: ignore[no-untyped-def]
     rx, tx = pair
-    raw = _fd(0x123 | CAN_EFF_FLAG, bytes(range(18)))  # len 18: python-can rounds it up to the FD length 20
+    raw = _fd(0x123 | CAN_EFF_FLAG, bytes(range(18)), fd_flags)  # len 18: python-can rounds it up to the FD length 20
     tx.send(raw)
     tx.send(raw)
-    msg = capture_message(rx)
-    _, aid, ext, err, payload = RawSocketCanReader(rx).recv()  # type: ignore[misc]
-    assert (aid, ext, err, payload) == (msg.arbitration_id, True, False, bytes(msg.data)) and len(payload) == 20
+    msg = capture_message(rx, get_channel=True)
+    got = RawSocketCanReader(rx).recv()
+    assert got is not None and _raw_fields(got) == _message_fields(msg)
+    assert msg.is_fd and len(got[3]) == 20 and (msg.bitrate_switch, msg.error_state_indicator) == \
+        (bool(fd_flags & 1), bool(fd_flags & 2))
+
+
+def test_the_channel_is_the_bus_s_when_it_has_one(pair) -> None:  # type: ignore[no-untyped-def]
+    """python-can's SocketcanBus names every frame by its own channel, and by the frame's interface only when it is
+    bound to all of them (channel "")."""
+    rx, tx = pair
+    tx.send(_classic(0x310, bytes(8)))
+    got = RawSocketCanReader(rx, "vcan0").recv()
+    assert got is not None and got[5] == "vcan0"
 
 
 def test_an_empty_socket_reads_none_without_blocking(pair) -> None:  # type: ignore[no-untyped-def]
@@ -113,7 +141,7 @@ def test_which_buses_are_read_raw() -> None:
             bus2.send(can.Message(arbitration_id=0x310, data=b"\x01\x02", is_extended_id=False))
             recv = frame_reader(bus)
             got = recv()
-            assert got is not None and got[1:] == (0x310, False, False, b"\x01\x02")
+            assert got is not None and got[1:] == (0x310, 0, b"\x01\x02", 2, channel)
             assert recv() is None
         finally:
             bus2.shutdown()

@@ -10,8 +10,15 @@ from pathlib import Path
 import slipdaq
 from slipdaq.config import Config, ConfigError, load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
+from slipdaq.outputs import OutputError, atomic_output
+from slipdaq.sources.read_errors import InputError
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+
+
+OUTPUT_RULES = (" An output path that is one of the inputs is refused (exit 2). Outputs are written under a temporary "
+                "name and renamed into place when complete: a failure leaves no partial output and an existing file "
+                "as it was. An input that cannot be read: one line naming the file and where, exit 1.")
 
 
 def _add_config(p: argparse.ArgumentParser) -> None:
@@ -31,6 +38,23 @@ def _label(text: str) -> str:
 def _add_label(p: argparse.ArgumentParser) -> None:
     p.add_argument("--label", action="append", type=_label, metavar="KEY=VALUE",
                    help="a free-form label stored in the log's metadata (e.g. road=sand, maneuver=brake); repeatable")
+
+
+def _add_allow_empty(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--allow-empty", action="store_true", help=f"accept {what} (default: exit 1, no output)")
+
+
+def _require(found: int, message: str, args: argparse.Namespace) -> None:
+    """An input that gave nothing to work with fails (exit 1, the output is not kept) unless --allow-empty."""
+    if not found and not args.allow_empty:
+        raise InputError(f"{message} (--allow-empty accepts it)")
+
+
+def _config_files(cfg: Config) -> list[Path]:
+    """The files a config was read from (its TOML and DBC; none for the config stored in a log): inputs too."""
+    if cfg.source_path is None or cfg.dbc_text is not None:
+        return []
+    return [cfg.source_path, cfg.resolve(cfg.can.dbc)]
 
 
 def _labels_meta(args: argparse.Namespace) -> dict[str, str]:
@@ -54,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Read WPT frames from the configured CAN bus and NMEA from the GPS serial port, "
                        "estimate slip, Re, Fx and Cx online, log everything to a new MCAP file in the log dir and "
                        "show a live status view (one status line every few seconds when stdout is not a terminal). "
-                       "SIGINT/SIGTERM finish the log cleanly.")
+                       "SIGINT/SIGTERM finish the log cleanly. The log gets a name no file or segment has: a file is "
+                       "never written over.")
     _add_config(p)
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--log-dir", metavar="D", help="write the MCAP log here (default: log.dir of the config)")
@@ -89,25 +114,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("import", help="CAN log + NMEA log -> a slipdaq MCAP log",
                        description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc) and an NMEA "
                        "log with lines `(EPOCH_SECONDS) $SENTENCE` in the same clock (bare sentences accepted) into a "
-                       "slipdaq log, estimates included, like a live one.")
+                       "slipdaq log, estimates included, like a live one." + OUTPUT_RULES)
     p.add_argument("--can", required=True, metavar="LOG", help="CAN log file")
     p.add_argument("--nmea", required=True, metavar="LOG", help="NMEA log file")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
+    _add_allow_empty(p, "a CAN log without frames, or an NMEA log without lines or without one fix")
     _add_label(p)
 
     p = sub.add_parser("replay", help="re-run the estimator over a log's raw CAN and NMEA",
                        description="Re-run decode and estimator over the raw CAN and NMEA channels of a slipdaq log, "
-                       "in the order they were recorded, with the config stored in the log (or --config).")
+                       "in the order they were recorded, with the config stored in the log (or --config)."
+                       + OUTPUT_RULES)
     p.add_argument("log", metavar="RAW.mcap")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
+    _add_allow_empty(p, "a log without raw CAN or GPS records")
 
     p = sub.add_parser("export", help="estimates of a log -> CSV",
                        description="One CSV row per estimate: time_s, speed_mps, accel_mps2, force_n, then for each "
-                       "wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n. Empty cell = undefined.")
+                       "wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n. Empty cell = undefined." + OUTPUT_RULES)
     p.add_argument("log", metavar="LOG.mcap")
     p.add_argument("--csv", required=True, metavar="OUT.csv")
+    _add_allow_empty(p, "a log without estimates (the CSV is then its header only)")
 
     p = sub.add_parser("report", help="plots and tables of the slip study from one or more logs",
                        description="For each log and each maneuver phase in it (accelerate, cruise, brake): per "
@@ -115,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "as PNG, with the linear region's fitted line and the end of linearity marked; a summary "
                        "table (peak linear Fx and its slip, mean Re, peak and fitted Cx, r0, GPS latency, lost "
                        "frames, bad sentences); several logs compared side by side, grouped by their labels. "
-                       "Writes DIR/index.html (opens offline), DIR/summary.json and DIR/summary.csv.")
+                       "Writes DIR/index.html (opens offline), DIR/summary.json and DIR/summary.csv." + OUTPUT_RULES)
     p.add_argument("logs", nargs="+", metavar="LOG.mcap")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the report (created)")
     p.add_argument("--group-by", action="append", metavar="KEY",
@@ -127,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "of each (a daemon killed with SIGKILL or a power loss leaves a log without its summary, "
                        "perhaps with a torn tail), and write it as one finished MCAP file with summary and indexes. "
                        "Several inputs (the segments of a rotated run, in order) are joined into one log, which "
-                       "then replays like the live run. The inputs are not changed.")
+                       "then replays like the live run. The inputs are not changed." + OUTPUT_RULES)
     p.add_argument("logs", nargs="+", metavar="IN.mcap", help="the log, or the segments of one run in order")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
     return parser
@@ -187,8 +216,13 @@ def cmd_import(args: argparse.Namespace) -> int:
     cfg = _config(args.config)
     records = merge_by_time(iter_can_log(args.can), iter_nmea_log(args.nmea))
     meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)} | _labels_meta(args)
-    p = process_to_log(cfg, records, Path(args.output), "import", metadata=meta, description="import")
-    d = p.diagnostics()
+    with atomic_output(args.output, inputs=[args.can, args.nmea, *_config_files(cfg)]) as tmp:
+        p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import")
+        d = p.diagnostics()
+        _require(d.can_frames, f"{args.can}: no CAN frames in it", args)
+        _require(d.nmea_lines, f"{args.nmea}: no NMEA lines in it", args)
+        _require(d.gps_fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
+                 f"({d.bad_sentences} bad sentences)", args)
     print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
     return EXIT_OK
@@ -210,25 +244,32 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.sources.mcap_log import (
         ScanResult, config_from_log, iter_raw_batches, raw_record_count, read_metadata,
     )
+    from slipdaq.sources.read_errors import guarded
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
     total = raw_record_count(args.log)
     labels = {k: v for k, v in read_metadata(args.log).items() if k.startswith(LABEL_PREFIX)}  # kept
     scanned = ScanResult(Path(args.log))
-    p = process_to_log(cfg, iter_raw_batches(args.log, scanned), Path(args.output), "replay",
-                       metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
+    with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp:
+        p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
+                           metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
+        records = p.can_frames + p.nmea.lines + p.ubx.frames
+        _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)
     _unfinished_note(args.log, scanned)
-    print(f"replayed {p.can_frames + p.nmea.lines + p.ubx.frames} records -> {args.output} ({p.estimates} estimates)")
+    print(f"replayed {records} records -> {args.output} ({p.estimates} estimates)")
     return EXIT_OK
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from slipdaq.sinks.csv_export import write_csv
     from slipdaq.sources.mcap_log import ScanResult, iter_estimates, read_metadata
+    from slipdaq.sources.read_errors import guarded
 
     read_metadata(args.log)
     scanned = ScanResult(Path(args.log))
-    n = write_csv(iter_estimates(args.log, scanned), args.csv)
+    with atomic_output(args.csv, inputs=[args.log]) as tmp:
+        n = write_csv(guarded(args.log, iter_estimates(args.log, scanned)), tmp)
+        _require(n, f"{args.log}: no estimates in it to export", args)
     _unfinished_note(args.log, scanned)
     print(f"{n} estimates -> {args.csv}")
     return EXIT_OK
@@ -266,8 +307,6 @@ COMMANDS = {
 
 def main(argv: list[str] | None = None) -> int:
     from slipdaq.report.labels import LabelError
-    from slipdaq.sources.files import ImportError_
-    from slipdaq.sources.mcap_log import LogError
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(levelname)s %(name)s: %(message)s")
@@ -276,13 +315,13 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"slipdaq: config error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    except LabelError as e:
+    except (LabelError, OutputError) as e:
         print(f"slipdaq: {e}", file=sys.stderr)
         return EXIT_USAGE
     except DbcError as e:  # a DBC stored in a log
         print(f"slipdaq: DBC error: {e}", file=sys.stderr)
         return EXIT_FAIL
-    except (LogError, ImportError_, OSError) as e:
+    except (InputError, OSError) as e:  # LogError, ImportError_: an input that cannot be read
         print(f"slipdaq: {e}", file=sys.stderr)
         return EXIT_FAIL
     except KeyboardInterrupt:

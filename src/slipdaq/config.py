@@ -5,6 +5,7 @@ Paths in the file (can.dbc, log.dir) are relative to the config file.
 
 from __future__ import annotations
 
+import re
 import tomllib
 
 import tomli_w
@@ -22,7 +23,10 @@ class ConfigError(Exception):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Strict: a TOML value must already have the key's type (no "1000" for 1000, no 1 for true); an integer is
+    accepted for a float."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 class VehicleConfig(_Section):
@@ -207,15 +211,26 @@ def default_config_path() -> Path:
     return local if local.is_file() else packaged_config_path()
 
 
+_UNION_MEMBER = re.compile(r"^(literal\[.*\]|float|int|str|bool|none|[a-z-]+\[.*\])$")
+
+
+def _key(loc: tuple[int | str, ...]) -> str:
+    """The TOML key of an error's location, without pydantic's tags of union members (`float`, `literal['auto']`)."""
+    return ".".join(str(p) for p in loc if not (isinstance(p, str) and _UNION_MEMBER.match(p))) or "<top level>"
+
+
 def _format_error(source: str, err: ValidationError) -> str:
-    e = err.errors()[0]
-    key = ".".join(str(p) for p in e["loc"]) or "<top level>"
+    errors = err.errors()
+    e = errors[0]
+    key = _key(e["loc"])
     if e["type"] == "extra_forbidden":
         return f"{source}: {key}: unknown key"
     got = e.get("input")
     shown = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
-    msg = e["msg"].removeprefix("Value error, ")
-    more = f" (and {len(err.errors()) - 1} more)" if len(err.errors()) > 1 else ""
+    same_key = [x for x in errors if _key(x["loc"]) == key]  # a union's members: one message for the key
+    msg = ", or ".join(dict.fromkeys(x["msg"].removeprefix("Value error, ") for x in same_key))
+    rest = len(errors) - len(same_key)
+    more = f" (and {rest} more)" if rest else ""
     return f"{source}: {key}: {msg}{shown}{more}"
 
 

@@ -19,9 +19,9 @@ import can
 
 from slipdaq.config import Config, ConfigError
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import RawRecord
+from slipdaq.records import RawRecord, channel_name
 from slipdaq.sinks.mcap_log import McapLogSink
-from slipdaq.sinks.rotation import RotationPolicy
+from slipdaq.sinks.rotation import RotationPolicy, later_segments_glob
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 from slipdaq.sources.clock import SteadyClock
@@ -64,7 +64,10 @@ def open_bus(config: Config, **overrides: object) -> can.BusABC:
 
 
 class _LiveLogSink(McapLogSink):
-    """The MCAP sink of a live run: every diagnostics record also carries the sources' and the log's state."""
+    """The MCAP sink of a live run: every diagnostics record also carries the sources' and the log's state; it never
+    writes over a file that is there."""
+
+    new_files_only = True
 
     def __init__(
         self, path: Path, config: Config, metadata: dict[str, str], *,
@@ -73,6 +76,7 @@ class _LiveLogSink(McapLogSink):
         super().__init__(
             path, config, mode="live", metadata=metadata, flush_every_s=1.0, clock=clock, on_event=on_event,
             rotation=RotationPolicy(config.log.rotate_size_bytes, config.log.rotate_duration_s),
+            can_channels=[channel_name(config.can.channel)],
         )
         self.extra: list[Callable[[], dict[str, object]]] = []
         """The sources' status() functions, merged into each diagnostics record."""
@@ -94,10 +98,11 @@ def can_metadata(config: Config, bus: can.BusABC) -> dict[str, str]:
 
 
 def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
+    """PREFIX-STAMP.mcap in log_dir, a name that neither a file nor a segment of one (NAME_002.mcap, ...) has."""
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
     path = log_dir / f"{prefix}-{stamp}.mcap"
     n = 1
-    while path.exists():
+    while path.exists() or any(log_dir.glob(later_segments_glob(path))):
         n += 1
         path = log_dir / f"{prefix}-{stamp}-{n}.mcap"
     return path

@@ -208,31 +208,26 @@ class Pipeline:
         else:
             which = self.wheels.wheel_frames(batch)
             samples = self.wheels.decode_batch(batch, which)
-        for s in self._can_batch_sinks:
-            s.on_can_batch(batch)  # type: ignore[attr-defined]
-        if self._frame_sinks:
-            for f in batch.frames():
-                for s in self._frame_sinks:
-                    s.on_raw(f)
         self.can_frames += n
         error = (batch.flags & FLAG_ERROR) != 0
         self.error_frames += int(np.count_nonzero(error))
         self.unknown_frames += int(np.count_nonzero(~error & (which < 0)))
-        if len(samples):
-            for s in self._sample_batch_sinks:
-                s.on_wheel_batch(samples)  # type: ignore[attr-defined]
-            if self._sample_sinks:
-                for sample in samples.samples(WHEELS):
-                    for s in self._sample_sinks:
-                        s.on_wheel(sample)
-            released = self.estimator.add_wheels(samples.wheel, samples.timestamp_s, samples.revolutions)
-            if released:
-                ts = batch.timestamp_s
-                for i, e in released:
-                    t_e = float(ts[samples.frame[i]])
-                    self.estimates += 1
-                    for s in self.sinks:
-                        s.on_estimate(e, t_e)
+        released = self.estimator.add_wheels(samples.wheel, samples.timestamp_s, samples.revolutions) \
+            if len(samples) else []
+        # the sinks get the frames and samples up to the frame that released an estimate, then the estimate: the
+        # order of process() frame by frame
+        start = 0
+        ts = batch.timestamp_s
+        for i, e in released:
+            stop = int(samples.frame[i]) + 1
+            if stop > start:
+                self._deliver(batch, samples, start, stop)
+                start = stop
+            self.estimates += 1
+            for s in self.sinks:
+                s.on_estimate(e, float(ts[stop - 1]))
+        if start < n:
+            self._deliver(batch, samples, start, n)
         t = float(batch.timestamp_s[-1])
         self.last_time_s = t
         if self._next_diag_s is None:
@@ -240,6 +235,29 @@ class Pipeline:
         elif t >= self._next_diag_s:
             self.emit_diagnostics()
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
+
+    def _deliver(self, batch: CanFrameBatch, samples: WheelSampleBatch, start: int, stop: int) -> None:
+        """Frames start..stop of batch and their samples to the sinks."""
+        piece = batch if (start, stop) == (0, len(batch)) else batch.slice(start, stop)
+        for s in self._can_batch_sinks:
+            s.on_can_batch(piece)  # type: ignore[attr-defined]
+        if self._frame_sinks:
+            for f in piece.frames():
+                for s in self._frame_sinks:
+                    s.on_raw(f)
+        if not len(samples):
+            return
+        frame = samples.frame
+        i0, i1 = int(frame.searchsorted(start)), int(frame.searchsorted(stop))
+        if i1 <= i0:
+            return
+        mine = samples if (i0, i1) == (0, len(samples)) and start == 0 else samples.slice(i0, i1, frame_offset=-start)
+        for s in self._sample_batch_sinks:
+            s.on_wheel_batch(mine)  # type: ignore[attr-defined]
+        if self._sample_sinks:
+            for sample in mine.samples(WHEELS):
+                for s in self._sample_sinks:
+                    s.on_wheel(sample)
 
     def run(self, records: Iterable[RawRecord]) -> None:
         for r in records:

@@ -6,20 +6,58 @@ Times are seconds in the log's clock (host wall clock for live runs, the files' 
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class CanFrame:
-    """One raw CAN frame as received, with its receive timestamp."""
+    """One raw CAN frame as received, with its receive timestamp: every field python-can's Message gives.
+
+    Not changed once made, but not a frozen dataclass: that costs a call per field to construct (2.5 us a frame at
+    these 12 fields, against 0.4 us)."""
 
     timestamp_s: float
     arbitration_id: int
     data: bytes
     is_extended_id: bool = False
     is_error_frame: bool = False
+    is_remote_frame: bool = False
+    is_fd: bool = False
+    bitrate_switch: bool = False
+    error_state_indicator: bool = False
+    is_rx: bool = True
+    """False: transmitted (python-can's direction: a log's Tx; on SocketCAN, sent from this host)."""
+    channel: str | None = None
+    """The bus channel as python-can names it (an int channel as its str)."""
+    dlc: int | None = None
+    """python-can's DLC where it is not len(data): a remote frame's requested length, or the DLC of an 8-byte
+    payload that gave another (a classic frame's DLC 9..15); else None."""
+
+    @property
+    def flags(self) -> int:
+        """The FLAG_* bits of this frame."""
+        return pack_flags(self)
+
+    @classmethod
+    def from_flags(cls, timestamp_s: float, arbitration_id: int, data: bytes, flags: int, dlc: int = 0,
+                   channel: str | None = None) -> "CanFrame":
+        """The frame with FLAG_* bits `flags` and the batch's `dlc` column (see CanFrameBatch.dlc): data is ignored
+        for a remote frame."""
+        remote = flags & FLAG_REMOTE
+        return cls(timestamp_s, arbitration_id, b"" if remote else data, bool(flags & FLAG_EXTENDED),
+                   bool(flags & FLAG_ERROR), bool(remote), bool(flags & FLAG_FD), bool(flags & FLAG_BRS),
+                   bool(flags & FLAG_ESI), not flags & FLAG_TX, channel, dlc if flags & (FLAG_REMOTE | FLAG_DLC) else None)
+
+    @property
+    def length(self) -> int:
+        """The batch's `dlc` column: python-can's DLC (see `dlc`), else the payload's length."""
+        if self.is_remote_frame:
+            return self.dlc or 0
+        n = len(self.data)
+        return self.dlc if n == 8 and self.dlc is not None else n
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +80,55 @@ RawRecord = CanFrame | NmeaLine | UbxFrame
 
 FLAG_EXTENDED = 1
 FLAG_ERROR = 2
+FLAG_REMOTE = 4
+"""A remote frame (RTR): no payload; its dlc is the length it asks for."""
+FLAG_FD = 8
+FLAG_BRS = 16
+"""CAN FD bit rate switch."""
+FLAG_ESI = 32
+"""CAN FD error state indicator."""
+FLAG_TX = 64
+"""Transmitted (python-can's is_rx False)."""
+FLAG_DLC = 128
+"""An 8-byte payload whose frame gave another DLC (a classic frame's DLC 9..15, as python-can gives it): the batch's
+dlc is that DLC."""
+
+
+def pack_flags(frame: CanFrame | Any) -> int:
+    """The FLAG_* bits of a CanFrame or of python-can's Message (the same attribute names)."""
+    flags = (frame.is_extended_id | frame.is_error_frame << 1 | frame.is_remote_frame << 2 | frame.is_fd << 3
+             | frame.bitrate_switch << 4 | frame.error_state_indicator << 5 | (not frame.is_rx) << 6)
+    dlc = frame.dlc
+    if dlc is not None and dlc != 8 and not frame.is_remote_frame and len(frame.data) == 8:
+        flags |= FLAG_DLC
+    return flags
+
+
+def payload_lengths(flags: np.ndarray, dlc: np.ndarray) -> np.ndarray:
+    """Bytes of payload per frame of a batch: its dlc, 0 for a remote frame, 8 with FLAG_DLC."""
+    if not (flags & (FLAG_REMOTE | FLAG_DLC)).any():
+        return dlc
+    return np.where(flags & FLAG_REMOTE, 0, np.where(flags & FLAG_DLC, 8, dlc)).astype(np.uint8)
+
+
+def channel_name(channel: object) -> str | None:
+    """A python-can channel as a log keeps it: str (an int channel as its str), or None."""
+    return None if channel is None else str(channel)
+
+
+def channel_indices(channels: Sequence[object]) -> tuple[np.ndarray, tuple[str | None, ...]]:
+    """Per frame its channel's index in the distinct channels, in the order they first appear; and their names
+    (channel_name). `channels`: python-can's channels or their names."""
+    first = channels[0] if channels else None
+    if channels.count(first) == len(channels):  # one channel (the usual case)
+        return np.zeros(len(channels), dtype=np.uint16), (channel_name(first),)
+    index: dict[object, int] = {}
+    out = np.fromiter((index.setdefault(c, len(index)) for c in channels), dtype=np.uint16, count=len(channels))
+    names = tuple(dict.fromkeys(map(channel_name, index)))
+    if len(names) < len(index):  # 0 and "0": one name
+        lut = np.array([names.index(channel_name(c)) for c in index], dtype=np.uint16)
+        out = lut[out]
+    return out, names
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -53,46 +140,91 @@ class CanFrameBatch:
     arbitration_id: np.ndarray
     """uint32."""
     flags: np.ndarray
-    """uint8: FLAG_EXTENDED | FLAG_ERROR."""
+    """uint8: FLAG_* bits."""
     dlc: np.ndarray
-    """uint8: payload length in bytes."""
+    """uint8: payload length in bytes; a remote frame: the length it asks for; with FLAG_DLC: the frame's DLC (its
+    payload is 8 bytes)."""
     data: np.ndarray
-    """uint8 [n, width]: frame i's payload in data[i, :dlc[i]], zero-padded; width >= 8 (64 for CAN FD)."""
+    """uint8 [n, width]: frame i's payload in data[i, :payload_lengths()[i]], zero-padded (a remote frame's row is
+    zeros); width >= 8 (64 for CAN FD)."""
+    channel: np.ndarray = None  # type: ignore[assignment]
+    """uint16: index of each frame's channel in `channels` (default: all 0)."""
+    channels: tuple[str | None, ...] = (None,)
+    """The channel names the indices refer to."""
+
+    def __post_init__(self) -> None:
+        if self.channel is None:
+            object.__setattr__(self, "channel", np.zeros(len(self.timestamp_s), dtype=np.uint16))
 
     def __len__(self) -> int:
         return len(self.timestamp_s)
 
     @classmethod
-    def from_columns(cls, timestamp_s: Sequence[float], arbitration_id: Sequence[int], flags: Sequence[int],
-                     payloads: Sequence[bytes]) -> "CanFrameBatch":
+    def from_columns(cls, timestamp_s: Sequence[float], arbitration_id: Sequence[int],
+                     flags: Sequence[int] | np.ndarray, payloads: Sequence[bytes], dlc: Sequence[int] | None = None,
+                     channels: Sequence[object] | None = None) -> "CanFrameBatch":
+        """dlc: per frame its `dlc` column (default: the payloads' lengths; a remote frame's payload is empty, one
+        with FLAG_DLC has 8 bytes); channels: per frame its channel, python-can's or its name (default: None)."""
         n = len(payloads)
-        dlc = np.fromiter(map(len, payloads), dtype=np.uint8, count=n)
-        width = max(8, int(dlc.max())) if n else 8
-        if n and width == 8 and bool((dlc == 8).all()):
+        lengths = np.fromiter(map(len, payloads), dtype=np.uint8, count=n)
+        width = max(8, int(lengths.max())) if n else 8
+        if n and width == 8 and bool((lengths == 8).all()):
             data = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(n, 8)
         else:
             data = np.frombuffer(b"".join(p.ljust(width, b"\0") for p in payloads), dtype=np.uint8).reshape(n, width)
+        channel, names = (None, (None,)) if channels is None else channel_indices(channels)
         return cls(np.asarray(timestamp_s, dtype=np.float64), np.asarray(arbitration_id, dtype=np.uint32),
-                   np.asarray(flags, dtype=np.uint8), dlc, data)
+                   np.asarray(flags, dtype=np.uint8), lengths if dlc is None else np.asarray(dlc, dtype=np.uint8),
+                   data, channel, names)
 
     @classmethod
-    def from_frames(cls, frames: Sequence[CanFrame]) -> "CanFrameBatch":
-        return cls.from_columns([f.timestamp_s for f in frames], [f.arbitration_id for f in frames],
-                                [f.is_extended_id | (f.is_error_frame << 1) for f in frames], [f.data for f in frames])
+    def from_frames(cls, frames: Sequence[CanFrame | Any], timestamp_s: Sequence[float] | None = None
+                    ) -> "CanFrameBatch":
+        """CanFrames, or python-can's Messages (the same attribute names) stamped timestamp_s."""
+        flags = np.fromiter(map(pack_flags, frames), dtype=np.uint8, count=len(frames))
+        odd = (flags & (FLAG_REMOTE | FLAG_DLC)) != 0
+        payloads = [f.data for f in frames]
+        dlc = None
+        if odd.any():  # a remote frame: no payload, its DLC; FLAG_DLC: the frame's DLC
+            dlc = [(f.dlc or 0) if o else len(p) for f, o, p in zip(frames, odd.tolist(), payloads)]
+            payloads = [b"" if f.is_remote_frame else p for f, p in zip(frames, payloads)]
+        return cls.from_columns([f.timestamp_s for f in frames] if timestamp_s is None else timestamp_s,
+                                [f.arbitration_id for f in frames], flags, payloads, dlc, [f.channel for f in frames])
 
     def payload(self, i: int) -> bytes:
-        return self.data[i, : self.dlc[i]].tobytes()
+        fl = self.flags[i]
+        return b"" if fl & FLAG_REMOTE else self.data[i, : 8 if fl & FLAG_DLC else self.dlc[i]].tobytes()
+
+    def payload_lengths(self) -> np.ndarray:
+        """Bytes of payload per frame."""
+        return payload_lengths(self.flags, self.dlc)
 
     def frames(self) -> Iterator[CanFrame]:
         """The frames one by one (the general path)."""
         rows = self.data.tolist()
-        for t, fid, fl, n, row in zip(self.timestamp_s.tolist(), self.arbitration_id.tolist(), self.flags.tolist(),
-                                      self.dlc.tolist(), rows):
-            yield CanFrame(t, fid, bytes(row[:n]), bool(fl & FLAG_EXTENDED), bool(fl & FLAG_ERROR))
+        names = self.channels
+        for t, fid, fl, n, row, ch in zip(self.timestamp_s.tolist(), self.arbitration_id.tolist(),
+                                          self.flags.tolist(), self.dlc.tolist(), rows, self.channel.tolist()):
+            if fl < FLAG_REMOTE:  # a plain data frame
+                yield CanFrame(t, fid, bytes(row[:n]), bool(fl & FLAG_EXTENDED), bool(fl & FLAG_ERROR), False, False,
+                               False, False, True, names[ch])
+            else:
+                yield CanFrame.from_flags(t, fid, bytes(row[: 8 if fl & FLAG_DLC else n]), fl, n, names[ch])
 
     def slice(self, start: int, stop: int) -> "CanFrameBatch":
         return CanFrameBatch(self.timestamp_s[start:stop], self.arbitration_id[start:stop], self.flags[start:stop],
-                             self.dlc[start:stop], self.data[start:stop])
+                             self.dlc[start:stop], self.data[start:stop], self.channel[start:stop], self.channels)
+
+    def renamed(self, channels: Sequence[str | None]) -> "CanFrameBatch":
+        """The same frames with their channel indices into `channels` (which holds every name of this batch's)."""
+        channels = tuple(channels)
+        if channels == self.channels:
+            return self
+        if channels[: len(self.channels)] == self.channels:  # the same indices
+            return replace(self, channels=channels)
+        lut = np.array([channels.index(name) for name in self.channels], dtype=np.uint16)
+        return CanFrameBatch(self.timestamp_s, self.arbitration_id, self.flags, self.dlc, self.data,
+                             lut[self.channel], channels)
 
     @classmethod
     def concat(cls, parts: Sequence["CanFrameBatch"]) -> "CanFrameBatch":
@@ -100,9 +232,13 @@ class CanFrameBatch:
         width = max(p.data.shape[1] for p in parts)
         data = [p.data if p.data.shape[1] == width else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
                 for p in parts]
+        channels = max((p.channels for p in parts), key=len)
+        if any(p.channels != channels[: len(p.channels)] for p in parts):
+            channels = tuple(dict.fromkeys(name for p in parts for name in p.channels))
+        parts = [p.renamed(channels) for p in parts]
         return cls(np.concatenate([p.timestamp_s for p in parts]), np.concatenate([p.arbitration_id for p in parts]),
                    np.concatenate([p.flags for p in parts]), np.concatenate([p.dlc for p in parts]),
-                   np.concatenate(data))
+                   np.concatenate(data), np.concatenate([p.channel for p in parts]), channels)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -23,13 +23,16 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metad
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
+from slipdaq.outputs import atomic_output
+from slipdaq.sources.read_errors import InputError
+
 MAGIC = b"\x89MCAP0\r\n"
 _KNOWN = {int(o) for o in Opcode}
 _MAX_RECORD = 1 << 31
 """A record longer than this (2 GiB) is garbage, not data: slipdaq's chunks are about a megabyte."""
 
 
-class LogError(Exception):
+class LogError(InputError):
     """A file that is not a readable slipdaq log (also slipdaq.sources.mcap_log.LogError)."""
 
 
@@ -198,12 +201,12 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
     """Everything readable of `inputs` (in order) into one finished MCAP file `output`.
 
     Channels are matched by topic; the first input's metadata is kept (with `recovered_from` added to the slipdaq
-    record). Inputs of different runs (a different config) are refused."""
+    record), and a later input's longer list of CAN channels (can_channels) too. Inputs of different runs (a
+    different config) are refused, and so is an output that is one of the inputs (OutputError); the output is in
+    place only once it is complete (outputs.atomic_output)."""
     if not inputs:
         raise RecoverError("no input")
     out = Path(output)
-    if any(Path(i).resolve() == out.resolve() for i in inputs):
-        raise RecoverError(f"{out}: the output must not be one of the inputs")
     first_meta: dict[str, str] | None = None
     for p in inputs:  # check them all before writing anything
         metas = {m.name: m.metadata for m in scan_metadata(p)}
@@ -214,15 +217,14 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
             first_meta = meta
         elif meta.get("config_toml") != first_meta.get("config_toml") or meta.get("dbc") != first_meta.get("dbc"):
             raise RecoverError(f"{p}: recorded with another config than {inputs[0]}: not segments of one run")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".part")
     results: list[ScanResult] = []
     topics: dict[str, int] = {}
     total = 0
-    with open(tmp, "wb") as f:
+    with atomic_output(output, inputs=inputs) as tmp, open(tmp, "wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile=metadata_name, library="slipdaq recover")
         schema_ids: dict[tuple[str, str, bytes], int] = {}
+        channels: str | None = None  # the can_channels of the last slipdaq record written
         channel_ids: dict[tuple[str, str], int] = {}
         for n, p in enumerate(inputs):
             res = ScanResult(Path(p))
@@ -244,11 +246,17 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
                     local_channel[c.id] = channel_ids[ckey]
                 elif kind == "metadata":
                     m: Metadata = item  # type: ignore[assignment]
-                    if n == 0:
-                        data = dict(m.metadata)
-                        if m.name == metadata_name:
-                            data["recovered_from"] = json.dumps([str(Path(i).name) for i in inputs])
-                        writer.add_metadata(m.name, data)
+                    data = dict(m.metadata)
+                    if m.name == metadata_name:
+                        if n and data.get("can_channels") == channels:
+                            continue
+                        if n:  # a later segment's longer list of CAN channels: the first's record with it
+                            data = dict(first_meta or {}) | {"can_channels": data.get("can_channels", "")}
+                        channels = data.get("can_channels")
+                        data["recovered_from"] = json.dumps([str(Path(i).name) for i in inputs])
+                    elif n:
+                        continue
+                    writer.add_metadata(m.name, data)
                 elif kind == "message":
                     channel: Channel
                     msg: Message
@@ -259,5 +267,4 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
                     total += 1
             results.append(res)
         writer.finish()
-    tmp.replace(out)
     return RecoverReport(results, out, total, topics)

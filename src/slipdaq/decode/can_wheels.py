@@ -29,10 +29,12 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config, WheelSourceConfig
 from slipdaq.records import (
-    FLAG_ERROR, FLAG_EXTENDED, SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, WheelSample,
+    FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, WheelSample,
     WheelSampleBatch,
 )
 
+NOT_WHEEL_DATA = FLAG_EXTENDED | FLAG_ERROR | FLAG_REMOTE
+"""Frames that carry no wheel data whatever their ID."""
 MAX_REV_PER_S = 100.0
 """No road wheel turns faster (100 rev/s at r = 0.3 m is 680 km/h)."""
 MAX_REVERSE_REV_PER_S = 5.0
@@ -208,10 +210,12 @@ class WheelDecoder:
         return [e.message.name for e in self._entries if e.fast is not None]
 
     def is_wheel_frame(self, frame: CanFrame) -> bool:
-        return not frame.is_extended_id and frame.arbitration_id in self._by_id
+        """A data frame with a wheel message's standard ID (not a remote frame asking for one)."""
+        return not (frame.is_extended_id or frame.is_remote_frame) and frame.arbitration_id in self._by_id
 
     def wheel_frames(self, batch: CanFrameBatch) -> np.ndarray:
-        """Per frame: the index of its wheel message (in _entries), or -1 (another ID, extended or error frame)."""
+        """Per frame: the index of its wheel message (in _entries), or -1 (another ID, extended, error or remote
+        frame)."""
         ids = batch.arbitration_id
         idx = self._lut[np.minimum(ids, 2047)]
         idx = np.where(ids < 2048, idx, -1)
@@ -219,11 +223,11 @@ class WheelDecoder:
             for i, entry in enumerate(self._entries):
                 if entry.message.frame_id >= 2048:
                     idx = np.where(ids == entry.message.frame_id, i, idx)
-        return np.where((batch.flags & (FLAG_EXTENDED | FLAG_ERROR)) == 0, idx, -1).astype(np.int64)
+        return np.where((batch.flags & NOT_WHEEL_DATA) == 0, idx, -1).astype(np.int64)
 
     def decode(self, frame: CanFrame) -> list[WheelSample]:
         """The frame's WheelSamples (one per wheel it carries); none for a frame of another ID or a bad one."""
-        if frame.is_error_frame or frame.is_extended_id:
+        if frame.is_error_frame or frame.is_extended_id or frame.is_remote_frame:
             return []
         entry = self._by_id.get(frame.arbitration_id)
         if entry is None:
@@ -328,7 +332,7 @@ class WheelDecoder:
                 continue
             fast = entry.fast
             if fast is not None:
-                good = batch.dlc[sel] >= fast.length
+                good = batch.payload_lengths()[sel] >= fast.length
                 if not good.all():
                     self.bad_frames += int(np.count_nonzero(~good))
                     sel = sel[good]
@@ -359,7 +363,7 @@ class WheelDecoder:
         sel = np.flatnonzero(slot >= 0)
         if len(sel) == 0:
             return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
-        good = batch.dlc[sel] >= g.length
+        good = batch.payload_lengths()[sel] >= g.length
         if not good.all():
             sel = sel[good]
             if len(sel) == 0:

@@ -17,7 +17,13 @@ from typing import Any, TextIO
 from slipdaq.report.labels import labels_of
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
 from slipdaq.sinks.mcap_log import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE
+from slipdaq.outputs import atomic_tree
 from slipdaq.sources.mcap_log import LogError, iter_topic, read_metadata
+from slipdaq.sources.read_errors import guarded
+
+
+TABLES = ("summary.csv", "summary.json", "index.html")
+"""The report's top files, written into DIR in this order after its plots (the index last: it links the rest)."""
 
 
 @dataclass
@@ -40,28 +46,26 @@ class ReportResult:
 
 
 def read_log(path: str | Path) -> LogData:
-    """Metadata, estimate rows and the last diagnostics of a slipdaq log; LogError (one line) otherwise."""
+    """Metadata, estimate rows and the last diagnostics of a slipdaq log; LogError or InputError (one line)
+    otherwise."""
     path = Path(path)
     if not path.is_file():
         raise LogError(f"{path}: no such file")
     metadata = read_metadata(path)
     rows: list[dict[str, Any]] = []
     diagnostics: dict[str, Any] | None = None
-    try:
-        for topic, _t, d in iter_topic(path, (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS)):
-            if topic == TOPIC_ESTIMATE:
-                rows.append(d)
-            else:
-                diagnostics = d
-    except Exception as e:  # a truncated or corrupt file: one line, no traceback
-        raise LogError(f"{path}: cannot read the log's messages: {e}") from None
+    for topic, _t, d in guarded(path, iter_topic(path, (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS))):
+        if topic == TOPIC_ESTIMATE:
+            rows.append(d)
+        else:
+            diagnostics = d
     return LogData(path, metadata, rows, diagnostics)
 
 
 def _slug(name: str, taken: set[str]) -> str:
     base = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "log"
     slug, n = base, 2
-    while slug in taken or slug in ("index.html", "summary.json", "summary.csv"):
+    while slug in taken or slug in TABLES:
         slug, n = f"{base}-{n}", n + 1
     taken.add(slug)
     return slug
@@ -74,7 +78,9 @@ def make_report(
     group_by: Sequence[str] | None = None,
     progress: TextIO | None = None,
 ) -> ReportResult:
-    """Every log read first (a bad one fails before anything is written), then the plots and the tables."""
+    """Every log read first (a bad one fails before anything is written), then the plots and the tables, built in a
+    temporary directory in DIR and moved into place when all are done (outputs.atomic_tree): a report that fails
+    leaves DIR as it was."""
     from slipdaq.report import plots, write
 
     out = Path(out_dir)
@@ -84,35 +90,36 @@ def make_report(
         d = read_log(p)
         say(f"read {p}: {len(d.rows)} estimates")
         data.append(d)
-    out.mkdir(parents=True, exist_ok=True)
-    taken: set[str] = set()
-    logs: list[LogSummary] = []
-    plot_paths: dict[str, dict[str, dict[str, str]]] = {}
-    pngs: list[Path] = []
-    for d in data:
-        name = _slug(d.path.stem, taken)
-        log = summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=name,
-                            labels=labels_of(d.metadata), group_by=group_by)
-        logs.append(log)
-        plot_paths[name] = {}
-        for m in log.maneuvers:
-            made = plots.plot_maneuver(log, m, out / name)
-            plot_paths[name][m.phase] = {k: p.relative_to(out).as_posix() for k, p in made.items()}
-            pngs += made.values()
-            say(f"{name}: {m.title}: {len(made)} plots")
-        if not log.maneuvers:
-            say(f"{name}: no maneuver with a defined slip")
-    comparisons = compare(logs) if len(logs) > 1 else []
-    compare_plots: dict[str, str] = {}
-    for c in comparisons:
-        p = plots.plot_comparison(c.phase, logs, out / f"compare-{c.phase}-fx-slip.png")
-        compare_plots[c.phase] = p.relative_to(out).as_posix()
-        pngs.append(p)
-        say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
-    rows = table_rows(logs)
-    index, js, cs = out / "index.html", out / "summary.json", out / "summary.csv"
-    write.write_csv(rows, cs)
-    write.write_json(logs, comparisons, rows, plot_paths, compare_plots, js)
-    write.write_html(logs, comparisons, plot_paths, compare_plots, index)
+    with atomic_tree(out, inputs=log_paths, last=TABLES) as build:
+        taken: set[str] = set()
+        logs: list[LogSummary] = []
+        plot_paths: dict[str, dict[str, dict[str, str]]] = {}
+        pngs: list[Path] = []
+        for d in data:
+            name = _slug(d.path.stem, taken)
+            log = summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=name,
+                                labels=labels_of(d.metadata), group_by=group_by)
+            logs.append(log)
+            plot_paths[name] = {}
+            for m in log.maneuvers:
+                made = plots.plot_maneuver(log, m, build / name)
+                plot_paths[name][m.phase] = {k: p.relative_to(build).as_posix() for k, p in made.items()}
+                pngs += (out / p.relative_to(build) for p in made.values())
+                say(f"{name}: {m.title}: {len(made)} plots")
+            if not log.maneuvers:
+                say(f"{name}: no maneuver with a defined slip")
+        comparisons = compare(logs) if len(logs) > 1 else []
+        compare_plots: dict[str, str] = {}
+        for c in comparisons:
+            p = plots.plot_comparison(c.phase, logs, build / f"compare-{c.phase}-fx-slip.png")
+            compare_plots[c.phase] = p.relative_to(build).as_posix()
+            pngs.append(out / compare_plots[c.phase])
+            say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
+        rows = table_rows(logs)
+        cs, js, index = (build / name for name in TABLES)
+        write.write_csv(rows, cs)
+        write.write_json(logs, comparisons, rows, plot_paths, compare_plots, js)
+        write.write_html(logs, comparisons, plot_paths, compare_plots, index)
+    cs, js, index = (out / name for name in TABLES)
     say(f"wrote {index} ({len(pngs)} plots), {js}, {cs}")
     return ReportResult(out, logs, comparisons, pngs, index, js, cs)

@@ -16,6 +16,7 @@ import can
 from slipdaq.records import CanFrame, NmeaLine, UbxFrame
 from slipdaq.sim.emit import SimEvent
 from slipdaq.sim.vehicle import TruthSample
+from slipdaq.sources.can_bus import to_message
 
 BATCH_S = 0.002
 """Sleep only when the next event is more than this far ahead."""
@@ -47,8 +48,7 @@ async def _write_line(nmea_write: Callable[[bytes], object], data: bytes) -> Non
 
 async def _send_frame(bus: can.BusABC, frame: CanFrame, timestamp_s: float = 0.0) -> None:
     """bus.send without blocking the loop; a CanOperationError (e.g. transmit buffer full) is retried briefly."""
-    msg = can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=frame.is_extended_id,
-                      timestamp=timestamp_s)
+    msg = to_message(frame, timestamp_s)
     waited_s = 0.0
     while True:
         try:

@@ -59,11 +59,14 @@ def describe(e: OSError) -> str:
 class CommitFile:
     """Write-only binary stream: write() buffers, commit() makes it durable and leaves a readable file."""
 
-    def __init__(self, path: str | Path, *, fsync: bool = False, auto_commit_bytes: int = 8 << 20) -> None:
+    def __init__(self, path: str | Path, *, fsync: bool = False, auto_commit_bytes: int = 8 << 20,
+                 new_file: bool = False) -> None:
         """auto_commit_bytes: commit as soon as this much is buffered (mcap.Writer writes whole records only, so
-        any write boundary is a valid place to commit), so that long offline runs do not pile up in memory."""
+        any write boundary is a valid place to commit), so that long offline runs do not pile up in memory.
+        new_file: FileExistsError rather than overwrite a file that is there."""
         self.path = Path(path)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+        keep = os.O_EXCL if new_file else os.O_TRUNC
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | keep | os.O_CLOEXEC, 0o644)
         self._pending = bytearray()
         self._committed = 0
         """Bytes of the file that are committed (the provisional trailer after them is not counted)."""

@@ -13,7 +13,7 @@ import logging
 import struct
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -59,8 +59,10 @@ _INT = {"type": "integer"}
 _INT_OR_NULL = {"type": ["integer", "null"]}
 
 
-def _obj(title: str, props: dict[str, Any]) -> dict[str, Any]:
-    return {"title": title, "type": "object", "properties": props}
+def _obj(title: str, props: dict[str, Any], optional: tuple[str, ...] = ()) -> dict[str, Any]:
+    """An object schema: every field the writer emits, all of them required but the optional ones."""
+    return {"title": title, "type": "object", "properties": props,
+            "required": [k for k in props if k not in optional]}
 
 
 def _estimate_props() -> dict[str, Any]:
@@ -124,12 +126,15 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
         "count_wraps": _per_wheel("wraps"),
         "counter_resets": _per_wheel("resets"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
-        "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "estimates": _INT,
-        "dropped_sentences": _obj("dropped_sentences", dict.fromkeys(DROP_REASONS, _INT)),
+        "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "ubx_frames": _INT, "bad_ubx_frames": _INT,
+        "estimates": _INT, "dropped_sentences": _obj("dropped_sentences", dict.fromkeys(DROP_REASONS, _INT)),
         "estimator": _obj("estimator", {
             "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
             "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
-            "r0_m": _obj("r0", {w: _NUM for w in WHEELS}), "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
+            "r0_m": _obj("r0", {w: _NUM for w in WHEELS}),
+            "r0_source": _obj("r0_source", {w: {"type": "string", "enum": [
+                "tire_size", "configured", "other_wheels", "calibrating", "calibrated"]} for w in WHEELS}),
+            "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
             "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
             "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,
         }),
@@ -154,7 +159,7 @@ LIVE_DIAGNOSTICS: dict[str, Any] = {
     "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
     "can_last_outage_s": _NUM_OR_NULL,
 }
-"""Keys a live run adds to /diagnostics, all optional."""
+"""Keys a live run adds to /diagnostics (declared, not required)."""
 # JSON topics (all but BATCH_SCHEMAS)
 SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
 SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
@@ -294,9 +299,14 @@ class _Pending:
         self.n = 0
         self.first_index = 0
         self.t0 = 0.0
+        self.t_last = 0.0
+        """Log time of the last record: the batch's log time."""
+        self.frame_last = 0
+        """Index of the CAN frame the last record is (or came from): the batch's place in the order of processing."""
 
-    def add_one(self, record: object, t: float, index: int) -> bool:
-        """One record (log time t, number index in its stream); True when the batch is now full."""
+    def add_one(self, record: object, t: float, index: int, frame: int) -> bool:
+        """One record (log time t, number index in its stream, from CAN frame number frame); True when the batch is
+        now full."""
         if not self.n:
             self.first_index, self.t0 = index, t
             self.parts.append([])
@@ -304,12 +314,14 @@ class _Pending:
             self.parts.append([])
         self.parts[-1].append(record)
         self.n += 1
+        self.t_last, self.frame_last = t, frame
         return self.n >= MAX_BATCH_FRAMES or t - self.t0 >= MAX_BATCH_SPAN_S
 
     def add_run(self, ts: np.ndarray, first_index: int, piece: Callable[[int, int], object],
-                flush: Callable[[], None]) -> None:
-        """Consecutive records with log times ts, the first numbered first_index: piece(i, k) is records i..k-1;
-        flush() is called after each piece that fills the batch, as add_one one by one would."""
+                flush: Callable[[], None], frame: Callable[[int], int]) -> None:
+        """Consecutive records with log times ts, the first numbered first_index: piece(i, k) is records i..k-1,
+        frame(i) the CAN frame number record i is or came from; flush() is called after each piece that fills the
+        batch, as add_one one by one would."""
         i, n = 0, len(ts)
         while i < n:
             if not self.n:
@@ -321,6 +333,7 @@ class _Pending:
                 k, full = i + int(late[0]) + 1, True
             self.parts.append(piece(i, k))
             self.n += k - i
+            self.t_last, self.frame_last = float(ts[k - 1]), frame(k - 1)
             i = k
             if full:
                 flush()
@@ -329,10 +342,12 @@ class _Pending:
 class _PendingCan(_Pending):
     """Frames waiting for their /can/raw batch."""
 
-    def take(self) -> CanFrameBatch:
-        parts = [p if isinstance(p, CanFrameBatch) else CanFrameBatch.from_frames(p) for p in self.parts]
+    def take(self, channels: tuple[str | None, ...]) -> CanFrameBatch:
+        """The batch, its frames' channel indices into `channels` (the log's can_channels)."""
+        parts = [(p if isinstance(p, CanFrameBatch) else CanFrameBatch.from_frames(p)).renamed(channels)
+                 for p in self.parts]
         self.parts, self.n = [], 0
-        return parts[0] if len(parts) == 1 else concat_can_batches(parts)
+        return parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
 
 
 class _PendingSamples(_Pending):
@@ -344,15 +359,6 @@ class _PendingSamples(_Pending):
         if len(parts) == 1:
             return parts[0]
         return WheelSampleBatch(*(np.concatenate([getattr(p, f) for p in parts]) for f in WheelSampleBatch.__slots__))
-
-
-def concat_can_batches(parts: list[CanFrameBatch]) -> CanFrameBatch:
-    width = max(p.data.shape[1] for p in parts)
-    data = [p.data if p.data.shape[1] == width else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
-            for p in parts]
-    return CanFrameBatch(np.concatenate([p.timestamp_s for p in parts]),
-                         np.concatenate([p.arbitration_id for p in parts]), np.concatenate([p.flags for p in parts]),
-                         np.concatenate([p.dlc for p in parts]), np.concatenate(data))
 
 
 _WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
@@ -473,6 +479,9 @@ class McapLogSink:
     RETRY_AFTER_FAILURE_S a new segment is tried. `rotation` cuts the log into segments (sinks.rotation).
     """
 
+    new_files_only = False
+    """Refuse (FileExistsError) to write a segment over a file that is there (the live daemon's log)."""
+
     def __init__(
         self,
         path: str | Path,
@@ -486,10 +495,13 @@ class McapLogSink:
         clock: Callable[[], float] | None = None,
         on_event: EventHandler | None = None,
         monotonic: Callable[[], float] = time.monotonic,
+        can_channels: Sequence[str | None] = (),
     ) -> None:
         """clock: the log's clock (the sources' SteadyClock in live runs), for the times of the sink's own events;
         a SteadyClock's host-clock steps are logged too. on_event: gets the sink's own events (write failed, resumed,
-        rotated, clock stepped), e.g. the live view. fsync: default on for live runs (flush_every_s set)."""
+        rotated, clock stepped), e.g. the live view. fsync: default on for live runs (flush_every_s set).
+        can_channels: the CAN channel names known before the first frame (a live run's bus); the frames' other
+        channels are added as they come."""
         self.first_path = Path(path)
         self.first_path.parent.mkdir(parents=True, exist_ok=True)
         self.path = self.first_path
@@ -510,6 +522,10 @@ class McapLogSink:
             "config_source_toml": config.source_text,
             "dbc": config.load_dbc_text(),
         } | (metadata or {})
+        self.can_channels: list[str | None] = []
+        """The log's CAN channel names: a /can/raw frame's `channel` is an index into it (metadata can_channels)."""
+        self._channel_names: tuple[str | None, ...] = ()
+        self._add_channels(can_channels)
         self._seq = 0
         self.messages = 0
         self.dropped_messages = 0
@@ -532,6 +548,13 @@ class McapLogSink:
         self._timer: asyncio.TimerHandle | None = None
         self._can = _PendingCan()
         self._samples = _PendingSamples()
+        self._ready: list[tuple[int, int, int, str, float, bytes]] = []
+        """Closed batches not written yet: (CAN frame number, 0 /can/raw or 1 /wpt/count, sequence, topic, log time,
+        message), written in that order before the next other message (see _drain)."""
+        self._piece_first = 0
+        """Number of the first frame of the last on_can_batch (its samples' `frame` counts from there)."""
+        self._last_ns = 0
+        """Log time of the last message written: no message is written with an earlier one."""
         self.can_index = 0
         """CAN frames received so far (the next frame's index; GPS lines record it as can_index)."""
         self._sample_index = 0
@@ -552,9 +575,35 @@ class McapLogSink:
         self._arm_timer()
 
     # ---- segments ----
+    def _segment_meta(self, number: int) -> dict[str, str]:
+        """The `slipdaq` metadata record of segment `number`."""
+        meta = dict(self._meta)
+        if number > 1 or self._rotation is not None:
+            meta["segment"] = str(number)
+            meta["first_segment"] = self.first_path.name
+        if number > 1:
+            meta["previous_segment"] = segment_path(self.first_path, number - 1).name
+        return meta
+
+    def _add_channels(self, names: Sequence[str | None]) -> None:
+        """CAN channel names into can_channels (new ones at its end). When it grows while a segment is open, a copy
+        of the `slipdaq` metadata record with the longer list is written at once: before any frame that uses it
+        (readers take the last record)."""
+        new = [n for n in dict.fromkeys(names) if n not in self._channel_names]
+        if not new:
+            return
+        self.can_channels += new
+        self._channel_names = tuple(self.can_channels)
+        self._meta["can_channels"] = json.dumps(self.can_channels)
+        if getattr(self, "_writer", None) is not None:
+            try:
+                self._writer.add_metadata(METADATA_NAME, self._segment_meta(len(self.segments)))  # type: ignore[union-attr]
+            except LogWriteError as e:
+                self._fail(e)
+
     def _open_segment(self, number: int) -> None:
         path = segment_path(self.first_path, number)
-        file = CommitFile(path, fsync=self._fsync)
+        file = CommitFile(path, fsync=self._fsync, new_file=self.new_files_only)
         try:
             writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
             writer.start(profile=PROFILE, library=f"slipdaq {slipdaq.__version__}")
@@ -565,13 +614,7 @@ class McapLogSink:
             for topic, schema in SCHEMAS.items():
                 sid = writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
                 channels[topic] = writer.register_channel(topic, "json", sid)
-            meta = dict(self._meta)
-            if number > 1 or self._rotation is not None:
-                meta["segment"] = str(number)
-                meta["first_segment"] = self.first_path.name
-            if number > 1:
-                meta["previous_segment"] = segment_path(self.first_path, number - 1).name
-            writer.add_metadata(METADATA_NAME, meta)
+            writer.add_metadata(METADATA_NAME, self._segment_meta(number))
             file.commit()  # header and metadata on disk: a valid (empty) log from the start
         except BaseException:
             file.abandon()
@@ -668,6 +711,27 @@ class McapLogSink:
 
     # ---- writing ----
     def _write(self, topic: str, log_time_s: float, data: bytes) -> None:
+        """A message after the closed batches (they come first in the order of processing)."""
+        if self._ready:
+            self._drain()
+        self._emit(topic, log_time_s, data)
+
+    def _drain(self) -> None:
+        """The closed batches in the order of processing: by the CAN frame each ends with, /can/raw before the
+        /wpt/count samples of the same frame. (Pipeline.process_can_batch hands a run of frames to on_can_batch
+        before its samples to on_wheel_batch; this puts them in the order frame by frame would.)"""
+        ready, self._ready = sorted(self._ready), []
+        in_flush, self._in_flush = self._in_flush, True  # no chunk flush in between: it would close more batches
+        try:
+            for _frame, _kind, _seq, topic, t, data in ready:
+                self._emit(topic, t, data)
+        finally:
+            self._in_flush = in_flush
+
+    def _emit(self, topic: str, log_time_s: float, data: bytes) -> None:
+        """Write one message, its log time no earlier than the last message's (the file is in log-time order; a
+        record that arrived after a later-stamped one, e.g. a GPS line read before the CAN frames stamped before it,
+        is logged when it was processed)."""
         if self._writer is None:
             if self.closed:
                 return
@@ -683,6 +747,9 @@ class McapLogSink:
                 return
         self._seq += 1
         ns = _ns(log_time_s)
+        if ns < self._last_ns:
+            ns = self._last_ns
+        self._last_ns = ns
         try:
             self._append(self._channels[topic], ns, data, self._seq & 0xFFFFFFFF)  # type: ignore[misc]
             self.messages += 1
@@ -703,6 +770,8 @@ class McapLogSink:
             self._flush_can()
         if self._samples.n:
             self._flush_samples()
+        if self._ready:
+            self._drain()
 
     def flush(self) -> None:
         """Close the chunk in progress and commit the file (it is then complete up to here on disk)."""
@@ -723,11 +792,15 @@ class McapLogSink:
         self._unflushed = 0
         self._last_flush = self._mono()
 
+    def _to_flush(self) -> bool:
+        """Anything not on disk yet: messages since the last flush, batches open or closed and not written."""
+        return bool(self._unflushed or self._can.n or self._samples.n or self._ready)
+
     def _arm_timer(self) -> None:
         if self._loop is None or self._flush_every_s is None or self.closed or self._loop.is_closed():
             return
         delay = max(0.0, self._last_flush + self._flush_every_s - self._mono())
-        if delay <= 0.0 and not (self._unflushed or self._can.n or self._samples.n):
+        if delay <= 0.0 and not self._to_flush():
             delay = self._flush_every_s  # nothing to flush (no record for a while): look again later, do not spin
         if self._writer is None:  # failed: look again when a retry is due
             delay = max(0.05, self._last_try + RETRY_AFTER_FAILURE_S - self._mono())
@@ -754,7 +827,7 @@ class McapLogSink:
             self._try_resume()
         elif self._rotation is not None and self._rotation_due(now):
             self._rotate()
-        elif ((self._unflushed or self._can.n or self._samples.n)
+        elif (self._to_flush()
               and now - self._last_flush >= self._flush_every_s - 1e-3):  # type: ignore[operator]
             self.flush()
         self._arm_timer()
@@ -762,7 +835,11 @@ class McapLogSink:
     # ---- Sink ----
     def on_raw(self, record: RawRecord) -> None:
         if isinstance(record, CanFrame):
-            full = self._can.add_one(record, record.timestamp_s, self.can_index)
+            if self._ready:
+                self._drain()
+            if record.channel not in self._channel_names:
+                self._add_channels((record.channel,))
+            full = self._can.add_one(record, record.timestamp_s, self.can_index, self.can_index)
             self.can_index += 1
             if full:
                 self._flush_can()
@@ -780,35 +857,47 @@ class McapLogSink:
                 log.error("MCAP log: no topic for raw %s records: not logged", type(record).__name__)
 
     def _flush_can(self) -> None:
+        """Close the pending /can/raw batch: its log time is its last frame's (it is complete then)."""
         p = self._can
-        first, t0 = p.first_index, p.t0
-        self._write(TOPIC_CAN, t0, cdr.reencode_can_batch(first, p.take()))
+        first, t, frame = p.first_index, p.t_last, p.frame_last
+        data = cdr.reencode_can_batch(first, p.take(self._channel_names))
+        self._ready.append((frame, 0, len(self._ready), TOPIC_CAN, t, data))
 
     def _flush_samples(self) -> None:
+        """Close the pending /wpt/count batch: its log time is its last sample's."""
         q = self._samples
-        first, t0 = q.first_index, q.t0
-        self._write(TOPIC_WPT, t0, cdr.encode_wheel_batch(first, q.take()))
+        first, t, frame = q.first_index, q.t_last, q.frame_last
+        data = cdr.encode_wheel_batch(first, q.take())
+        self._ready.append((frame, 1, len(self._ready), TOPIC_WPT, t, data))
 
     def on_can_batch(self, batch: CanFrameBatch) -> None:
         """Consecutive frames (Pipeline.process_can_batch): into /can/raw batches by the same rule as on_raw."""
+        if self._ready:
+            self._drain()
+        if batch.channels != self._channel_names[: len(batch.channels)]:
+            self._add_channels(batch.channels)
         n = len(batch)
-        self._can.add_run(batch.timestamp_s, self.can_index,
-                          lambda i, k: batch if (i, k) == (0, n) else batch.slice(i, k), self._flush_can)
+        first = self._piece_first = self.can_index
+        self._can.add_run(batch.timestamp_s, first,
+                          lambda i, k: batch if (i, k) == (0, n) else batch.slice(i, k), self._flush_can,
+                          lambda i: first + i)
         self.can_index += n
 
     def on_wheel(self, sample: WheelSample) -> None:
-        full = self._samples.add_one(sample, sample.timestamp_s, self._sample_index)
+        full = self._samples.add_one(sample, sample.timestamp_s, self._sample_index, self.can_index - 1)
         self._sample_index += 1
         if full:
             self._flush_samples()
 
     def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        """Samples of the frames of the on_can_batch call just before (samples.frame: their index there)."""
         n = len(samples)
+        first, frames = self._piece_first, samples.frame
         self._samples.add_run(
             samples.timestamp_s, self._sample_index,
             lambda i, k: samples if (i, k) == (0, n) else
             WheelSampleBatch(*(getattr(samples, f)[i:k] for f in WheelSampleBatch.__slots__)),
-            self._flush_samples)
+            self._flush_samples, lambda i: first + int(frames[i]) if frames[i] >= 0 else self.can_index - 1)
         self._sample_index += n
 
     def on_fix(self, fix: GpsFix) -> None:

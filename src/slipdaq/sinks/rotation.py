@@ -14,6 +14,7 @@ could not be written for a while (disk full) goes on in the next segment once sp
 
 from __future__ import annotations
 
+import glob
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,6 +47,11 @@ def segment_path(first: Path, number: int) -> Path:
     if number <= 1:
         return first
     return first.with_name(f"{first.stem}_{number:03d}{first.suffix}")
+
+
+def later_segments_glob(first: Path) -> str:
+    """A glob pattern (in first's directory) for every segment after the first of the run that starts at `first`."""
+    return f"{glob.escape(first.stem)}_[0-9][0-9][0-9]*{glob.escape(first.suffix)}"
 
 
 def run_segments(first: Path) -> list[Path]:

@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import CanFrame, CanFrameBatch
+from slipdaq.records import FLAG_DLC, FLAG_REMOTE, CanFrame, CanFrameBatch, channel_name, pack_flags
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.events import EventHandler, SourceEvent
 from slipdaq.sources.socketcan_raw import RawFrame, frame_reader
@@ -49,8 +49,26 @@ BATCH_COLUMNS_FROM = 48
 per frame); fewer go as CanFrames (numpy's fixed cost would dominate). Pipeline.SCALAR_MAX_FRAMES is the same."""
 
 
-def to_frame(msg: can.Message) -> CanFrame:
-    return CanFrame(msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_error_frame)
+def to_frame(msg: can.Message, timestamp_s: float | None = None) -> CanFrame:
+    """python-can's Message as a CanFrame, every field kept; timestamp_s replaces its own stamp (the log's clock)."""
+    remote = msg.is_remote_frame
+    data = b"" if remote else bytes(msg.data)
+    dlc = msg.dlc
+    channel = msg.channel
+    return CanFrame(msg.timestamp if timestamp_s is None else timestamp_s, msg.arbitration_id, data,
+                    msg.is_extended_id, msg.is_error_frame, remote, msg.is_fd, msg.bitrate_switch,
+                    msg.error_state_indicator, msg.is_rx, channel if type(channel) is str else channel_name(channel),
+                    None if dlc == len(data) and not remote else
+                    dlc if pack_flags(msg) & (FLAG_REMOTE | FLAG_DLC) else None)
+
+
+def to_message(frame: CanFrame, timestamp_s: float = 0.0) -> can.Message:
+    """A CanFrame as python-can's Message (to send it), every field as it was received."""
+    return can.Message(timestamp=timestamp_s, arbitration_id=frame.arbitration_id,
+                       is_extended_id=frame.is_extended_id, is_remote_frame=frame.is_remote_frame,
+                       is_error_frame=frame.is_error_frame, channel=frame.channel, dlc=frame.length,
+                       data=frame.data, is_fd=frame.is_fd, is_rx=frame.is_rx, bitrate_switch=frame.bitrate_switch,
+                       error_state_indicator=frame.error_state_indicator)
 
 
 def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch | list[CanFrame]:
@@ -58,19 +76,17 @@ def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) 
     their own stamps (the log's clock)."""
     ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
     if len(msgs) < BATCH_COLUMNS_FROM:
-        return [CanFrame(t, m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_error_frame)
-                for t, m in zip(ts, msgs)]
-    return CanFrameBatch.from_columns(ts, [m.arbitration_id for m in msgs],
-                                      [m.is_extended_id | (m.is_error_frame << 1) for m in msgs],
-                                      [m.data for m in msgs])
+        return [to_frame(m, t) for t, m in zip(ts, msgs)]
+    return CanFrameBatch.from_frames(msgs, ts)
 
 
 def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch | list[CanFrame]:
     """to_frames for frames read as RawFrame tuples (socketcan_raw.frame_reader), stamped timestamps_s."""
     if len(raws) < BATCH_COLUMNS_FROM:
-        return [CanFrame(t, aid, data, ext, err) for t, (_, aid, ext, err, data) in zip(timestamps_s, raws)]
-    _, ids, ext, err, payloads = zip(*raws)
-    return CanFrameBatch.from_columns(timestamps_s, ids, [e | (r << 1) for e, r in zip(ext, err)], payloads)
+        return [CanFrame.from_flags(t, aid, data, flags, dlc, channel)
+                for t, (_, aid, flags, data, dlc, channel) in zip(timestamps_s, raws)]
+    _, ids, flags, payloads, dlc, channels = zip(*raws)
+    return CanFrameBatch.from_columns(timestamps_s, ids, flags, payloads, dlc, channels)
 
 
 def set_receive_buffer(bus: can.BusABC, size_bytes: int) -> int | None:

@@ -20,12 +20,13 @@ import can
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.records import CanFrame, NmeaLine, RawRecord, UbxFrame
+from slipdaq.sources.read_errors import InputError, guarded
 
 _STAMPED = re.compile(rb"[ \t]*\([ \t]*(?P<t>[-+]?\d+(?:\.\d*)?)[ \t]*\)[ \t]?")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
 
 
-class ImportError_(Exception):
+class ImportError_(InputError):
     """A file that cannot be imported; the message names the file."""
 
 
@@ -37,10 +38,11 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
         raise ImportError_(f"{p}: no such CAN log")
     try:
         reader = can.LogReader(str(p))
-    except (ValueError, OSError) as e:
-        raise ImportError_(f"{p}: python-can cannot read it ({e}); formats: {', '.join(CAN_SUFFIXES)}") from None
+    except Exception as e:  # an unknown suffix, or a file that does not start like its format (BLFParseError)
+        formats = "" if p.suffix.lower() in CAN_SUFFIXES else f"; formats: {', '.join(CAN_SUFFIXES)}"
+        raise ImportError_(f"{p}: python-can cannot read it ({e}){formats}") from None
     with reader:
-        for msg in reader:
+        for msg in guarded(p, reader):
             yield to_frame(msg)
 
 
@@ -53,7 +55,7 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
     probe = NmeaDecoder()
     framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
-        for raw in chain(f, [None]):
+        for raw in chain(guarded(p, f, "line"), [None]):
             m = _STAMPED.match(raw) if raw is not None else None
             if m:
                 last_t = float(m["t"])

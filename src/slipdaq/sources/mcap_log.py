@@ -8,7 +8,7 @@ ScanResult to learn how far that got.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, parse_config
-from slipdaq.recover import LogError, ScanResult, scan_messages, scan_metadata
+from slipdaq.recover import LogError, ScanResult, scan, scan_messages, scan_metadata
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
 from slipdaq.sinks import cdr
 from slipdaq.sinks.mcap_log import (
@@ -24,7 +24,7 @@ from slipdaq.sinks.mcap_log import (
     can_frame_to_dict, wheel_sample_to_dict,
 )
 
-__all__ = ["LogError", "ScanResult", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",
+__all__ = ["LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",
            "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
 
 
@@ -46,18 +46,29 @@ def is_finished(path: str | Path) -> bool:
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
+    """The log's `slipdaq` metadata record (the last one: a log whose CAN channels were not all known at its start
+    has copies of it with a longer can_channels list)."""
+    found: dict[str, str] | None = None
     try:
         with _open(path) as f:
             for m in make_reader(f).iter_metadata():
                 if m.name == METADATA_NAME:
-                    return dict(m.metadata)
+                    found = dict(m.metadata)
     except LogError:
         raise
     except Exception:  # not finished: read it record by record
         for m in scan_metadata(path):
             if m.name == METADATA_NAME:
-                return dict(m.metadata)
-    raise LogError(f"{path}: no '{METADATA_NAME}' metadata: not a slipdaq log")
+                found = dict(m.metadata)
+    if found is None:
+        raise LogError(f"{path}: no '{METADATA_NAME}' metadata: not a slipdaq log")
+    return found
+
+
+def can_channels(metadata: dict[str, str]) -> tuple[str | None, ...]:
+    """The CAN channel names a log's /can/raw frames index (its can_channels; a log from before it: one, unnamed)."""
+    text = metadata.get("can_channels")
+    return tuple(json.loads(text)) if text is not None else (None,)
 
 
 def config_from_log(path: str | Path) -> Config:
@@ -68,21 +79,35 @@ def config_from_log(path: str | Path) -> Config:
 
 
 def iter_messages(
-    path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None
+    path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None,
+    on_metadata: Callable[[str, dict[str, str]], None] | None = None,
 ) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, message encoding, log_time_ns, data) in the order the messages were written.
 
-    A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far."""
+    A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far.
+    on_metadata(name, metadata) gets each metadata record before the messages written after it."""
     if is_finished(path):
         if scan_result is not None:
             scan_result.finished = scan_result.has_summary = True
         with _open(path) as f:
             reader = make_reader(f)
+            if on_metadata is not None:
+                for m in reader.iter_metadata():
+                    on_metadata(m.name, dict(m.metadata))
             for _schema, channel, message in reader.iter_messages(topics=list(topics), log_time_order=False):
                 yield channel.topic, channel.message_encoding, message.log_time, message.data
         return
-    for channel, message in scan_messages(path, topics, scan_result):
-        yield channel.topic, channel.message_encoding, message.log_time, message.data
+    if on_metadata is None:
+        for channel, message in scan_messages(path, topics, scan_result):
+            yield channel.topic, channel.message_encoding, message.log_time, message.data
+        return
+    for kind, item in scan(path, scan_result):
+        if kind == "metadata":
+            on_metadata(item.name, dict(item.metadata))  # type: ignore[attr-defined]
+        elif kind == "message":
+            channel, message = item  # type: ignore[misc]
+            if channel.topic in topics:
+                yield channel.topic, channel.message_encoding, message.log_time, message.data
 
 
 def _ns(t_s: float) -> int:
@@ -113,13 +138,19 @@ def iter_raw_batches(
     """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
     batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
     run: list[CanFrame] = []
-    for topic, encoding, _t, data in iter_messages(path, RAW_TOPICS, scan_result):
+    channels = [(None,)]
+
+    def on_metadata(name: str, metadata: dict[str, str]) -> None:
+        if name == METADATA_NAME:
+            channels[0] = can_channels(metadata)
+
+    for topic, encoding, _t, data in iter_messages(path, RAW_TOPICS, scan_result, on_metadata):
         if topic == TOPIC_CAN:
             if encoding == cdr.ENCODING:
                 if run:
                     yield CanFrameBatch.from_frames(run)
                     run = []
-                yield cdr.decode_can_batch(data)[1]
+                yield cdr.decode_can_batch(data, channels[0])[1]
             else:
                 run.append(can_frame_from_dict(json.loads(data)))
                 if len(run) >= MAX_BATCH_FRAMES:
