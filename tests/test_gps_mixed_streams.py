@@ -27,7 +27,7 @@ from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.records import GpsFix, NmeaLine, UbxFrame
 from slipdaq.sources.files import iter_nmea_log
 
-from conftest import DATA
+from conftest import CONFIG, DATA, write_config
 from gpsd_captures import ms, play_through_pty, tpv_speeds
 
 CAPTURES = sorted((DATA / "gpsd-ubx-mixed").glob("*.log"))
@@ -137,3 +137,26 @@ def test_import_logs_every_frame_and_counts_every_dropped_sentence(capture: Path
     assert diag["bad_sentences"] == dropped["bad_checksum"] + dropped["unparsable"]  # noise between the frames
     assert dropped["status_void"] == dropped["mode_invalid"] == dropped["empty_speed"] == 0
     assert diag["gps_fixes"] == kinds["RMC"] + kinds["NAV-PVT"]
+
+
+@pytest.mark.parametrize("capture", CAPTURES, ids=lambda p: p.stem)
+def test_import_of_ubx_alone_gives_the_nav_pvt_fixes(capture: Path, tmp_path: Path) -> None:
+    """A capture of UBX frames only (the frames pyubx2 finds in the receiver's bytes), imported with
+    gps.velocity = "ubx": every NAV-PVT is a fix, each record at its own UTC time (a bare capture has no other)."""
+    frames, _rmc, pvt = reference(capture)
+    ubx_only = tmp_path / "ubx-only.ubx"
+    ubx_only.write_bytes(b"".join(frames))
+    can = tmp_path / "one.log"
+    can.write_text("(1700000000.000000) can0 123#00\n")
+    cfg = write_config(tmp_path, CONFIG.read_text().replace('latency_s = "auto"', 'latency_s = "auto"\nvelocity = "ubx"'))
+    out = tmp_path / "ubx.mcap"
+    assert main(["import", "--config", str(cfg), "--can", str(can), "--nmea", str(ubx_only), "-o", str(out)]) == 0
+    with open(out, "rb") as f:
+        messages = [(ch.topic, json.loads(msg.data)) for _s, ch, msg in make_reader(f).iter_messages()
+                    if ch.topic in ("/gps/fix", "/gps/ubx/raw")]
+    fixes = [m for topic, m in messages if topic == "/gps/fix"]
+    assert len(fixes) == len(pvt)
+    for f, (utc, speed) in zip(fixes, pvt):
+        assert f["fix_time_utc_s"] == pytest.approx(utc, abs=1e-6) and f["speed_mps"] == pytest.approx(speed)
+    assert all(f["timestamp_s"] == f["fix_time_utc_s"] for f in fixes)
+    assert len([m for topic, m in messages if topic == "/gps/ubx/raw"]) == len(frames)

@@ -20,6 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from slipdaq.cli import main
 from slipdaq.decode.framing import MAX_FRAME_BYTES, MAX_LINE_BYTES, GpsFramer
 from slipdaq.decode.nmea import DROP_REASONS, KNOT_MPS, NmeaDecoder
 from slipdaq.records import GpsFix, NmeaLine
@@ -332,6 +333,19 @@ def test_rmc_validity_decisions_and_drop_reasons(case: tuple[str, str | None, st
     assert len(fixes) == 1 and fixes[0].speed_mps == pytest.approx(22.4 * KNOT_MPS)
     assert fixes[0].valid == (reason == "empty_speed")  # a fix the estimator takes exactly when only the speed lacked
     assert {k: v for k, v in d.dropped.items() if v} == ({} if fixes[0].valid else {reason: 1})
+
+
+def test_import_without_a_fix_says_why(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """pynmea2's 39 cases as an NMEA log: `import` has no fix to use, exit 1, and its line gives the reasons."""
+    nmea_log = tmp_path / "pynmea2-rmc.nmea"
+    nmea_log.write_text("".join(f"(1700000000.{i:02d}) {_rmc(*case[:3])}\n" for i, case in enumerate(_PYNMEA2_RMC)))
+    can = tmp_path / "one.log"
+    can.write_text("(1700000000.000000) can0 123#00\n")
+    assert main(["import", "--can", str(can), "--nmea", str(nmea_log), "-o", str(tmp_path / "out.mcap")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"slipdaq: {nmea_log}: no usable NMEA: 0 fixes from 39 lines (0 bad sentences; dropped: "
+                   "status_void 26, mode_invalid 12, empty_speed 1) (--allow-empty accepts it)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.log", "pynmea2-rmc.nmea"]
 
 
 @pytest.mark.parametrize(

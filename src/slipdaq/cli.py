@@ -220,10 +220,12 @@ def cmd_import(args: argparse.Namespace) -> int:
         p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import")
         d = p.diagnostics()
         _require(d.can_frames, f"{args.can}: no CAN frames in it", args)
-        _require(d.nmea_lines, f"{args.nmea}: no NMEA lines in it", args)
+        _require(d.nmea_lines + d.ubx_frames, f"{args.nmea}: no NMEA lines in it", args)
+        why = ", ".join(f"{reason} {n}" for reason, n in d.dropped_sentences.items() if n)
         _require(d.gps_fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
-                 f"({d.bad_sentences} bad sentences)", args)
-    print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines -> {args.output} "
+                 f"({d.bad_sentences} bad sentences{'; dropped: ' + why if why else ''})", args)
+    ubx = f" ({d.ubx_frames} UBX frames)" if d.ubx_frames else ""
+    print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines{ubx} -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
     return EXIT_OK
 

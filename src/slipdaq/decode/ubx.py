@@ -12,6 +12,8 @@ import datetime as dt
 from slipdaq.records import GpsFix, UbxFrame
 
 SYNC = b"\xb5\x62"
+NAV_PVT = b"\x01\x07"
+"""Class and id of NAV-PVT, bytes 2-3 of its frame."""
 
 
 def ubx_checksum(body: bytes) -> bytes:
@@ -24,7 +26,8 @@ def ubx_checksum(body: bytes) -> bytes:
 
 
 class UbxDecoder:
-    """UBX frames -> GpsFix from NAV-PVT; other messages are counted as unused. Never raises."""
+    """UBX frames -> GpsFix from NAV-PVT; other messages are counted as unused (by class and id, without parsing:
+    pyubx2 takes about a millisecond for a NAV-SAT or NAV-SIG). Never raises."""
 
     def __init__(self) -> None:
         self.frames = 0
@@ -36,12 +39,11 @@ class UbxDecoder:
         from pyubx2 import UBXReader  # imported with the first UBX frame (most logs have none)
 
         self.frames += 1
+        if frame.data[2:4] != NAV_PVT:
+            self.unused_frames += 1
+            return None
         try:
-            msg = UBXReader.parse(frame.data)
-            if getattr(msg, "identity", "") != "NAV-PVT":
-                self.unused_frames += 1
-                return None
-            return self._nav_pvt(msg, frame.timestamp_s)
+            return self._nav_pvt(UBXReader.parse(frame.data), frame.timestamp_s)
         except Exception:  # pyubx2 raises several types on malformed payloads
             self.bad_frames += 1
             return None

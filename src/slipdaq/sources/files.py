@@ -1,7 +1,8 @@
 """Import sources: CAN log files (any format python-can reads) and timestamped NMEA logs.
 
 NMEA log lines are `(EPOCH_SECONDS) $SENTENCE` in the CAN log's clock; bare `$SENTENCE` lines are
-accepted too and take the time of the sentence itself (RMC date + time), else of the line before. The bytes after the
+accepted too and take the time of the sentence itself (RMC date + time, or a UBX NAV-PVT's UTC time), else of the
+record before. The bytes after the
 time stamps are framed as the live serial reader frames them (decode/framing.py): a receiver's raw capture that mixes
 UBX or RTCM with NMEA gives the same records as it would live.
 """
@@ -19,6 +20,7 @@ import can
 
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
+from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.records import CanFrame, NmeaLine, RawRecord, UbxFrame
 from slipdaq.sources.read_errors import InputError, guarded
 
@@ -52,7 +54,7 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
         raise ImportError_(f"{p}: no such NMEA log")
     last_t: float | None = None
     pending: list[NmeaLine | UbxFrame] = []  # records before the first time is known
-    probe = NmeaDecoder()
+    probe, probe_ubx = NmeaDecoder(), UbxDecoder()
     framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
         for raw in chain(guarded(p, f, "line"), [None]):
@@ -61,8 +63,8 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
                 last_t = float(m["t"])
                 raw = raw[m.end() :]
             for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():
-                if m is None and isinstance(record, NmeaLine):
-                    fix = probe.decode(record)
+                if m is None:
+                    fix = probe.decode(record) if isinstance(record, NmeaLine) else probe_ubx.decode(record)
                     if fix is not None and fix.fix_time_utc_s is not None:
                         last_t = fix.fix_time_utc_s
                 if last_t is None:
