@@ -90,7 +90,7 @@ def iter_messages(
         if scan_result is not None:
             scan_result.finished = scan_result.has_summary = True
         with _open(path) as f:
-            reader = make_reader(f)
+            reader = make_reader(f, validate_crcs=True)
             if on_metadata is not None:
                 for m in reader.iter_metadata():
                     on_metadata(m.name, dict(m.metadata))
