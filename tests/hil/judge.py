@@ -7,8 +7,8 @@ its lag, kernel stamp minus sampling time (0.2-0.9 ms in the emulated VM, up to 
 between), which leaves its count short by (wheel rate x lag) pulses. The estimator takes a wheel's distance over a
 window from the counts interpolated linearly at the window's edges, so the sender's share of a window's slip error
 is |rate_1 lag_1 - rate_0 lag_0| / (mean rate x W) (lag and rate interpolated at the edges from the frames around
-them). A wheel's window is judged when that share is at most MAX_SENDER_SHARE and the frames around each
-edge are at most MAX_EDGE_GAP_S apart (a stalled sender leaves a gap that linear interpolation bridges with an
+them). A wheel's window is judged when that share is at most MAX_SENDER_SHARE and the frames around each edge
+are at most MAX_EDGE_GAP_S apart (a stalled sender leaves a gap that linear interpolation bridges with an
 error no receiver can avoid: |a| g^2 / 8 of distance). Truth is on the sender's clock: drive time 0 is the
 sender's `zero_s`, so nothing is aligned on the data being judged.
 """
@@ -31,7 +31,8 @@ MAX_EDGE_GAP_S = 0.08
 """Largest gap between the two frames around a window edge (2 periods at 25 Hz per wheel): interpolating over it
 misses at most 4 mm at 5 m/s^2, 0.08 points of slip over a 0.5 s window at 10 m/s."""
 MAX_SENDER_SHARE = 0.002
-"""Largest share of a wheel window's slip (0.2 percentage points: a tenth of the p95 bound) that the sender's sampling lag may account for."""
+"""Largest share of a wheel window's slip that the sender's sampling lag may account for (0.2 percentage points: a
+tenth of the p95 bound)."""
 MIN_SPEED_MPS = 5.0
 MEDIAN_BOUND_POINTS = 0.5
 P95_BOUND_POINTS = 2.0
@@ -155,8 +156,9 @@ def judge_drive(rows: Iterable[dict[str, Any]], truth: dict[str, np.ndarray], wh
     err = summarize(np.concatenate([slip_errors(kept[w], truth, MIN_SPEED_MPS, wheels=[w]) for w in WHEELS]))
     err_all = summarize(slip_errors(fast, truth, MIN_SPEED_MPS))
     v = DriveVerdict(err_all.samples, err, err_all)
-    driving = [r["slip_FL"] for r in kept["FL"] if r["accel_mps2"] and r["accel_mps2"] > 2 and r["slip_FL"] is not None]
-    braking = [r["slip_FL"] for r in kept["FL"] if r["accel_mps2"] and r["accel_mps2"] < -4 and r["slip_FL"] is not None]
+    fl = [(r["accel_mps2"], r["slip_FL"]) for r in kept["FL"] if r["accel_mps2"] and r["slip_FL"] is not None]
+    driving = [s for a, s in fl if a > 2]
+    braking = [s for a, s in fl if a < -4]
     v.driving = (sum(s > 0.01 for s in driving), len(driving))
     v.braking = (sum(s < -0.01 for s in braking), len(braking))
     v.gps_shift_s = float(np.median(gps_shift_s))

@@ -64,7 +64,9 @@ def test_the_recorded_daemon_passes(recorded) -> None:  # type: ignore[no-untype
      ["median", "p95"]),
     ("GPS latency 50 ms for 0", [(r"^latency_s = .*$", "latency_s = 0.05")], ["median", "p95"]),
 ])
-def test_a_wrong_estimate_is_caught(recorded, tmp_path: Path, name: str, changes: list, caught: list) -> None:  # type: ignore[no-untyped-def,type-arg]
+def test_a_wrong_estimate_is_caught(  # type: ignore[no-untyped-def]
+    recorded, tmp_path: Path, name: str, changes: list[tuple[str, str]], caught: list[str]
+) -> None:
     from slipdaq.sources.mcap_log import iter_estimates
 
     wheels, truth, shift = recorded
