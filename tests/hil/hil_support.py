@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import math
 import os
 import re
 import signal
@@ -19,10 +20,12 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
+
+from wpt_sender import Drive, read_nmea, write_nmea  # noqa: F401  (the sender's file formats, re-exported)
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -324,15 +327,6 @@ class Daemon:
 
 # ---- traffic sources ----
 
-def start_simulate(zygote: Zygote, config: Path, gps_link: str, duration_s: float, *, wpt_rate_hz: float,
-                   gps_rate_hz: float, go: str, delay_s: float = 1.0, name: str = "simulate") -> ZygoteChild:
-    """`slipdaq simulate`, started when `go` matches a file (plus delay_s)."""
-    return zygote.spawn(name, "slipdaq", ["simulate", "--config", str(config), "--gps-link", gps_link,
-                                          "--duration", f"{duration_s:g}", "--wpt-rate-hz", f"{wpt_rate_hz:g}",
-                                          "--gps-rate-hz", f"{gps_rate_hz:g}"],
-                        cwd=config.parent, go=go, delay_s=delay_s)
-
-
 def start_replay_bus(zygote: Zygote, log: Path, gps_link: str, *, go: str, delay_s: float = 1.0,
                      name: str = "replay_bus") -> ZygoteChild:
     """`python tools/replay/replay_bus.py LOG --interface socketcan --channel vcan0 --gps-link L`, started when
@@ -343,16 +337,53 @@ def start_replay_bus(zygote: Zygote, log: Path, gps_link: str, *, go: str, delay
 
 
 def start_sender(rate_hz: float, duration_s: float, *, go: str, delay_s: float = 1.0, record: Path | None = None,
-                 then_burst: int = 0, burst_rate_hz: float = 0.0, name: str = "wpt_sender") -> ExecProc:
+                 then_burst: int = 0, burst_rate_hz: float = 0.0, drive: Path | None = None,
+                 nmea: Path | None = None, gps_link: str | None = None, nmea_record: Path | None = None,
+                 gps_reader_pid: int | None = None, name: str = "wpt_sender") -> ExecProc:
     """wpt_sender.py: WPT frames at rate_hz per wheel for duration_s, then optionally `then_burst` more frames at
-    burst_rate_hz per wheel; starts when `go` matches a file (plus delay_s)."""
+    burst_rate_hz per wheel; with `drive`, each frame's PulseCount is the drive's count at the moment it is sent;
+    with `nmea`, those lines on a pseudo-terminal linked at gps_link. It starts when `go` matches a file and (with
+    gps_reader_pid) that process has the pseudo-terminal open, plus delay_s."""
     argv = [PY, str(HERE / "wpt_sender.py"), "--go", go, "--delay", f"{delay_s:g}", "--channel", CHANNEL,
             "--rate-hz", f"{rate_hz:g}", "--duration", f"{duration_s:g}"]
-    if record is not None:
-        argv += ["--record", str(record)]
+    for flag, value in (("--record", record), ("--drive", drive), ("--nmea", nmea), ("--gps-link", gps_link),
+                        ("--nmea-record", nmea_record), ("--gps-reader-pid", gps_reader_pid)):
+        if value is not None:
+            argv += [flag, str(value)]
     if then_burst:
         argv += ["--then-burst", str(then_burst), "--burst-rate-hz", f"{burst_rate_hz:g}"]
     return ExecProc(name, argv)
+
+
+_PROGRESS = re.compile(r"^sender: at ([\d.]+) sent (\d+) failed (\d+) nmea (\d+)")
+
+
+@dataclass(frozen=True)
+class SenderProgress:
+    at_s: float
+    """The sender's time.time() when it printed the line."""
+    sent: int
+    failed: int
+    nmea: int
+
+
+def sender_progress(proc: Proc) -> list[SenderProgress]:
+    """Every progress line wpt_sender.py has printed so far (one each 0.25 s)."""
+    with proc._cv:
+        return [SenderProgress(float(m.group(1)), int(m.group(2)), int(m.group(3)), int(m.group(4)))
+                for _, line in proc.lines if (m := _PROGRESS.match(line))]
+
+
+def wait_progress(proc: Proc, done: Callable[[list[SenderProgress]], bool], timeout_s: float) -> bool:
+    """Until done(progress so far) holds (True), the sender has ended or the timeout (False)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if done(sender_progress(proc)):
+            return True
+        if proc.poll() is not None:
+            return done(sender_progress(proc))
+        time.sleep(0.05)
+    return False
 
 
 def sender_result(proc: Proc, timeout_s: float) -> dict[str, Any]:
@@ -364,12 +395,58 @@ def sender_result(proc: Proc, timeout_s: float) -> dict[str, Any]:
     raise AssertionError(f"{proc.name}: no result line:\n{proc.output()[-4000:]}")
 
 
-def read_sent(record: Path) -> list[tuple[int, int, float, float]]:
-    """wpt_sender.py --record: (can_id, frame index n, time before send, time after send) per frame sent."""
+class SentFrame(NamedTuple):
+    can_id: int
+    n: int
+    """The frame's index per wheel (PulseCount without --drive, Seq = n mod 256)."""
+    t_before: float
+    t_after: float
+    """time.time() just before and just after its send(): the kernel's receive stamp lies between them."""
+    count: int | None
+    """PulseCount with --drive: the drive's count at t_before."""
+
+
+def read_sent(record: Path) -> list[SentFrame]:
+    """wpt_sender.py --record: every frame sent, in order."""
     out = []
     for line in record.read_text().splitlines():
-        a, b, c, d = line.split(",")
-        out.append((int(a), int(b), float(c), float(d)))
+        f = line.split(",")
+        out.append(SentFrame(int(f[0]), int(f[1]), float(f[2]), float(f[3]), int(f[4]) if len(f) > 4 else None))
+    return out
+
+
+def read_nmea_record(record: Path) -> list[tuple[int, float, float]]:
+    """wpt_sender.py --nmea-record: (line index, time before, time after) of every NMEA line written, in order."""
+    out = []
+    for line in record.read_text().splitlines():
+        a, b, c = line.split(",")
+        out.append((int(a), float(b), float(c)))
+    return out
+
+
+def write_drive(path: Path, truth: Sequence[Any], pulses_per_rev: int, start_count: int) -> None:
+    """The --drive file of wpt_sender.py: each wheel's pulses since the start, angle / 2 pi * pulses_per_rev, at the
+    times of the truth samples (slipdaq.sim.vehicle.TruthSample, every 10 ms: interpolating linearly between them
+    misses a count by under 0.1 pulse)."""
+    from slipdaq import WHEELS
+
+    samples = [t for i, t in enumerate(truth) if i == 0 or t.time_s > truth[i - 1].time_s]
+    Drive.save(path, start_count, [t.time_s for t in samples],
+               [[t.wheels[w].angle_rad / (2 * math.pi) * pulses_per_rev for t in samples] for w in WHEELS])
+
+
+def cruise_nmea(rate_hz: float, duration_s: float, speed_mps: float = 20.0) -> list[tuple[float, str]]:
+    """(time, sentence) of a receiver's RMC, GGA and VTG at rate_hz over duration_s, driving at a constant speed
+    (slipdaq.sim.emit's sentences: cheap, no vehicle model to integrate)."""
+    from slipdaq.sim.emit import SimSettings, gps_epoch_lines
+    from slipdaq.sim.vehicle import TruthSample
+
+    settings = SimSettings()
+    out = []
+    for k in range(int(duration_s * rate_hz)):
+        t = k / rate_hz
+        state = TruthSample(t, speed_mps, 0.0, 0.0, speed_mps * t, {})
+        out += [(t, line) for line in gps_epoch_lines(state, speed_mps, settings)]
     return out
 
 
@@ -448,8 +525,8 @@ def seq_gaps(frames: Iterable[tuple[float, bytes]]) -> int:
     return sum((b - a - 1) % 256 for a, b in zip(seqs, seqs[1:]))
 
 
-def sender_index(data: bytes) -> int:
-    """wpt_sender.py frames: PulseCount is the frame's index per wheel."""
+def pulse_count(data: bytes) -> int:
+    """A WPT frame's PulseCount (wpt_sender.py without --drive: the frame's index per wheel)."""
     return int.from_bytes(data[:4], "little")
 
 
@@ -457,6 +534,36 @@ def diagnostics(path: Path) -> list[dict[str, Any]]:
     from slipdaq.sources.mcap_log import iter_topic
 
     return [d for _, _, d in iter_topic(path, ("/diagnostics",))]
+
+
+FIT_REL_TOL = 1e-6
+"""The fitted stiffness (cx_fit_*) is summed over wheel samples in the batches they were read in: live and replay
+split them differently and differ in the last digits (measured up to 3e-9 relative)."""
+
+
+def replay_differences(log: Path, out: Path) -> list[str]:
+    """`slipdaq replay` of a live log (with the config stored in it) against the live estimates in it: what differs
+    (empty: the same estimates, every field equal, cx_fit_* within FIT_REL_TOL). What the daemon computed from what
+    it received, checked against the offline path on the same records, whatever the timing they came with."""
+    import io
+
+    from slipdaq.cli import main
+    from slipdaq.sources.mcap_log import iter_estimates
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["replay", str(log), "-o", str(out)])
+    if rc != 0:
+        return [f"slipdaq replay exited {rc}"]
+    live, offline = list(iter_estimates(log)), list(iter_estimates(out))
+    diffs = [] if len(live) == len(offline) else [f"{len(live)} live estimates, {len(offline)} replayed"]
+    for k, (a, b) in enumerate(zip(live, offline)):
+        for key in sorted(set(a) | set(b)):
+            x, y = a.get(key), b.get(key)
+            if x == y or (key.startswith("cx_fit_") and isinstance(x, float) and isinstance(y, float)
+                          and math.isclose(x, y, rel_tol=FIT_REL_TOL)):
+                continue
+            diffs.append(f"estimate {k} at {a['time_s']:.3f}: {key} live {x!r}, replayed {y!r}")
+    return diffs
 
 
 def finished(path: Path) -> bool:
