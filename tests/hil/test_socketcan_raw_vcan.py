@@ -19,6 +19,7 @@ if _reason:
 
 import can  # noqa: E402
 
+from slipdaq.records import pack_flags  # noqa: E402
 from slipdaq.sources.can_bus import set_receive_buffer  # noqa: E402
 from slipdaq.sources.socketcan_raw import RawSocketCanReader, frame_reader, is_socketcan  # noqa: E402
 
@@ -73,9 +74,8 @@ def test_raw_read_equals_python_can_on_vcan() -> None:
         msgs, t_py = _drain(lambda: a.recv(timeout=0), N)
         raws, t_raw = _drain(RawSocketCanReader(b.socket).recv, N)
     assert len(msgs) == len(raws) == N
-    for m, (t, aid, ext, err, data) in zip(msgs, raws):
-        assert (t, aid, ext, err, data) == (m.timestamp, m.arbitration_id, m.is_extended_id, m.is_error_frame,
-                                            bytes(m.data))
+    for m, raw in zip(msgs, raws):
+        assert raw == (m.timestamp, m.arbitration_id, pack_flags(m), bytes(m.data), m.dlc, m.channel)
     report(f"socketcan raw read: {N} frames equal to python-can's (stamps to the ns); drain rate python-can recv "
            f"{N / t_py:,.0f} frames/s, RawSocketCanReader {N / t_raw:,.0f} frames/s ({t_py / t_raw:.1f}x)")
 
