@@ -210,11 +210,13 @@ class Zygote:
         return None
 
     def spawn(self, name: str, kind: str, argv: Sequence[str], *, cwd: Path | None = None, go: str | None = None,
-              delay_s: float = 0.0) -> ZygoteChild:
-        """kind "slipdaq": slipdaq.cli.main(argv) (= `slipdaq ARGV`); "script": argv[0] run as __main__."""
+              delay_s: float = 0.0, nice: int = 0) -> ZygoteChild:
+        """kind "slipdaq": slipdaq.cli.main(argv) (= `slipdaq ARGV`); "script": argv[0] run as __main__; nice: the
+        child's scheduling priority (absolute; kept where not permitted)."""
         self.wait_ready()
         r, w = os.pipe()
-        request = {"kind": kind, "argv": list(argv), "cwd": str(cwd or ROOT), "go": go, "delay": delay_s}
+        request = {"kind": kind, "argv": list(argv), "cwd": str(cwd or ROOT), "go": go, "delay": delay_s,
+                   "nice": nice}
         with self._lock:
             socket.send_fds(self._sock, [json.dumps(request).encode()], [w])
             pid = json.loads(self._sock.recv(4096))["pid"]
@@ -260,13 +262,19 @@ class DaemonResult:
     output: str
 
 
+DAEMON_NICE = -5
+"""The daemon under test runs ahead of the traffic sources and the test process in the guest: when the emulated
+machine has less CPU than they all want, the sources fall late (measured and judged around), not the daemon."""
+
+
 class Daemon:
-    """`slipdaq run --config C --log-dir D` on vcan0, its own process; a status line every 5 s (stdout is a pipe)."""
+    """`slipdaq run --config C --log-dir D` on vcan0, its own process at nice DAEMON_NICE (root only); a status line
+    every 5 s (stdout is a pipe)."""
 
     def __init__(self, zygote: Zygote, config: Path, log_dir: Path, name: str = "daemon") -> None:
         self.log_dir = log_dir
         self.proc = zygote.spawn(name, "slipdaq", ["run", "--config", str(config), "--log-dir", str(log_dir)],
-                                 cwd=config.parent)
+                                 cwd=config.parent, nice=DAEMON_NICE)
 
     @property
     def go(self) -> str:

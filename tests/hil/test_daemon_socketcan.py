@@ -272,7 +272,7 @@ def test_case1_estimates_follow_the_simulators_truth(env: Env, case1: Case1) -> 
     """The verdict of judge.py: median |slip error| < 0.5 and p95 < 2 percentage points (the host's live test's
     bounds), slip positive while accelerating and negative while braking, over the wheel windows whose edges the
     sender covered (frames at most 0.08 s apart, sampling lag worth at most 0.2 points), at least 200 of them, with
-    the NMEA lines stamped a median of at most 20 ms after plan; and the daemon's estimates are the ones
+    the NMEA lines stamped a median of at most 10 ms after plan; and the daemon's estimates are the ones
     `slipdaq replay` computes from its own log. Reported beside: how late the sender sent frames and lines against
     its plan (the verdict does not depend on it) and how long the daemon took to read a line."""
     c = case1

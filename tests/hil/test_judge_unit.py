@@ -99,12 +99,13 @@ def test_a_sender_that_lags_gives_no_verdict(recorded) -> None:  # type: ignore[
 
 
 def test_nmea_stamped_late_gives_no_verdict(recorded) -> None:  # type: ignore[no-untyped-def]
-    """NMEA lines stamped 30 ms later than they were (a machine that does not run the sender or the daemon in real
-    time): the windows move against the wheel frames by that much, and the judge gives no verdict."""
+    """NMEA lines stamped 15 ms later than they were (as on a host that starved the VM: 18 ms after plan, median,
+    |slip error| median 0.46 points): the windows move against the wheel frames by that much, and the judge gives
+    no verdict."""
     from slipdaq.sources.mcap_log import iter_estimates
 
     wheels, truth, shift = recorded
-    problems = judge_drive(iter_estimates(LOG), truth, wheels, [x + 0.03 for x in shift]).problems
+    problems = judge_drive(iter_estimates(LOG), truth, wheels, [x + 0.015 for x in shift]).problems
     assert len(problems) == 1 and problems[0].startswith("no verdict: the daemon stamped the NMEA lines")
 
 

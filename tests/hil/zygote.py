@@ -9,13 +9,15 @@ tools/replay/replay_bus.py as `__main__` — with its stdout and stderr on the p
 wait until a file matching a glob exists first (`go`), e.g. the daemon's MCAP log, so that a traffic source starts
 once the daemon is reading.
 
-Protocol, on the Unix socket passed as fd argv[1]: the client sends one JSON request per message with one file
-descriptor attached (SCM_RIGHTS; the child's stdout and stderr); the zygote answers `{"pid": N}`. On its own
+Protocol, on the Unix socket passed as fd argv[1]: the client sends one JSON request per message (kind, argv, cwd,
+go, delay, nice: the child's scheduling priority) with one file descriptor attached (SCM_RIGHTS; the child's stdout
+and stderr); the zygote answers `{"pid": N}`. On its own
 stdout it prints `zygote: ready` once, then `exited PID RC` for each child it reaps.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import glob
 import importlib
@@ -53,6 +55,10 @@ def _child(request: dict[str, object], out_fd: int, control: socket.socket) -> N
         os.close(null)
         sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
         os.chdir(str(request.get("cwd") or "."))
+        nice = int(request.get("nice", 0))  # type: ignore[call-overload]
+        if nice:  # absolute; threads started later inherit it
+            with contextlib.suppress(PermissionError):
+                os.setpriority(os.PRIO_PROCESS, 0, nice)
         go = request.get("go")
         if go:
             while not glob.glob(str(go)):
