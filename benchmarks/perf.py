@@ -526,7 +526,7 @@ class EstimateProbe:
         self.rows: list[list[float]] = []
         self._orig = None
 
-    def __enter__(self) -> "EstimateProbe":
+    def __enter__(self) -> EstimateProbe:
         from slipdaq.sinks.mcap_log import McapLogSink
 
         orig = self._orig = McapLogSink.on_estimate

@@ -213,7 +213,7 @@ def check(base: Path) -> int:
     """--check: both sides on CHECK_CASES."""
     tmp = base.parent
     paths = []
-    for k, (name, overrides, settings, scenario, road, seconds, edit) in enumerate(CHECK_CASES):
+    for k, (_name, overrides, settings, scenario, road, seconds, edit) in enumerate(CHECK_CASES):
         paths.append(tmp / f"case-{k}.pkl")
         make_records(seconds, paths[-1], overrides, settings, scenario, road, edit)
     sides = {side: run_side(src, "--check-worker", *map(str, paths)) for side, src in

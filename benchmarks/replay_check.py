@@ -124,7 +124,6 @@ def make_inputs(work: Path, quick: bool) -> None:
     sys.path.insert(0, str(BENCH))
     import perf
     import perf_epoch
-
     from slipdaq.config import load_config, packaged_config_path
     perf.write_raw_log(perf.base_config(), 0.5 if quick else 1.0, work / "in-perf-raw.mcap")
     cases = perf_epoch.CHECK_CASES[:3] + perf_epoch.CHECK_CASES[5:6] if quick else perf_epoch.CHECK_CASES

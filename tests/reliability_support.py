@@ -19,11 +19,10 @@ from pathlib import Path
 
 import pytest
 
+from conftest import CONFIG, ROOT
 from slipdaq.config import load_config
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
 from slipdaq.sim.emit import SimSettings, generate
-
-from conftest import CONFIG, ROOT
 
 # ---- records ----
 

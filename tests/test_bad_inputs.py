@@ -19,6 +19,7 @@ import can
 import pytest
 from mcap.reader import make_reader
 
+from conftest import CONFIG, DATA
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.daemon import new_log_path, run_daemon
@@ -26,8 +27,6 @@ from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sinks.rotation import segment_path
 from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, read_metadata
-
-from conftest import CONFIG, DATA
 
 PYCAN = DATA / "python-can"
 
@@ -288,7 +287,7 @@ def test_replay_and_export_of_a_log_with_nothing_in_it_fail_unless_allowed(
 def test_a_new_log_name_is_clear_of_every_segment_name(tmp_path: Path) -> None:
     """Files named like the second segment of the run about to start (a clock without a battery comes back to the
     same time): the new run takes a name none of whose segments exists."""
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     taken = {}
     for s in range(-2, 30):
         stamp = (now + dt.timedelta(seconds=s)).strftime("%Y%m%d-%H%M%S")

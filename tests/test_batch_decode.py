@@ -10,13 +10,12 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import CONFIG, ROOT, write_config
 from slipdaq.config import Config, load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sim.emit import SimSettings, generate
-
-from conftest import CONFIG, ROOT, write_config
 
 MIXED_DBC = (ROOT / "config" / "wpt.dbc").read_text() + '''
 BO_ 800 WPT_RL_SMALL: 8 WPT_NODE

@@ -8,6 +8,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.config import load_config
 from slipdaq.decode.can_wheels import WheelDecoder
@@ -16,8 +17,6 @@ from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.records import CanFrame, NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
-
-from conftest import CONFIG
 
 GPS_OUTAGE_S = (6.0, 8.0)
 """Sim time without NMEA: the estimator goes on the wheels' clock, then GPS comes back."""

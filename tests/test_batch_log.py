@@ -10,6 +10,9 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from conftest import CONFIG
+from legacy_log import write_old_format_log
+from reliability_support import sim_records
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.pipeline import Pipeline
@@ -17,13 +20,15 @@ from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.cdr import decode_can_batch, decode_wheel_batch
 from slipdaq.sinks.mcap_log import (
-    MAX_BATCH_FRAMES, MAX_BATCH_SPAN_S, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_NMEA, TOPIC_WPT, McapLogSink,
+    MAX_BATCH_FRAMES,
+    MAX_BATCH_SPAN_S,
+    TOPIC_CAN,
+    TOPIC_ESTIMATE,
+    TOPIC_NMEA,
+    TOPIC_WPT,
+    McapLogSink,
 )
 from slipdaq.sources.mcap_log import iter_raw_batches, iter_raw_records, iter_topic
-
-from conftest import CONFIG
-from legacy_log import write_old_format_log
-from reliability_support import sim_records
 
 
 def _odd_frames() -> list:

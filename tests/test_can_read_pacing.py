@@ -9,11 +9,10 @@ import math
 import struct
 import time
 
+from fd_bus import FdBus
 from slipdaq.estimator.slip import EstimatorParams, SlipEstimator
 from slipdaq.records import CanFrame, CanFrameBatch, GpsFix, WheelSample
 from slipdaq.sources.can_bus import CanBusSource
-
-from fd_bus import FdBus
 
 
 def _numbers(frames: CanFrameBatch | list[CanFrame]) -> list[tuple[int, float]]:

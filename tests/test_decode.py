@@ -7,13 +7,12 @@ import struct
 import cantools
 import pytest
 
-from slipdaq.decode.can_wheels import DbcError, WheelDecoder
+from conftest import ROOT
 from slipdaq.config import load_config
+from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.decode.framing import MAX_LINE_BYTES, GpsFramer
 from slipdaq.decode.nmea import KNOT_MPS, NmeaDecoder
 from slipdaq.records import CanFrame, NmeaLine
-
-from conftest import ROOT
 
 DBC = (ROOT / "config" / "wpt.dbc").read_text()
 CFG = load_config(ROOT / "config" / "slipdaq.toml")

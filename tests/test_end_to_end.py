@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+from conftest import CONFIG, ROOT
 from slipdaq.cli import main
 from slipdaq.demo import run_demo_async
 from slipdaq.sim.emit import SimSettings, generate
@@ -24,16 +25,21 @@ from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import slip_error, truth_series
 from slipdaq.sinks.csv_export import COLUMNS
 from slipdaq.sinks.mcap_log import (
-    BATCH_SCHEMAS, RAW_TOPICS, SCHEMAS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_GPS, TOPIC_NMEA,
+    BATCH_SCHEMAS,
+    RAW_TOPICS,
+    SCHEMAS,
+    TOPIC_CAN,
+    TOPIC_ESTIMATE,
+    TOPIC_GPS,
+    TOPIC_NMEA,
 )
 from slipdaq.sources.mcap_log import config_from_log, iter_estimates, iter_raw_records, iter_topic
-
-from conftest import CONFIG, ROOT
 
 
 @pytest.fixture(scope="module")
 def live_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, object]:
-    """A 16 s live run (one whole accelerate-cruise-brake cycle): simulator and daemon on a virtual bus and a real pty (as `slipdaq demo`)."""
+    """A 16 s live run (one whole accelerate-cruise-brake cycle):
+    simulator and daemon on a virtual bus and a real pty (as `slipdaq demo`)."""
     out = tmp_path_factory.mktemp("live")
     with open(out / "status.txt", "w") as status:
         result, err, cfg = asyncio.run(run_demo_async(16.0, "cycle", "paved", out, status_stream=status,

@@ -9,7 +9,11 @@ import pytest
 
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.slip import (
-    EstimatorParams, SlipEstimator, integrate_speed_m, slip_from_distances, tire_forces,
+    EstimatorParams,
+    SlipEstimator,
+    integrate_speed_m,
+    slip_from_distances,
+    tire_forces,
 )
 from slipdaq.records import GpsFix, WheelSample
 

@@ -21,14 +21,13 @@ import pytest
 from mcap.reader import make_reader
 from pyubx2 import NMEA_PROTOCOL, UBX_PROTOCOL, UBXReader
 
+from conftest import CONFIG, DATA, write_config
+from gpsd_captures import ms, play_through_pty, tpv_speeds
 from slipdaq.cli import main
 from slipdaq.decode.nmea import DROP_REASONS, KNOT_MPS, NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.records import GpsFix, NmeaLine, UbxFrame
 from slipdaq.sources.files import iter_nmea_log
-
-from conftest import CONFIG, DATA, write_config
-from gpsd_captures import ms, play_through_pty, tpv_speeds
 
 CAPTURES = sorted((DATA / "gpsd-ubx-mixed").glob("*.log"))
 SPEED_TOL_MPS = 0.001

@@ -20,13 +20,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import DATA
+from gpsd_captures import STALL_S, ms, play_through_pty, tpv_speeds
 from slipdaq.cli import main
 from slipdaq.decode.framing import MAX_FRAME_BYTES, MAX_LINE_BYTES, GpsFramer
 from slipdaq.decode.nmea import DROP_REASONS, KNOT_MPS, NmeaDecoder
 from slipdaq.records import GpsFix, NmeaLine
-
-from conftest import DATA
-from gpsd_captures import STALL_S, ms, play_through_pty, tpv_speeds
 
 CAPTURES = DATA / "gpsd-nmea"
 

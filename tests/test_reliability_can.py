@@ -15,6 +15,8 @@ import time
 import can
 import pytest
 
+from conftest import CONFIG
+from reliability_support import sim_records
 from slipdaq import WHEELS
 from slipdaq.config import load_config
 from slipdaq.daemon import new_log_path, open_bus, run_daemon
@@ -24,12 +26,9 @@ from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, RawRecord
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.mcap_log import TOPIC_DIAGNOSTICS, estimate_to_dict
-from slipdaq.sinks.status import SourceStatus, StatusSink, _Rates, status_line
+from slipdaq.sinks.status import StatusSink, _Rates, status_line
 from slipdaq.sources.can_bus import CanBusSource
 from slipdaq.sources.mcap_log import iter_topic
-
-from conftest import CONFIG
-from reliability_support import sim_records
 
 WHEEL_IDS = {0x310 + i: w for i, w in enumerate(WHEELS)}
 

@@ -10,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from slipdaq.cli import main
-
 from conftest import CONFIG, ROOT, write_config
+from slipdaq.cli import main
 
 DBC = (ROOT / "config" / "wpt.dbc").read_text()
 

@@ -17,6 +17,7 @@ import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from reliability_support import ReplugGps, gps_lines, nmea, uart_misread
 from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.framing import MAX_FRAME_BYTES
 from slipdaq.decode.nmea import NmeaDecoder
@@ -30,8 +31,6 @@ from slipdaq.sources import serial_gps
 from slipdaq.sources.events import SourceEvent
 from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, iter_topic
 from slipdaq.sources.serial_gps import LineQuality, SerialGpsSource, valid_sentence
-
-from reliability_support import ReplugGps, gps_lines, nmea, uart_misread
 
 RMC = nmea("GPRMC,120000.00,A,5200.00000,N,01000.00000,E,20.000,90.0,010126,,,A")
 
@@ -225,7 +224,7 @@ def test_gps_gap_on_the_diagnostics_topics_and_in_the_live_view(tmp_path: Path) 
             await _write_for(gps, gps_lines(1.0), 1.0)
 
         async def can_traffic(bus: can.BusABC) -> None:
-            for i in range(220):  # keeps the pipeline's diagnostics ticking
+            for _i in range(220):  # keeps the pipeline's diagnostics ticking
                 bus.send(can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False))
                 await asyncio.sleep(0.01)
 

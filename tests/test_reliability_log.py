@@ -19,24 +19,28 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
+from conftest import CONFIG
+from reliability_support import DaemonProcess, fill, gps_lines, sim_records, small_tmpfs
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.pipeline import Pipeline
-from slipdaq.recover import ScanResult, recover, scan
 from slipdaq.records import CanFrame, NmeaLine, WheelSample
+from slipdaq.recover import ScanResult, recover, scan
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.cdr import decode_can_batch
 from slipdaq.sinks.durable import TRAILER
 from slipdaq.sinks.mcap_log import (
-    TOPIC_EVENTS, McapLogSink, can_frame_json, can_frame_to_dict, estimate_to_dict, wheel_sample_json,
+    TOPIC_EVENTS,
+    McapLogSink,
+    can_frame_json,
+    can_frame_to_dict,
+    estimate_to_dict,
+    wheel_sample_json,
     wheel_sample_to_dict,
 )
 from slipdaq.sinks.rotation import RotationPolicy, run_segments
 from slipdaq.sinks.status import SourceStatus, StatusSink, status_line
 from slipdaq.sources.mcap_log import is_finished, iter_estimates, iter_raw_records, iter_topic, read_metadata
-
-from conftest import CONFIG
-from reliability_support import DaemonProcess, fill, gps_lines, sim_records, small_tmpfs
 
 
 class FakeMonotonic:
@@ -383,7 +387,8 @@ _F = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**
 
 
 @settings(max_examples=300, deadline=None)
-@given(_F, st.integers(0, 2**29), st.binary(max_size=64), st.booleans(), st.booleans(), _F, st.one_of(st.none(), st.integers(0, 2**40)),
+@given(_F, st.integers(0, 2**29), st.binary(max_size=64), st.booleans(), st.booleans(), _F,
+       st.one_of(st.none(), st.integers(0, 2**40)),
        _F, st.one_of(st.none(), st.integers(0, 255)), st.integers(0, 10**6), st.sampled_from(["FL", "FR", "RL", "RR", 'x"\\']))
 def test_fast_json_equals_json_dumps(t, ident, data, ext, err, revs, count, raw, seq, lost, wheel) -> None:  # type: ignore[no-untyped-def]
     f = CanFrame(t, ident, data, ext, err)

@@ -8,9 +8,10 @@ import os
 from pathlib import Path
 
 import can
-
 import pytest
 
+from conftest import CONFIG
+from reliability_support import gps_lines, sim_records
 from slipdaq.config import load_config
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
@@ -20,9 +21,6 @@ from slipdaq.sources.can_bus import CanBusSource
 from slipdaq.sources.clock import SteadyClock
 from slipdaq.sources.mcap_log import iter_topic
 from slipdaq.sources.serial_gps import SerialGpsSource
-
-from conftest import CONFIG
-from reliability_support import gps_lines, sim_records
 
 
 class HostClock:

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
+from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import build_parser, main
 from slipdaq.config import load_config
@@ -31,8 +32,6 @@ from slipdaq.report.summary import analyse_linearity, debounce, group_of, summar
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.vehicle import ACCEL_MPS2, DECEL_MPS2, ROADS, force_shares, static_loads_n
 from slipdaq.sources.mcap_log import read_metadata
-
-from conftest import CONFIG
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -17,7 +17,7 @@ from can.interfaces.socketcan.socketcan import capture_message
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from slipdaq.sources.socketcan_raw import RawSocketCanReader, SO_TIMESTAMPNS, frame_reader, is_socketcan
+from slipdaq.sources.socketcan_raw import SO_TIMESTAMPNS, RawSocketCanReader, frame_reader, is_socketcan
 
 CAN_EFF_FLAG, CAN_RTR_FLAG, CAN_ERR_FLAG = 0x80000000, 0x40000000, 0x20000000
 

@@ -8,10 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from conftest import CONFIG, ROOT, write_config
 from slipdaq.config import ConfigError, load_config, packaged_config_path
 from slipdaq.tire import TireSizeError, free_radius_m, parse_tire_size
-
-from conftest import CONFIG, ROOT, write_config
 
 
 @pytest.mark.parametrize(

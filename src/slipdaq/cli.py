@@ -244,7 +244,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.offline import process_to_log
     from slipdaq.report.labels import LABEL_PREFIX
     from slipdaq.sources.mcap_log import (
-        ScanResult, config_from_log, iter_raw_batches, raw_record_count, read_metadata,
+        ScanResult,
+        config_from_log,
+        iter_raw_batches,
+        raw_record_count,
+        read_metadata,
     )
     from slipdaq.sources.read_errors import guarded
 
@@ -285,7 +289,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
     report = recover(args.logs, args.output)
     for r in report.inputs:
         last = "" if r.last_log_time_ns is None else \
-            f", last message {dt.datetime.fromtimestamp(r.last_log_time_ns / 1e9, dt.timezone.utc):%Y-%m-%d %H:%M:%S.%f} UTC"
+            f", last message {dt.datetime.fromtimestamp(r.last_log_time_ns / 1e9, dt.UTC):%Y-%m-%d %H:%M:%S.%f} UTC"
         state = "finished" if r.has_summary else "not finished"
         why = f"; {r.stopped_because}" if r.stopped_because else ""
         print(f"{r.path}: {state}, {r.messages} messages read ({r.read_bytes} of {r.size_bytes} bytes{why}){last}")

@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import re
 import tomllib
-
-import tomli_w
 from importlib import resources
 from pathlib import Path
 from typing import Literal
 
+import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from slipdaq.tire import TireSizeError, free_radius_m, parse_tire_size
@@ -53,7 +52,7 @@ class TireConfig(_Section):
         return v
 
     @model_validator(mode="after")
-    def _one_given(self) -> "TireConfig":
+    def _one_given(self) -> TireConfig:
         if self.size is None and self.free_radius_m is None:
             raise ValueError("give tire.size (for example '195/60 R15') or tire.free_radius_m")
         return self
@@ -88,7 +87,7 @@ class WheelSourceConfig(_Section):
     """speed: the signal's unit (default: the DBC's unit for the signal)."""
 
     @model_validator(mode="after")
-    def _kind_fields(self) -> "WheelSourceConfig":
+    def _kind_fields(self) -> WheelSourceConfig:
         if self.kind == "speed" and (self.pulses_per_rev is not None or self.seq_signal is not None):
             raise ValueError("pulses_per_rev and seq_signal are for kind = \"count\"")
         if self.kind == "count" and self.unit is not None:
@@ -185,7 +184,7 @@ class Config(_Section):
         """The effective config as TOML (what a log stores, so that replay runs with exactly these values)."""
         return tomli_w.dumps(self.model_dump(exclude_none=True))
 
-    def with_overrides(self, **sections: dict[str, object]) -> "Config":
+    def with_overrides(self, **sections: dict[str, object]) -> Config:
         """A copy with some keys replaced, e.g. with_overrides(can={"interface": "virtual"})."""
         update = {name: getattr(self, name).model_copy(update=values) for name, values in sections.items()}
         return self.model_copy(update=update)

@@ -99,7 +99,7 @@ def can_metadata(config: Config, bus: can.BusABC) -> dict[str, str]:
 
 def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
     """PREFIX-STAMP.mcap in log_dir, a name that neither a file nor a segment of one (NAME_002.mcap, ...) has."""
-    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
     path = log_dir / f"{prefix}-{stamp}.mcap"
     n = 1
     while path.exists() or any(log_dir.glob(later_segments_glob(path))):

@@ -13,7 +13,6 @@ from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord
 from slipdaq.sinks.mcap_log import McapLogSink
 
-
 BATCH_FRAMES = 512
 """Consecutive CAN frames of an input go through the pipeline in batches of up to this many."""
 READ_AHEAD_FRAMES = 4096

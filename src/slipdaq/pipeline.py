@@ -13,14 +13,22 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
-from slipdaq import WHEELS
 from slipdaq.records import (
-    FLAG_ERROR, CanFrame, CanFrameBatch, Diagnostics, GpsFix, NmeaLine, RawRecord, UbxFrame, WheelSampleBatch,
+    FLAG_ERROR,
+    CanFrame,
+    CanFrameBatch,
+    Diagnostics,
+    GpsFix,
+    NmeaLine,
+    RawRecord,
+    UbxFrame,
+    WheelSampleBatch,
 )
 from slipdaq.sinks import Sink
 

@@ -43,7 +43,7 @@ class CanFrame:
 
     @classmethod
     def from_flags(cls, timestamp_s: float, arbitration_id: int, data: bytes, flags: int, dlc: int = 0,
-                   channel: str | None = None) -> "CanFrame":
+                   channel: str | None = None) -> CanFrame:
         """The frame with FLAG_* bits `flags` and the batch's `dlc` column (see CanFrameBatch.dlc): data is ignored
         for a remote frame."""
         remote = flags & FLAG_REMOTE
@@ -162,7 +162,7 @@ class CanFrameBatch:
     @classmethod
     def from_columns(cls, timestamp_s: Sequence[float], arbitration_id: Sequence[int],
                      flags: Sequence[int] | np.ndarray, payloads: Sequence[bytes], dlc: Sequence[int] | None = None,
-                     channels: Sequence[object] | None = None) -> "CanFrameBatch":
+                     channels: Sequence[object] | None = None) -> CanFrameBatch:
         """dlc: per frame its `dlc` column (default: the payloads' lengths; a remote frame's payload is empty, one
         with FLAG_DLC has 8 bytes); channels: per frame its channel, python-can's or its name (default: None)."""
         n = len(payloads)
@@ -179,7 +179,7 @@ class CanFrameBatch:
 
     @classmethod
     def from_frames(cls, frames: Sequence[CanFrame | Any], timestamp_s: Sequence[float] | None = None
-                    ) -> "CanFrameBatch":
+                    ) -> CanFrameBatch:
         """CanFrames, or python-can's Messages (the same attribute names) stamped timestamp_s."""
         flags = np.fromiter(map(pack_flags, frames), dtype=np.uint8, count=len(frames))
         odd = (flags & (FLAG_REMOTE | FLAG_DLC)) != 0
@@ -211,11 +211,11 @@ class CanFrameBatch:
             else:
                 yield CanFrame.from_flags(t, fid, bytes(row[: 8 if fl & FLAG_DLC else n]), fl, n, names[ch])
 
-    def slice(self, start: int, stop: int) -> "CanFrameBatch":
+    def slice(self, start: int, stop: int) -> CanFrameBatch:
         return CanFrameBatch(self.timestamp_s[start:stop], self.arbitration_id[start:stop], self.flags[start:stop],
                              self.dlc[start:stop], self.data[start:stop], self.channel[start:stop], self.channels)
 
-    def renamed(self, channels: Sequence[str | None]) -> "CanFrameBatch":
+    def renamed(self, channels: Sequence[str | None]) -> CanFrameBatch:
         """The same frames with their channel indices into `channels` (which holds every name of this batch's)."""
         channels = tuple(channels)
         if channels == self.channels:
@@ -227,7 +227,7 @@ class CanFrameBatch:
                              lut[self.channel], channels)
 
     @classmethod
-    def concat(cls, parts: Sequence["CanFrameBatch"]) -> "CanFrameBatch":
+    def concat(cls, parts: Sequence[CanFrameBatch]) -> CanFrameBatch:
         """The batches' frames in order, as one batch (payloads zero-padded to the widest)."""
         width = max(p.data.shape[1] for p in parts)
         data = [p.data if p.data.shape[1] == width else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
@@ -265,14 +265,14 @@ class WheelSampleBatch:
     def __len__(self) -> int:
         return len(self.timestamp_s)
 
-    def slice(self, start: int, stop: int, frame_offset: int = 0) -> "WheelSampleBatch":
+    def slice(self, start: int, stop: int, frame_offset: int = 0) -> WheelSampleBatch:
         """Samples start..stop, their frame indices moved by frame_offset."""
         return WheelSampleBatch(self.frame[start:stop] + frame_offset, self.wheel[start:stop],
                                 self.timestamp_s[start:stop], self.revolutions[start:stop], self.count[start:stop],
                                 self.raw[start:stop], self.seq[start:stop], self.lost_frames[start:stop],
                                 self.flags[start:stop])
 
-    def samples(self, wheels: Sequence[str]) -> Iterator["WheelSample"]:
+    def samples(self, wheels: Sequence[str]) -> Iterator[WheelSample]:
         for w, t, rev, c, raw, q, lost, fl in zip(
             self.wheel.tolist(), self.timestamp_s.tolist(), self.revolutions.tolist(), self.count.tolist(),
             self.raw.tolist(), self.seq.tolist(), self.lost_frames.tolist(), self.flags.tolist(),

@@ -33,7 +33,7 @@ class SimOptions:
     settings: SimSettings = SimSettings()
 
     @classmethod
-    def from_args(cls, a: argparse.Namespace) -> "SimOptions":
+    def from_args(cls, a: argparse.Namespace) -> SimOptions:
         return cls(a.scenario, a.road, a.gps_port, a.gps_link, a.duration, SimSettings(
             wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz, gps_latency_s=a.gps_latency_s,
             gps_noise_mps=a.gps_noise_mps, seed=a.seed,

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from hil_support import IDS, LogContent, SentFrame, pulse_count
 
 MAX_EDGE_GAP_S = 0.08

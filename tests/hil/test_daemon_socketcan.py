@@ -39,12 +39,37 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
 from hil_support import (
-    IDS, Daemon, DaemonResult, LogContent, SenderProgress, SentFrame, Zygote, bind_pytest, can_unavailable_reason,
-    cruise_nmea, diagnostics, finished, link, percentile, proc_state, pulse_count, rate_while_backlogged, read_log,
-    read_nmea_record, read_sent, report, sender_result, seq_gaps, start_replay_bus, start_sender, wait_progress,
-    replay_differences, write_config, write_drive, write_nmea,
+    IDS,
+    Daemon,
+    DaemonResult,
+    LogContent,
+    SenderProgress,
+    SentFrame,
+    Zygote,
+    bind_pytest,
+    can_unavailable_reason,
+    cruise_nmea,
+    diagnostics,
+    finished,
+    link,
+    percentile,
+    proc_state,
+    pulse_count,
+    rate_while_backlogged,
+    read_log,
+    read_nmea_record,
+    read_sent,
+    replay_differences,
+    report,
+    sender_result,
+    seq_gaps,
+    start_replay_bus,
+    start_sender,
+    wait_progress,
+    write_config,
+    write_drive,
+    write_nmea,
 )
 from judge import DriveVerdict, gps_shift, judge_drive, save_truth, wheel_frames
 

@@ -14,7 +14,6 @@ import re
 from pathlib import Path
 
 import pytest
-
 from hil_support import read_log, read_nmea, read_nmea_record, read_sent, write_config
 from judge import MIN_JUDGED_WINDOWS, gps_shift, judge_drive, load_truth, wheel_frames
 

@@ -10,7 +10,6 @@ import time
 import pytest
 from hil_support import can_unavailable_reason
 
-
 _reason = can_unavailable_reason()
 if _reason:
     pytest.skip(_reason, allow_module_level=True)

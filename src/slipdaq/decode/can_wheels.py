@@ -29,7 +29,14 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config, WheelSourceConfig
 from slipdaq.records import (
-    FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, WheelSample,
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_REMOTE,
+    SAMPLE_HAS_COUNT,
+    SAMPLE_HAS_SEQ,
+    CanFrame,
+    CanFrameBatch,
+    WheelSample,
     WheelSampleBatch,
 )
 
@@ -356,7 +363,7 @@ class WheelDecoder:
         frame, _order, wheel, t, rev, count, raw, seq, lost, flags = cat
         return WheelSampleBatch(frame, wheel.astype(np.uint8), t, rev, count, raw, seq, lost, flags.astype(np.uint8))
 
-    def _group_columns(self, g: "_Group", batch: CanFrameBatch, which: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    def _group_columns(self, g: _Group, batch: CanFrameBatch, which: np.ndarray) -> tuple[np.ndarray, ...] | None:
         """_count_step over the frames of every message of a group at once (sorted by source, vectorised); None
         (nothing changed) when a counter reset needs the frame-by-frame path."""
         slot = g.slot_of[which]

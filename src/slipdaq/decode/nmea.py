@@ -25,7 +25,8 @@ tests/data/gpsd-nmea: u-blox, SiRF, Quectel, Trimble, Garmin, Telit, OxTS):
   status (last RMC field) not U (unsafe). Its V means "the equipment does not provide a navigational status" (u-blox
   documents it as fixed), not "fix invalid": in those captures 15 receivers (u-blox, Quectel, Furuno, SkyTraq, Telit)
   send V with every valid fix, one (ST Teseo) sends C, none U (gpsd ignores the field and reports those fixes; pynmea2
-  would reject all of them). And this epoch's GGA, when it came first, not quality 0 (invalid) or 6 (estimated). A sentence with status A but no speed gives no fix (and is counted
+  would reject all of them). And this epoch's GGA, when it came first, not quality 0 (invalid) or 6 (estimated).
+  A sentence with status A but no speed gives no fix (and is counted
   as empty_speed).
 - GGA fields (fix quality, satellites, altitude): from this epoch's GGA when it came before the fix; otherwise from the
   previous GGA if it came less than VTG_ONLY_AFTER_S host seconds ago (receivers that send GGA after RMC, e.g. u-blox:

@@ -86,7 +86,7 @@ class EstimatorParams:
     """With no GPS fix for this long, estimates continue on the wheels' clock (slip against non-driven wheels)."""
 
     @classmethod
-    def from_config(cls, cfg: Config) -> "EstimatorParams":
+    def from_config(cls, cfg: Config) -> EstimatorParams:
         v, e = cfg.vehicle, cfg.estimator
         return cls(
             window_s=e.window_s, min_speed_mps=e.min_speed_mps, cx_slip_min=e.cx_slip_min, cx_slip_max=e.cx_slip_max,

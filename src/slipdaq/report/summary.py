@@ -29,10 +29,13 @@ Linear region and the end of linearity (per wheel and maneuver), the exact rule
 Other figures per wheel and maneuver
     mean Re: mean of `re_W_m`; r0: the reference radius `r0_W_m`; peak Cx: the largest median |`cx_W_n`| (the
     estimator's windowed Fx/s) over the same 1 % slip bins of at least 5 values, with that bin's median slip
-    (a single window's Fx/s at low slip is too noisy to take its maximum); fitted Cx and its confidence: the online `cx_fit_W_n` / `cx_fit_W_conf` of the
-    maneuver's row with the highest confidence when the rows have them, else Cx_line with confidence max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the relative half width
+    (a single window's Fx/s at low slip is too noisy to take its maximum); fitted Cx and its confidence:
+    the online `cx_fit_W_n` / `cx_fit_W_conf` of the
+    maneuver's row with the highest confidence when the rows have them, else Cx_line with confidence
+    max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the relative half width
     of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
-    common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto"). Lost frames (per wheel) and bad sentences: the last `/diagnostics`.
+    common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
+    Lost frames (per wheel) and bad sentences: the last `/diagnostics`.
 """
 
 from __future__ import annotations

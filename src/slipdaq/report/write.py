@@ -21,7 +21,8 @@ RULE_TEXT = (
     "Fx = Cx·s is fitted through the origin (least squares) over the force–slip points with "
     "cx_slip_min ≤ |s| ≤ cx_slip_max (0.5–10 % by default; same sign of Fx and s). The points are binned by |s| "
     "in 1 % steps (bins of at least 5 points); linearity ends at the first bin whose median |Fx| is more than "
-    "10 % below the line and after which every bin stays below it, over at least two bins (the line is refitted below that bin when "
+    "10 % below the line and after which every bin stays below it, over at least two bins "
+    "(the line is refitted below that bin when "
     "the bin lay inside the fit range). Peak linear Fx: the largest |Fx| below that bin. No such bin: "
     "“linear throughout”."
 )
@@ -54,7 +55,7 @@ def write_json(
     """{version, generated_utc, linearity_rule, columns, rows (= summary.csv), logs, comparison}."""
     doc = {
         "slipdaq_version": slipdaq.__version__,
-        "generated_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "generated_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "linearity_rule": RULE_TEXT,
         "columns": list(COLUMNS),
         "rows": [{c: _json_value(r.get(c)) for c in COLUMNS} for r in rows],
@@ -176,7 +177,7 @@ def write_html(
 ) -> None:
     """index.html; `plots`: log name -> phase -> plot stem -> path relative to the html; `compare_plots`: phase ->
     path of the comparison plot."""
-    now = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+    now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     out = [
         '<!doctype html>\n<html lang="en"><head><meta charset="utf-8"><title>slipdaq report</title>',
         f"<style>{_CSS}</style></head><body>",

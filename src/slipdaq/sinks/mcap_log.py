@@ -7,8 +7,8 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 from __future__ import annotations
 
 import datetime as dt
-import json
 import io
+import json
 import logging
 import struct
 import sys
@@ -27,8 +27,17 @@ from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.decode.nmea import DROP_REASONS
 from slipdaq.records import (
-    SAMPLE_HAS_COUNT, SAMPLE_HAS_SEQ, CanFrame, CanFrameBatch, Estimate, GpsFix, NmeaLine, RawRecord, UbxFrame,
-    WheelSample, WheelSampleBatch,
+    SAMPLE_HAS_COUNT,
+    SAMPLE_HAS_SEQ,
+    CanFrame,
+    CanFrameBatch,
+    Estimate,
+    GpsFix,
+    NmeaLine,
+    RawRecord,
+    UbxFrame,
+    WheelSample,
+    WheelSampleBatch,
 )
 from slipdaq.sinks import cdr
 from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
@@ -516,7 +525,7 @@ class McapLogSink:
         self._meta = {
             "version": slipdaq.__version__,
             "mode": mode,
-            "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+            "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "config_path": str(config.source_path or ""),
             "config_toml": config.to_toml(),
             "config_source_toml": config.source_text,

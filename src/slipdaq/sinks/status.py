@@ -21,7 +21,15 @@ from rich.text import Text
 from slipdaq import WHEELS
 from slipdaq.decode.can_errors import error_classes
 from slipdaq.records import (
-    FLAG_ERROR, FLAG_EXTENDED, CanFrame, CanFrameBatch, Estimate, GpsFix, RawRecord, WheelSample, WheelSampleBatch,
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    CanFrame,
+    CanFrameBatch,
+    Estimate,
+    GpsFix,
+    RawRecord,
+    WheelSample,
+    WheelSampleBatch,
 )
 from slipdaq.sources.events import SourceEvent
 

@@ -16,12 +16,20 @@ from mcap.reader import make_reader
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, parse_config
-from slipdaq.recover import LogError, ScanResult, scan, scan_messages, scan_metadata
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
+from slipdaq.recover import LogError, ScanResult, scan, scan_messages, scan_metadata
 from slipdaq.sinks import cdr
 from slipdaq.sinks.mcap_log import (
-    MAX_BATCH_FRAMES, METADATA_NAME, RAW_TOPICS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_UBX, TOPIC_WPT, can_frame_from_dict,
-    can_frame_to_dict, wheel_sample_to_dict,
+    MAX_BATCH_FRAMES,
+    METADATA_NAME,
+    RAW_TOPICS,
+    TOPIC_CAN,
+    TOPIC_ESTIMATE,
+    TOPIC_UBX,
+    TOPIC_WPT,
+    can_frame_from_dict,
+    can_frame_to_dict,
+    wheel_sample_to_dict,
 )
 
 __all__ = ["LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",

@@ -1,7 +1,8 @@
 """GPS source: NMEA lines from a serial port (pyserial), read from the asyncio loop without blocking.
 
 The port is opened non-blocking and read when the loop says it is readable; each chunk of bytes is framed into
-records (NMEA lines and UBX frames, decode/framing.py, whatever gps.velocity says) stamped with `clock` (the host receive time; a SteadyClock in live runs, so that a step of the host clock does
+records (NMEA lines and UBX frames, decode/framing.py, whatever gps.velocity says) stamped with `clock`
+(the host receive time; a SteadyClock in live runs, so that a step of the host clock does
 not reach the records). What the car does to a GPS, and what the source does about it:
 
 - Unplugged (the device disappears; pyserial then raises "device reports readiness to read but returned no data",

@@ -19,7 +19,15 @@ from collections.abc import Callable
 import can
 
 from slipdaq.records import (
-    FLAG_BRS, FLAG_DLC, FLAG_ERROR, FLAG_ESI, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE, FLAG_TX, channel_name,
+    FLAG_BRS,
+    FLAG_DLC,
+    FLAG_ERROR,
+    FLAG_ESI,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    FLAG_TX,
+    channel_name,
     pack_flags,
 )
 
