@@ -14,6 +14,9 @@ fi
 echo "tests: installing slipdaq and its test dependencies into $(dirname "$(dirname "$py")")"
 "$py" -m pip install -q --disable-pip-version-check -e "$root[test]" 2>&1 | grep -v "^WARNING: Location" || true
 "$py" -c "import slipdaq, can, cantools, mcap, matplotlib, pytest, hypothesis" # fail early and clearly if the install failed
+echo "tests: lint (ruff) and type check (mypy), configured in pyproject.toml"
+"$py" -m ruff check --quiet "$root"
+"$py" -m mypy
 echo "tests: host suite"
 "$py" -m pytest -q -p no:cacheprovider tests --ignore=tests/hil
 if [ "${SLIPDAQ_SKIP_HIL:-0}" = 1 ]; then

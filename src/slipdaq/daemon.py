@@ -154,7 +154,7 @@ async def run_daemon(
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events)
     sink.extra += [can_source.status, gps_source.status]
     pipeline = Pipeline(config, [sink, status])
-    installed: list[int] = []
+    installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
             loop.add_signal_handler(sig, stop.set)

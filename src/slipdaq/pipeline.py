@@ -24,6 +24,7 @@ from slipdaq.records import (
     CanFrame,
     CanFrameBatch,
     Diagnostics,
+    Estimate,
     GpsFix,
     NmeaLine,
     RawRecord,
@@ -99,7 +100,7 @@ class Pipeline:
             self.can_frames += 1
             if record.is_error_frame:
                 self.error_frames += 1
-                estimates = []
+                estimates: list[Estimate] = []
             else:
                 samples = self.wheels.decode(record)
                 if not samples and not self.wheels.is_wheel_frame(record):
@@ -248,7 +249,7 @@ class Pipeline:
         """Frames start..stop of batch and their samples to the sinks."""
         piece = batch if (start, stop) == (0, len(batch)) else batch.slice(start, stop)
         for s in self._can_batch_sinks:
-            s.on_can_batch(piece)  # type: ignore[attr-defined]
+            s.on_can_batch(piece)
         if self._frame_sinks:
             for f in piece.frames():
                 for s in self._frame_sinks:
@@ -261,7 +262,7 @@ class Pipeline:
             return
         mine = samples if (i0, i1) == (0, len(samples)) and start == 0 else samples.slice(i0, i1, frame_offset=-start)
         for s in self._sample_batch_sinks:
-            s.on_wheel_batch(mine)  # type: ignore[attr-defined]
+            s.on_wheel_batch(mine)
         if self._sample_sinks:
             for sample in mine.samples(WHEELS):
                 for s in self._sample_sinks:

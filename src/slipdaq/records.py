@@ -147,7 +147,7 @@ class CanFrameBatch:
     data: np.ndarray
     """uint8 [n, width]: frame i's payload in data[i, :payload_lengths()[i]], zero-padded (a remote frame's row is
     zeros); width >= 8 (64 for CAN FD)."""
-    channel: np.ndarray = None  # type: ignore[assignment]
+    channel: np.ndarray = None  # type: ignore[assignment]  # None: every frame on channel 0 (__post_init__ fills it)
     """uint16: index of each frame's channel in `channels` (default: all 0)."""
     channels: tuple[str | None, ...] = (None,)
     """The channel names the indices refer to."""
@@ -172,7 +172,7 @@ class CanFrameBatch:
             data = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(n, 8)
         else:
             data = np.frombuffer(b"".join(p.ljust(width, b"\0") for p in payloads), dtype=np.uint8).reshape(n, width)
-        channel, names = (None, (None,)) if channels is None else channel_indices(channels)
+        channel, names = (np.zeros(n, dtype=np.uint16), (None,)) if channels is None else channel_indices(channels)
         return cls(np.asarray(timestamp_s, dtype=np.float64), np.asarray(arbitration_id, dtype=np.uint32),
                    np.asarray(flags, dtype=np.uint8), lengths if dlc is None else np.asarray(dlc, dtype=np.uint8),
                    data, channel, names)

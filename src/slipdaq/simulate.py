@@ -107,7 +107,7 @@ def run_simulate(cfg: Config, opts: SimOptions, out=sys.stdout) -> int:
 class Refused:
     """Counts the frames the bus refused (its link down); the first refusal is printed."""
 
-    def __init__(self, out) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, out) -> None:
         self.out = out
         self.count = 0
 
@@ -118,7 +118,7 @@ class Refused:
                   file=self.out, flush=True)
 
 
-async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write, on_refused) -> int:  # type: ignore[no-untyped-def]
+async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write, on_refused) -> int:
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     assert task is not None

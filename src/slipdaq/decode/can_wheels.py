@@ -59,9 +59,12 @@ class DbcError(ValueError):
 
 def load_dbc(text: str) -> cantools.database.Database:
     try:
-        return cantools.database.load_string(text, database_format="dbc", strict=False)
+        db = cantools.database.load_string(text, database_format="dbc", strict=False)
     except Exception as e:  # cantools raises several parse error types
         raise DbcError(f"cannot parse DBC: {e}") from None
+    if not isinstance(db, cantools.database.can.Database):
+        raise DbcError("not a CAN database")
+    return db
 
 
 @dataclass(slots=True)
@@ -148,7 +151,7 @@ def _fast_layout(entry: _Message) -> _FastLayout | None:
         [rng.bytes(n) for _ in range(256)] + [rng.bytes(n + 4), rng.bytes(64)]  # excess bytes: cantools ignores them
     for p in payloads:
         try:
-            ref = msg.decode(p, decode_choices=False, scaling=False)
+            ref = msg.decode_simple(p, decode_choices=False, scaling=False)
         except Exception:
             return None
         got = dict(zip(names, layout.struct.unpack_from(p)))
@@ -258,14 +261,14 @@ class WheelDecoder:
             return out
         else:
             try:
-                values = entry.message.decode(data, decode_choices=False, scaling=False)
+                values = entry.message.decode_simple(data, decode_choices=False, scaling=False)
             except Exception:  # wrong DLC or bytes cantools cannot decode
                 self.bad_frames += 1
                 return []
         out = []
         for src in entry.sources:
             raw = values.get(src.signal.name)
-            if raw is None:
+            if not isinstance(raw, int | float):  # absent (multiplexed out); numbers only without choices
                 continue
             sample = self._count(src, int(raw), values, t) if src.kind == "count" else self._speed(src, raw, t)
             self.frames[src.wheel] += 1
@@ -470,13 +473,14 @@ class WheelDecoder:
         w = src.wheel
         count = np.empty(n, dtype=np.int64)
         lost = np.zeros(n, dtype=np.int64)
-        first = src.last_raw is None or src.last_t is None
-        if first:  # the source's first frame: count and lost stay as they are
+        last_raw, last_t = src.last_raw, src.last_t
+        first = last_raw is None or last_t is None
+        if last_raw is None or last_t is None:  # the source's first frame: count and lost stay as they are
             prev_raw = np.concatenate((raw[:1], raw[:-1]))
             prev_t = np.concatenate((t[:1], t[:-1]))
         else:
-            prev_raw = np.concatenate(([src.last_raw], raw[:-1]))
-            prev_t = np.concatenate(([src.last_t], t[:-1]))
+            prev_raw = np.concatenate(([last_raw], raw[:-1]))
+            prev_t = np.concatenate(([last_t], t[:-1]))
         modulus = src.count_modulus
         delta = (raw - prev_raw) % modulus
         delta[delta >= modulus // 2] -= modulus

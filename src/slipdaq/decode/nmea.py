@@ -267,7 +267,7 @@ class NmeaDecoder:
             return None
         self.sentences += 1
         try:
-            return self._dispatch(msg, timestamp_s)  # type: ignore[arg-type]
+            return self._dispatch(msg, timestamp_s)
         except Exception:  # a checked sentence whose fields broke the handling: counted as bad, never raised
             self.sentences -= 1  # (the handlers count a drop only as their last step, when nothing can raise)
             self._drop("unparsable")

@@ -48,7 +48,7 @@ class UbxDecoder:
             self.bad_frames += 1
             return None
 
-    def _nav_pvt(self, m, timestamp_s: float) -> GpsFix:  # type: ignore[no-untyped-def]
+    def _nav_pvt(self, m, timestamp_s: float) -> GpsFix:
         utc = None
         if m.validDate and m.validTime:
             base = dt.datetime(m.year, m.month, m.day, m.hour, m.min, m.second)

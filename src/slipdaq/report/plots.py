@@ -17,6 +17,7 @@ from typing import Any
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.typing import LineStyleType
 
 from slipdaq import WHEELS
 from slipdaq.report.summary import LogSummary, ManeuverSummary
@@ -29,7 +30,7 @@ WHEEL_STYLE: dict[str, dict[str, str]] = {
     "RR": {"color": "#d62728", "marker": "v"},
 }
 GROUP_MARKERS = ("o", "x", "s", "+", "D", "*", "v", "P")
-GROUP_LINES = ("--", ":", "-.", (0, (5, 1, 1, 1)))
+GROUP_LINES: tuple[LineStyleType, ...] = ("--", ":", "-.", (0, (5, 1, 1, 1)))
 
 PLOTS: tuple[tuple[str, str], ...] = (
     ("slip-time", "slip against time"),
@@ -93,7 +94,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
     paths: dict[str, Path] = {}
     titles = dict(PLOTS)
 
-    def done(fig, ax, key: str, ylabel: str, any_data: bool, xlabel: str = SLIP_LABEL,  # type: ignore[no-untyped-def]
+    def done(fig, ax, key: str, ylabel: str, any_data: bool, xlabel: str = SLIP_LABEL,
              extra: list[Line2D] | None = None) -> None:
         """Axis labels, legend or 'no data', title; save as DIR/<phase>-<key>.png."""
         ax.set_xlabel(xlabel)
@@ -159,8 +160,9 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         xs, ys = _pairs(rows, f"slip_{w}", f"re_{w}_m", 100.0, 1000.0)
         any_data |= bool(xs)
         _scatter(ax, w, xs, ys)
-        if m.wheels[w].r0_m is not None:
-            r0s.add(round(m.wheels[w].r0_m * 1000.0, 3))
+        r0_m = m.wheels[w].r0_m
+        if r0_m is not None:
+            r0s.add(round(r0_m * 1000.0, 3))
     for r0 in sorted(r0s):
         ax.axhline(r0, color="#555555", linestyle=":", linewidth=1.2, label=f"r0 = {r0:.1f} mm")
     done(fig, ax, "re-slip", "effective rolling radius Re [mm]", any_data)

@@ -374,7 +374,7 @@ def summarize_log(
         lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
         if lat:
             srcs = [r["latency_source"] for r in prow if r.get("latency_source")]
-            latency = float(statistics.median(lat))
+            latency: float | None = float(statistics.median(lat))
             lat_src = f"estimates ({statistics.mode(srcs)})" if srcs else "estimates"
         else:
             latency, lat_src = cfg_latency, "config"

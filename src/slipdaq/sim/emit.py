@@ -21,6 +21,7 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config import Config
+from slipdaq.decode.can_wheels import load_dbc
 from slipdaq.records import CanFrame, NmeaLine, UbxFrame
 from slipdaq.sim.vehicle import Road, Scenario, TruthSample, VehicleSim
 
@@ -79,7 +80,7 @@ class WptEncoder:
     _CHECK_VALUES = ((0, 0), (2**32 - 1, 255), (0x12345678, 0xA5))
 
     def __init__(self, config: Config) -> None:
-        db = cantools.database.load_string(config.load_dbc_text(), database_format="dbc")
+        db = load_dbc(config.load_dbc_text())
         self.messages = [db.get_message_by_name(f"WPT_{w}") for w in WHEELS]
         self._shifts = [self._packing_shifts(m) for m in self.messages]
 

@@ -217,7 +217,7 @@ def _jnum(x: object) -> str:
 
 
 _JSON_STR = {w: json.dumps(w) for w in WHEELS}
-_json_string = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
+_json_string = json.encoder.encode_basestring_ascii
 """A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
 
 
@@ -257,13 +257,13 @@ _JSON_TEXT = {t: json.dumps(t) for t in (
 
 def _jval(x: object) -> str:
     """_jnum, and the known texts without json.dumps."""
-    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)  # type: ignore[index]
+    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)
 
 
 _EST_WHEEL_KEYS = {w: tuple(json.dumps(k.format(w)) + ":" for k in (
     "slip_{}", "re_{}_m", "r0_{}_m", "cx_{}_n", "r0_source_{}", "slip_nd_{}", "cx_fit_{}_n", "cx_fit_{}_conf",
     "force_{}_n", "wheel_speed_{}_mps")) for w in WHEELS}
-_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)  # type: ignore[attr-defined]
+_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)
 
 
 def estimate_json(e: Estimate) -> bytes:

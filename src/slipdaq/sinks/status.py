@@ -239,7 +239,8 @@ def status_line(s: StatusSink, rates: _Rates) -> str:
     slips = " ".join(
         f"{w}={_fmt(e.wheels[w].slip if e else None, '+.2f', 100)}%" for w in WHEELS
     )
-    lost = sum(d.get("lost_frames", {}).values()) if isinstance(d.get("lost_frames"), dict) else 0  # type: ignore[union-attr]
+    lost_frames = d.get("lost_frames")
+    lost = sum(lost_frames.values()) if isinstance(lost_frames, dict) else 0
     gps = "—" if s.fix is None else f"{s.fix.speed_mps:.2f}"
     gps_problem, log_problem = gps_diagnostic(s), log_diagnostic(s)
     return (

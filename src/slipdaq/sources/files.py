@@ -59,7 +59,7 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
     with open(p, "rb") as f:
         for raw in chain(guarded(p, f, "line"), [None]):
             m = _STAMPED.match(raw) if raw is not None else None
-            if m:
+            if m and raw is not None:
                 last_t = float(m["t"])
                 raw = raw[m.end() :]
             for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():

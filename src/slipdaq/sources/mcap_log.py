@@ -36,7 +36,7 @@ __all__ = ["LogError", "ScanResult", "can_channels", "config_from_log", "is_fini
            "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
 
 
-def _open(path: str | Path):  # type: ignore[no-untyped-def]
+def _open(path: str | Path):
     try:
         return open(path, "rb")
     except OSError as e:
@@ -146,7 +146,7 @@ def iter_raw_batches(
     """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
     batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
     run: list[CanFrame] = []
-    channels = [(None,)]
+    channels: list[tuple[str | None, ...]] = [(None,)]
 
     def on_metadata(name: str, metadata: dict[str, str]) -> None:
         if name == METADATA_NAME:

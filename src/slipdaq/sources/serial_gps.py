@@ -94,7 +94,7 @@ class LineQuality:
             self._buckets.popleft()
         return self._buckets[-1]
 
-    def feed(self, data: bytes, lines: list, now: float) -> int:  # type: ignore[type-arg]
+    def feed(self, data: bytes, lines: list, now: float) -> int:
         """Count a chunk of bytes and the records framed from it; returns how many were valid: NMEA lines whose
         checksum checks out, and any other record a framer made (a binary frame whose framer checked it)."""
         b = self._bucket(now)
