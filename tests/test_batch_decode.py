@@ -16,6 +16,7 @@ from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sinks import Sink
 
 MIXED_DBC = (ROOT / "config" / "wpt.dbc").read_text() + '''
 BO_ 800 WPT_RL_SMALL: 8 WPT_NODE
@@ -133,7 +134,7 @@ def test_random_frames_have_every_oddity() -> None:
         assert dec.bad_frames > 0
 
 
-class _Recorder:
+class _Recorder(Sink):
     """Every call a sink gets, with its log time (batch sinks are expanded to records by the pipeline)."""
 
     def __init__(self) -> None:

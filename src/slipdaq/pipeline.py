@@ -13,7 +13,6 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
@@ -76,11 +75,6 @@ class Pipeline:
         self.last_time_s: float | None = None
         self._next_diag_s: float | None = None
         self.scalar_max_frames = SCALAR_MAX_FRAMES
-        # sinks that take batches (McapLogSink); the others get the batch's frames and samples one by one
-        self._can_batch_sinks = [s for s in self.sinks if hasattr(s, "on_can_batch")]
-        self._frame_sinks = [s for s in self.sinks if not hasattr(s, "on_can_batch")]
-        self._sample_batch_sinks = [s for s in self.sinks if hasattr(s, "on_wheel_batch")]
-        self._sample_sinks = [s for s in self.sinks if not hasattr(s, "on_wheel_batch")]
         self._queue: list[RawRecord | CanFrameBatch | Sequence[CanFrame]] | None = None  # process_all's items
         self._queue_pos = 0
         self._item_first = 0  # can_frames before the item being processed
@@ -248,12 +242,8 @@ class Pipeline:
     def _deliver(self, batch: CanFrameBatch, samples: WheelSampleBatch, start: int, stop: int) -> None:
         """Frames start..stop of batch and their samples to the sinks."""
         piece = batch if (start, stop) == (0, len(batch)) else batch.slice(start, stop)
-        for s in self._can_batch_sinks:
+        for s in self.sinks:
             s.on_can_batch(piece)
-        if self._frame_sinks:
-            for f in piece.frames():
-                for s in self._frame_sinks:
-                    s.on_raw(f)
         if not len(samples):
             return
         frame = samples.frame
@@ -261,12 +251,8 @@ class Pipeline:
         if i1 <= i0:
             return
         mine = samples if (i0, i1) == (0, len(samples)) and start == 0 else samples.slice(i0, i1, frame_offset=-start)
-        for s in self._sample_batch_sinks:
+        for s in self.sinks:
             s.on_wheel_batch(mine)
-        if self._sample_sinks:
-            for sample in mine.samples(WHEELS):
-                for s in self._sample_sinks:
-                    s.on_wheel(sample)
 
     def run(self, records: Iterable[RawRecord]) -> None:
         for r in records:

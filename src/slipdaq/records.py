@@ -5,7 +5,7 @@ Times are seconds in the log's clock (host wall clock for live runs, the files' 
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -430,3 +430,31 @@ class Diagnostics:
             "estimates": self.estimates,
             "estimator": dict(self.estimator),
         }
+
+# ---- source and log events ----------------------------------------------------------------------------------------
+# What happened to the devices and the log file, beside the records: a GPS unplugged and plugged back, a receiver at
+# the wrong baud rate, a CAN reader that raised, the disk full, the host clock stepped. Written to the log's
+# /diagnostics/events topic and shown in the live view; informational: the estimates depend only on the raw records,
+# so replay needs none of them.
+
+@dataclass(frozen=True, slots=True)
+class SourceEvent:
+    time_s: float
+    """When it happened, in the log's clock."""
+    source: str
+    """'gps', 'can', 'log' or 'clock'."""
+    event: str
+    """gps: connected, disconnected, silent, unreadable, readable, emit_error; can: reader_error, down, up;
+    log: write_failed, resumed, rotated; clock: stepped."""
+    detail: str = ""
+    gap_s: float | None = None
+    """For connected/resumed/up/readable: how long the outage lasted."""
+    counters: dict[str, int] = field(default_factory=dict)
+    """The source's running counters at that moment (gaps, reconnects, unreadable periods, dropped messages...)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"time_s": self.time_s, "source": self.source, "event": self.event, "detail": self.detail,
+                "gap_s": self.gap_s, "counters": dict(self.counters)}
+
+
+EventHandler = Callable[[SourceEvent], None]

@@ -2,22 +2,66 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Iterable
 
-from slipdaq.records import Estimate, GpsFix, RawRecord, WheelSample
+from slipdaq import WHEELS
+from slipdaq.records import (
+    CanFrameBatch,
+    Estimate,
+    GpsFix,
+    RawRecord,
+    SourceEvent,
+    WheelSample,
+    WheelSampleBatch,
+)
 
 
-class Sink(Protocol):
-    """What the pipeline calls, in record order (the python-can Listener idea)."""
+class Sink:
+    """What the pipeline calls, in record order (python-can's `Listener` model).
 
-    def on_raw(self, record: RawRecord) -> None: ...
-    def on_wheel(self, sample: WheelSample) -> None: ...
-    def on_fix(self, fix: GpsFix) -> None: ...
-    def on_estimate(self, estimate: Estimate, log_time_s: float) -> None: ...
-    def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None: ...
+    Every method does nothing by default; a sink overrides what it takes. The batch methods default to a loop over
+    their per-record method, so a sink that keeps records one by one overrides only those, and a sink that can take
+    a whole batch at once (the MCAP log) overrides the batch method too."""
+
+    def on_raw(self, record: RawRecord) -> None:
+        """One raw record: a CAN frame outside a batch, an NMEA line or a UBX frame."""
+
+    def on_can_batch(self, batch: CanFrameBatch) -> None:
+        for frame in batch.frames():
+            self.on_raw(frame)
+
+    def on_wheel(self, sample: WheelSample) -> None:
+        """One decoded wheel sample."""
+
+    def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        for sample in samples.samples(WHEELS):
+            self.on_wheel(sample)
+
+    def on_fix(self, fix: GpsFix) -> None:
+        """One GPS fix of the protocol gps.velocity names."""
+
+    def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
+        """One estimate, at the log time of the record that released it."""
+
+    def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
+        """The pipeline's counters, once a second of log time and at the end."""
+
+    def on_source_event(self, event: SourceEvent) -> None:
+        """A device or log event (live runs)."""
 
 
-class CollectingSink:
+class EventFanout:
+    """Passes each source event to every sink's on_source_event."""
+
+    def __init__(self, sinks: Iterable[Sink]) -> None:
+        self._sinks = list(sinks)
+
+    def __call__(self, event: SourceEvent) -> None:
+        for s in self._sinks:
+            s.on_source_event(event)
+
+
+class CollectingSink(Sink):
     """Keeps everything in lists (replay into memory, tests)."""
 
     def __init__(self) -> None:

@@ -32,17 +32,18 @@ from slipdaq.records import (
     CanFrame,
     CanFrameBatch,
     Estimate,
+    EventHandler,
     GpsFix,
     NmeaLine,
     RawRecord,
+    SourceEvent,
     UbxFrame,
     WheelSample,
     WheelSampleBatch,
 )
-from slipdaq.sinks import cdr
+from slipdaq.sinks import Sink, cdr
 from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
 from slipdaq.sinks.rotation import RotationPolicy, segment_path
-from slipdaq.sources.events import EventHandler, SourceEvent
 
 if TYPE_CHECKING:
     import asyncio
@@ -477,7 +478,7 @@ RETRY_AFTER_FAILURE_S = 5.0
 """After a failed write (disk full), how often a new segment is tried."""
 
 
-class McapLogSink:
+class McapLogSink(Sink):
     """Writes every record and result to an MCAP file (zstd chunks), crash-safe; call close() to finish it.
 
     Live runs (flush_every_s set): a chunk is closed and committed at least every flush_every_s seconds of the

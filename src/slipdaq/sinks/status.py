@@ -28,10 +28,11 @@ from slipdaq.records import (
     Estimate,
     GpsFix,
     RawRecord,
+    SourceEvent,
     WheelSample,
     WheelSampleBatch,
 )
-from slipdaq.sources.events import SourceEvent
+from slipdaq.sinks import Sink
 
 
 @dataclass
@@ -58,7 +59,7 @@ EVENTS_SHOWN = 3
 
 
 @dataclass
-class StatusSink:
+class StatusSink(Sink):
     """A Sink that keeps the latest of everything for the view (cheap per record)."""
 
     sources: SourceStatus = field(default_factory=SourceStatus)
@@ -74,10 +75,10 @@ class StatusSink:
     """The latest source and log events (GPS unplugged and back, disk full, ...), newest last."""
 
     def on_raw(self, record: RawRecord) -> None:
-        if hasattr(record, "arbitration_id"):
+        if isinstance(record, CanFrame):
             self.can_frames += 1
-            if record.is_error_frame:  # type: ignore[union-attr]
-                for c in error_classes(record):  # type: ignore[arg-type]
+            if record.is_error_frame:
+                for c in error_classes(record):
                     self.can_errors[c] = self.can_errors.get(c, 0) + 1
         else:
             self.nmea_lines += 1

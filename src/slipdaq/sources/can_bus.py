@@ -23,9 +23,8 @@ from collections.abc import Callable
 
 import can
 
-from slipdaq.records import FLAG_DLC, FLAG_REMOTE, CanFrame, CanFrameBatch, channel_name, pack_flags
+from slipdaq.records import FLAG_DLC, FLAG_REMOTE, CanFrame, CanFrameBatch, EventHandler, SourceEvent, channel_name, pack_flags
 from slipdaq.sources.clock import SteadyClock
-from slipdaq.sources.events import EventHandler, SourceEvent
 from slipdaq.sources.socketcan_raw import RawFrame, frame_reader
 
 log = logging.getLogger(__name__)

@@ -36,8 +36,7 @@ from typing import Any, Protocol
 import serial
 
 from slipdaq.decode.framing import GpsFramer
-from slipdaq.records import NmeaLine
-from slipdaq.sources.events import EventHandler, SourceEvent
+from slipdaq.records import EventHandler, NmeaLine, SourceEvent
 
 log = logging.getLogger(__name__)
 
