@@ -4,11 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # np.interp's compiled core: what np.interp calls for real values, without its checks of the arguments' types
-    from numpy._core.multiarray import interp as _interp
-except ImportError:  # another numpy layout: np.interp itself
-    _interp = np.interp
-
 
 class SeriesRing:
     """Samples in time order; `times`/`values` are contiguous views of the kept samples.
@@ -51,7 +46,7 @@ class SeriesRing:
         s, e = self._start, self._end
         if e - s < 2 or self._t[s] > t_first or self.last_t < t_last:
             return None
-        return _interp(times, self._t[s:e], self._v[s:e]).tolist()
+        return np.interp(times, self._t[s:e], self._v[s:e]).tolist()
 
     def append(self, t: float, v: float) -> None:
         if self._end == len(self._t):

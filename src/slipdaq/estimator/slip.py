@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, bisect_right
 from collections import deque
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,11 +31,6 @@ from slipdaq.estimator.radius import RadiusCalibration
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
-
-try:  # np.interp's compiled core: what np.interp calls for real values, without its checks of the arguments' types
-    from numpy._core.multiarray import interp as _interp
-except ImportError:  # another numpy layout: np.interp itself
-    _interp = np.interp
 
 TWO_PI = 2.0 * math.pi
 G_MPS2 = 9.81
@@ -128,29 +122,6 @@ def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1
     return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
 
 
-# ---- numpy's results on Python floats: the per-epoch maths works on a few values, where numpy's call overhead is
-# most of the cost. Each gives the float64 result its numpy counterpart gives, bit for bit, on sorted times.
-
-def _interp_at(x: float, j: int, xp: Sequence[float], fp: Sequence[float]) -> float:
-    """np.interp(x, xp, fp), given j = (number of xp <= x) - 1 (xp sorted)."""
-    n = len(xp)
-    if j < 0:
-        return float(fp[0])
-    if j >= n - 1:
-        return float(fp[n - 1])
-    x0 = float(xp[j])
-    if x0 == x:
-        return float(fp[j])
-    x1, y0, y1 = float(xp[j + 1]), float(fp[j]), float(fp[j + 1])
-    slope = (y1 - y0) / (x1 - x0)
-    v = slope * (x - x0) + y0
-    if v != v:  # numpy: NaN one way, try the other
-        v = slope * (x - x1) + y1
-        if v != v and y0 == y1:
-            v = y0
-    return v
-
-
 def _div(a: float, b: float) -> float:
     """a / b with numpy's float64 result for b == 0 (inf or nan) instead of ZeroDivisionError."""
     if b != 0.0:
@@ -158,46 +129,6 @@ def _div(a: float, b: float) -> float:
     if a == 0.0 or a != a:
         return math.nan
     return math.copysign(math.inf, a) * math.copysign(1.0, b)
-
-
-def _np_sum(a: Sequence[float]) -> float:
-    """np.sum of a float64 vector: pairwise summation with eight accumulators, from 0.0."""
-    n = len(a)
-    if n < 8:
-        res = 0.0
-        for x in a:
-            res += x
-        return res
-    if n > 128:
-        half = n // 2
-        half -= half % 8
-        return 0.0 + (_np_sum(a[:half]) + _np_sum(a[half:]))
-    r0, r1, r2, r3, r4, r5, r6, r7 = a[:8]
-    m = n - n % 8
-    for i in range(8, m, 8):
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(m, n):
-        res += a[i]
-    return 0.0 + res
-
-
-def _integrate_speed_m(times_s: list[float], speeds_mps: list[float], t0: float, t1: float, ordered: bool) -> float:
-    """integrate_speed_m on lists; ordered: times_s is non-decreasing (else np.interp's search decides: numpy)."""
-    if not ordered:
-        return integrate_speed_m(np.array(times_s), np.array(speeds_mps), t0, t1)
-    i0 = bisect_right(times_s, t0)
-    i1 = bisect_left(times_s, t1)
-    t = [t0, *times_s[i0:i1], t1]
-    v = [_interp_at(x, bisect_right(times_s, x) - 1, times_s, speeds_mps) for x in t]
-    return _np_sum([(t[k + 1] - t[k]) * (v[k + 1] + v[k]) for k in range(len(t) - 1)]) * 0.5
 
 
 def phase_of(speed_mps: float, accel_mps2: float | None, threshold_mps2: float, standstill_mps: float) -> str:
@@ -555,7 +486,7 @@ class SlipEstimator:
         ring = self._wheels[w]
         if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
             return None
-        rev0, rev1 = _interp((t0, t1), ring.times, ring.values).tolist()
+        rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
         return TWO_PI * (rev1 - rev0)
 
     def _arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
@@ -568,7 +499,7 @@ class SlipEstimator:
         return out
 
     def _grade_sin(
-        self, fix_times: list[float], speeds: list[float], t_c: float, latency_s: float, ordered: bool = True,
+        self, fix_times: list[float], fix_arr: np.ndarray, t_c: float, latency_s: float,
     ) -> float:
         """sin(grade) from GPS altitude over the last 2 s (backward, so no wait for future fixes)."""
         if not self.p.grade_from_altitude or len(self._alt) < 2:
@@ -578,7 +509,7 @@ class SlipEstimator:
         if alt_t[0] > t_a or alt_t[-1] < t_c or not self._gps_covers(fix_times, t_a, t_c):
             return 0.0
         climb = float(np.interp(t_c, alt_t, self._alt.values) - np.interp(t_a, alt_t, self._alt.values))
-        dist = _integrate_speed_m(fix_times, speeds, t_a, t_c, ordered)
+        dist = integrate_speed_m(fix_arr, self._gps.values, t_a, t_c)
         return max(-0.3, min(0.3, climb / dist)) if dist > 5.0 else 0.0
 
     def _weight(self, fix_times: list[float], t0: float, t1: float) -> float:
@@ -589,7 +520,7 @@ class SlipEstimator:
         acc = [x for x in self._gps_acc.values[i0 : i1 + 1].tolist() if x == x]
         if not acc:
             return 1.0
-        sigma = max(_np_sum(acc) / len(acc), 1e-3)
+        sigma = max(float(np.sum(acc)) / len(acc), 1e-3)
         return min(max((REFERENCE_SPEED_ACCURACY_MPS / sigma) ** 2, 0.1), 10.0)
 
     def _force(self, accel: float, speed: float, sin_grade: float) -> float:
@@ -641,7 +572,7 @@ class SlipEstimator:
             if len(ring) < 2 or ring.first_time > first_needed_s:
                 self._lag_prev = None
                 return
-            revs = _interp(times, ring.times, ring.values)
+            revs = np.interp(times, ring.times, ring.values)
             if arcs is None:
                 arcs = revs + 0.0  # as zeros + revs
             else:
@@ -673,7 +604,6 @@ class SlipEstimator:
         i = int(self._gps.times.searchsorted(arrival_s))
         latency_s = lat.latency_s
         fix_arr = smooth - latency_s
-        ordered = bool((fix_arr[1:] >= fix_arr[:-1]).all())  # False too with NaN
         fix_times, speeds = fix_arr.tolist(), self._gps.values.tolist()
         t_c = fix_times[i]
         t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
@@ -682,11 +612,11 @@ class SlipEstimator:
         if p.gps_latency_s is None:
             self._update_lag(float(smooth[i]), speed_c, accel)
         covered = self._gps_covers(fix_times, t0, t1)
-        d_gps = _integrate_speed_m(fix_times, speeds, t0, t1, ordered) if covered else None
+        d_gps = integrate_speed_m(fix_arr, self._gps.values, t0, t1) if covered else None
         speed = d_gps / p.window_s if d_gps is not None else speed_c
         force = None
         if accel is not None:
-            force = self._force(accel, speed, self._grade_sin(fix_times, speeds, t_c, lat.latency_s, ordered))
+            force = self._force(accel, speed, self._grade_sin(fix_times, fix_arr, t_c, lat.latency_s))
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
         arcs = self._arcs_m(t0, t1)
         weight = self._weight(fix_times, t0, t1)
