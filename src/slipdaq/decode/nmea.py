@@ -138,11 +138,8 @@ _PLAIN_RE = re.compile(
     r"\$([A-OQ-Za-oq-z0-9_][A-Za-z0-9_])([A-Za-z0-9_]{2}[A-PR-Za-pr-z0-9_]),([^*]*)\*([0-9A-Fa-f]{2})"
 )
 """`$` + talker (not P..., pynmea2's proprietary form) + type (not ..Q, its query form) + `,` data `*HH`."""
-_PLAIN_TALKER_TYPES = frozenset(
-    name for name, cls in pynmea2.TalkerSentence.sentence_types.items()
-    if cls.__init__ is pynmea2.TalkerSentence.__init__
-)
-"""Types pynmea2 builds without a constructor of their own (every one today): a checked sentence is that object."""
+DECODED_TYPES = frozenset({"RMC", "VTG", "GGA", "ZDA", "GNS", "GLL"})
+"""The sentence types NmeaDecoder reads; every other checked sentence is counted as unsupported."""
 _BAD = object()
 _UNKNOWN = "unknown"
 
@@ -170,11 +167,9 @@ def _parse_plain(candidate: str) -> tuple[str, str, list[str]] | str | object | 
     if _xor_checksum(candidate[1:-3]) != int(m[4], 16):
         return _BAD  # pynmea2: ChecksumError
     kind = m[2].upper()
-    if kind in _PLAIN_TALKER_TYPES:
+    if kind in DECODED_TYPES:
         return m[1].upper(), kind, m[3].split(",")
-    if kind in pynmea2.TalkerSentence.sentence_types:
-        return None  # a type with its own constructor (none today): pynmea2 decides
-    return _UNKNOWN  # pynmea2: SentenceTypeError
+    return _UNKNOWN  # unsupported whether pynmea2 knows the type or not
 
 
 _INVALID_GGA_QUALITY = (0, 6)  # 0 = no fix, 6 = estimated (dead reckoning)

@@ -6,7 +6,8 @@ SO_TIMESTAMPNS) and returns what python-can's Message would hold, as plain value
 `seconds + nanoseconds * 1e-9`, the identifier without its flag bits, the flags (extended, error, remote; CAN FD,
 bit rate switch, error state indicator; transmitted by this host: MSG_DONTROUTE), the data bytes (none for a remote
 frame, whose DLC is kept), the channel (the bus's, or the interface the frame came from on a bus bound to all), and
-errors as `can.CanOperationError("Error receiving: ...")`. CAN FD frames go through python-can's own dissector.
+errors as `can.CanOperationError("Error receiving: ...")`. Frames are read as linux/can.h lays them out
+(`struct can_frame`, `struct canfd_frame`), the same values python-can's SocketCAN bus gives (tested against it).
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ CAN_RTR_FLAG = 0x40000000
 CAN_ERR_FLAG = 0x20000000
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _HEADER = struct.Struct("=IBxxB")  # can_id (with the EFF/RTR/ERR flags), len, pad, res0, len8_dlc; then data[8]
+_FD_HEADER = struct.Struct("=IBBxx")  # canfd_frame: can_id, len, flags, res0, res1; then data[64]
+_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+"""The payload lengths a CAN FD frame can have (ISO 11898-1; linux/can.h's canfd_frame.len)."""
 _FD_FLAGS = ((0x01, FLAG_BRS), (0x02, FLAG_ESI))  # canfd_frame.flags: CANFD_BRS, CANFD_ESI
 _TIMESPEC = struct.Struct("@ll")  # struct timespec, as python-can reads it
 _ANCILLARY_BYTES = socket.CMSG_SPACE(_TIMESPEC.size)
@@ -113,10 +117,10 @@ class RawSocketCanReader:
             payload = cf[8:8 + min(n, 8)]
             if n == 8 and 8 < len8_dlc <= 15:  # python-can: a classic frame's DLC 9..15 (CAN_CTRLMODE_CC_LEN8_DLC)
                 n = len8_dlc
-        else:  # CAN FD: python-can's rules for the length
-            from can.interfaces.socketcan.socketcan import dissect_can_frame
-
-            can_id, n, fd_flags, payload = dissect_can_frame(cf)
+        else:  # CAN FD: a length between two valid ones is read as the next valid one (as python-can does)
+            can_id, n, fd_flags = _FD_HEADER.unpack_from(cf)
+            n = next((k for k in _FD_LENGTHS if k >= n), 64)
+            payload = cf[8:8 + n]
             flags |= FLAG_FD
             for bit, flag in _FD_FLAGS:
                 if fd_flags & bit:
