@@ -7,10 +7,8 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 from __future__ import annotations
 
 import datetime as dt
-import io
 import json
 import logging
-import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -18,8 +16,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from mcap.opcode import Opcode
-from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 import slipdaq
@@ -388,92 +384,6 @@ def samples_to_batch(samples: list[WheelSample]) -> WheelSampleBatch:
     )
 
 
-# ---- appending a message: what mcap's Writer.add_message does, without a Message record object per message ----
-
-_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
-"""A Message record's opcode and length, then channel id, sequence, log time, publish time (the data follows)."""
-
-
-class _Append:
-    """Writer.add_message(channel_id, log_time, data, publish_time=log_time, sequence) of a chunked writer: the same
-    statistics, chunk builder state, message index and bytes, written directly into the chunk's buffer. It uses the
-    writer's private state (mcap 1.x), so it is used only when fast_append_matches() showed that it writes the same
-    file as add_message; else the writer's own add_message."""
-
-    __slots__ = ("stats", "chunk", "finalize")
-
-    def __init__(self, writer: Writer) -> None:
-        self.stats = writer._Writer__statistics  # type: ignore[attr-defined]
-        self.chunk = writer._Writer__chunk_builder  # type: ignore[attr-defined]
-        self.finalize = writer._Writer__maybe_finalize_chunk  # type: ignore[attr-defined]
-        if self.chunk is None:
-            raise TypeError("not a chunked writer")
-
-    def __call__(self, channel_id: int, log_time: int, data: bytes, sequence: int) -> None:
-        st = self.stats
-        if st.message_count == 0:
-            st.message_start_time = log_time
-        elif log_time < st.message_start_time:
-            st.message_start_time = log_time
-        if log_time > st.message_end_time:
-            st.message_end_time = log_time
-        st.channel_message_counts[channel_id] += 1
-        st.message_count += 1
-        cb = self.chunk
-        if cb.num_messages == 0:
-            cb.message_start_time = log_time
-        elif log_time < cb.message_start_time:
-            cb.message_start_time = log_time
-        if log_time > cb.message_end_time:
-            cb.message_end_time = log_time
-        index = cb.message_indices.get(channel_id)
-        if index is None:
-            index = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
-        buf = cb.record_writer._buffer
-        index.records.append((log_time, buf.tell()))
-        cb.num_messages += 1
-        buf.write(_MESSAGE_HEAD.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, log_time))
-        buf.write(data)
-        self.finalize()
-
-
-def _plain_append(writer: Writer) -> Callable[[int, int, bytes, int], None]:
-    def append(channel_id: int, log_time: int, data: bytes, sequence: int) -> None:
-        writer.add_message(channel_id, log_time=log_time, publish_time=log_time, sequence=sequence, data=data)
-    return append
-
-
-_FAST_APPEND: bool | None = None
-
-
-def fast_append_matches() -> bool:
-    """_Append writes byte for byte what Writer.add_message writes (checked once: several channels, chunks
-    closed on size, log times out of order, empty and large messages)."""
-    global _FAST_APPEND
-    if _FAST_APPEND is None:
-        outs = []
-        for fast in (False, True):
-            f = io.BytesIO()
-            w = Writer(f, chunk_size=700, compression=CompressionType.ZSTD)
-            w.start(profile=PROFILE, library="check")
-            sid = w.register_schema("s", "jsonschema", b"{}")
-            channels = [w.register_channel(f"/t{k}", "json", sid) for k in range(3)]
-            try:
-                append = _Append(w) if fast else _plain_append(w)
-                for k in range(120):
-                    t = 10**18 + 7919 * k * (-1 if k % 17 == 0 else 1)
-                    append(channels[k % 3 if k % 5 else 0], t, bytes([k % 251]) * (k * 37 % 300), k * 3 & 0xFFFFFFFF)
-                    if k == 60:
-                        w.add_metadata("m", {"k": "v"})
-                w.finish()
-            except Exception:
-                _FAST_APPEND = False
-                return False
-            outs.append(f.getvalue())
-        _FAST_APPEND = outs[0] == outs[1]
-    return _FAST_APPEND
-
-
 RETRY_AFTER_FAILURE_S = 5.0
 """After a failed write (disk full), how often a new segment is tried."""
 
@@ -548,7 +458,6 @@ class McapLogSink(Sink):
         self.closed = False
         self._file: CommitFile | None = None
         self._writer: Writer | None = None
-        self._append: Callable[[int, int, bytes, int], None] | None = None
         self._channels: dict[str, int] = {}
         self._unflushed = 0
         self._last_flush = self._mono()
@@ -632,7 +541,6 @@ class McapLogSink(Sink):
                 path.unlink(missing_ok=True)
             raise
         self._file, self._writer, self._channels = file, writer, channels
-        self._append = _Append(writer) if fast_append_matches() else _plain_append(writer)
         self.path = path
         self.segments.append(path)
         self._opened_at = self._mono()
@@ -761,7 +669,8 @@ class McapLogSink(Sink):
             ns = self._last_ns
         self._last_ns = ns
         try:
-            self._append(self._channels[topic], ns, data, self._seq & 0xFFFFFFFF)  # type: ignore[misc]
+            self._writer.add_message(self._channels[topic], log_time=ns, data=data, publish_time=ns,
+                                     sequence=self._seq & 0xFFFFFFFF)
             self.messages += 1
             self._unflushed += 1
             if (self._flush_every_s is not None and now - self._last_flush >= self._flush_every_s
