@@ -9,8 +9,9 @@ import math
 import struct
 import time
 
+from estimator_params import params
 from fd_bus import FdBus
-from slipdaq.estimator.slip import EstimatorParams, SlipEstimator
+from slipdaq.estimator.slip import SlipEstimator
 from slipdaq.records import CanFrame, CanFrameBatch, GpsFix, WheelSample
 from slipdaq.sources.can_bus import CanBusSource
 
@@ -102,7 +103,7 @@ def test_read_now_ends_a_pause() -> None:
 def test_the_estimator_says_when_an_estimate_waits_only_for_wheels() -> None:
     """The fix that closes a window comes before the wheel frames past its end: waiting_for_wheels() is what makes
     the daemon read the (paused) CAN socket at once; the wheel frames then release the estimate."""
-    p = EstimatorParams(window_s=0.5, r_ref_m=0.3, gps_latency_s=0.0)
+    p = params(window_s=0.5, r_ref_m=0.3, gps_latency_s=0.0)
     est = SlipEstimator(p)
     rev = 20.0 / (2 * math.pi * 0.3)
     wheel_t = 0.0

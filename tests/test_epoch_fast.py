@@ -8,8 +8,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from estimator_params import params
 from slipdaq import WHEELS
-from slipdaq.estimator import EstimatorParams, SlipEstimator
+from slipdaq.estimator import SlipEstimator
 from slipdaq.estimator.slip import TIME_TOL_S
 from slipdaq.records import GpsFix
 
@@ -38,7 +39,7 @@ def test_split_in_order(wheels: list[int], steps: st.DataObject, last_t: list[fl
     time_s = 0.5 + np.cumsum(np.array(dt, dtype=np.float64))
     revolutions = np.arange(n, dtype=np.float64) * 0.25
     wheel = np.array(wheels, dtype=dtype)
-    est = SlipEstimator(EstimatorParams())
+    est = SlipEstimator(params())
     for ring, t in zip(est._rings, last_t):
         ring.last_t = t
     in_order, sel, t_ref, r_ref = _split_reference(est, wheel, time_s, revolutions)
@@ -82,7 +83,7 @@ def _head_reference(est: SlipEstimator) -> tuple[int, float, float]:
 )
 def test_head_consts(fixes: list[tuple[float, float, str]], latency: float | None, wheel_every: int) -> None:
     """The head epoch's readiness constants, after every fix and estimate, equal the ring-based computation."""
-    est = SlipEstimator(EstimatorParams(gps_latency_s=latency))
+    est = SlipEstimator(params(gps_latency_s=latency))
     t, rev = 1000.0, 0.0
     for k, (step, lag, utc_kind) in enumerate(fixes):
         for _ in range(int(step / 0.002)):
@@ -105,7 +106,7 @@ def test_head_consts(fixes: list[tuple[float, float, str]], latency: float | Non
 )
 def test_arcs_m(samples: list[tuple[int, float, float]], window: tuple[float, float]) -> None:
     """All wheels' arcs over a window at once equal _arc_m wheel by wheel (np.interp on the ring's views)."""
-    est = SlipEstimator(EstimatorParams())
+    est = SlipEstimator(params())
     t, rev = [0.0] * 4, [0.0] * 4
     for w, dt, drev in samples:
         t[w] += dt

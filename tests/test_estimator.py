@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from estimator_params import params
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.slip import (
     EstimatorParams,
@@ -64,10 +65,10 @@ def test_ring_keeps_order_when_dropping_and_growing() -> None:
     assert len(r2) == 50 and list(r2.times) == [float(i) for i in range(50)]
 
 
-def _run(params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_hz=200.0, gps_hz=10.0,
+def _run(est_params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_hz=200.0, gps_hz=10.0,
          start_count=0, gps_delay_s=None):
     """Feed a synthetic constant-slip stream; wheel counts are exact floors of the true angle."""
-    est = SlipEstimator(params)
+    est = SlipEstimator(est_params)
     out = []
     events = []
     dt = 1.0 / wheel_hz
@@ -79,11 +80,11 @@ def _run(params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_h
         t = k * dt
         d = float(np.interp(t, fine_t, fine_d))
         for i, w in enumerate(WHEELS):
-            revs = d * (1 + slip_of_w[w]) / (2 * math.pi * params.r_ref_m)
-            count = start_count + math.floor(revs * params.pulses_per_rev)
-            events.append((t + i * 1e-5, 0, WheelSample(t + i * 1e-5, w, count / params.pulses_per_rev, count,
+            revs = d * (1 + slip_of_w[w]) / (2 * math.pi * est_params.r_ref_m)
+            count = start_count + math.floor(revs * est_params.pulses_per_rev)
+            events.append((t + i * 1e-5, 0, WheelSample(t + i * 1e-5, w, count / est_params.pulses_per_rev, count,
                                                          count, 0, 0)))
-    delay_s = params.gps_latency_s if gps_delay_s is None else gps_delay_s
+    delay_s = est_params.gps_latency_s if gps_delay_s is None else gps_delay_s
     for k in range(int(duration_s * gps_hz)):
         t = k / gps_hz
         events.append((t + 2e-5 + delay_s, 1, GpsFix(t + 2e-5 + delay_s, float(speed_of_t(np.array([t]))[0]))))
@@ -94,7 +95,7 @@ def _run(params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_h
 
 
 def test_constant_speed_and_slip_recovered_exactly() -> None:
-    p = EstimatorParams(window_s=0.5, r_ref_m=0.3, pulses_per_rev=1000, cx_slip_min=0.005)
+    p = params(window_s=0.5, r_ref_m=0.3, pulses_per_rev=1000, cx_slip_min=0.005)
     slips = {"FL": 0.03, "FR": 0.02, "RL": 0.0, "RR": -0.01}
     est = _run(p, lambda t: np.full_like(t, 20.0), slips)
     assert len(est) > 40
@@ -111,7 +112,7 @@ def test_constant_speed_and_slip_recovered_exactly() -> None:
 
 def test_accel_force_and_cx_hand_values() -> None:
     # v = 10 + 2 t: a = 2 m/s^2, Fx = 1300 * 2 = 2600 N; front-driven -> 1300 N per front tire.
-    p = EstimatorParams(window_s=0.5, mass_kg=1300.0, r_ref_m=0.3, driven_axle="front")
+    p = params(window_s=0.5, mass_kg=1300.0, r_ref_m=0.3, driven_axle="front")
     slips = {"FL": 0.02, "FR": 0.04, "RL": 0.0, "RR": 0.0}
     est = _run(p, lambda t: 10.0 + 2.0 * t, slips)
     mid = [e for e in est if 1.0 < e.time_s < 5.0]
@@ -127,7 +128,7 @@ def test_accel_force_and_cx_hand_values() -> None:
 
 
 def test_cx_only_in_linear_region_and_below_min_speed_undefined() -> None:
-    p = EstimatorParams(window_s=0.5, r_ref_m=0.3, cx_slip_min=0.005, cx_slip_max=0.10, min_speed_mps=1.0)
+    p = params(window_s=0.5, r_ref_m=0.3, cx_slip_min=0.005, cx_slip_max=0.10, min_speed_mps=1.0)
     slips = {"FL": 0.003, "FR": 0.15, "RL": 0.05, "RR": 0.05}
     est = [e for e in _run(p, lambda t: 5.0 + 1.0 * t, slips, duration_s=4.0) if 1 < e.time_s < 3]
     assert est
@@ -143,8 +144,8 @@ def test_counts_near_wrap_and_latency_shift() -> None:
     """A fixed GPS latency is removed: fixes stamped late by 0.2 s give the same slips as on-time ones."""
     slips = {"FL": 0.03, "FR": 0.03, "RL": 0.0, "RR": 0.0}
     speed = lambda t: 10.0 + 2.0 * t  # noqa: E731
-    base = _run(EstimatorParams(r_ref_m=0.3), speed, slips)
-    late = _run(EstimatorParams(r_ref_m=0.3, gps_latency_s=0.2), speed, slips)
+    base = _run(params(r_ref_m=0.3), speed, slips)
+    late = _run(params(r_ref_m=0.3, gps_latency_s=0.2), speed, slips)
     a = {round(e.time_s, 6): e.wheels["FL"].slip for e in base if e.wheels["FL"].slip is not None}
     b = {round(e.time_s, 6): e.wheels["FL"].slip for e in late if e.wheels["FL"].slip is not None}
     common = sorted(set(a) & set(b))
@@ -155,7 +156,7 @@ def test_counts_near_wrap_and_latency_shift() -> None:
 def test_uncompensated_latency_biases_slip() -> None:
     """Fixes that arrive 0.2 s late, read without compensation, bias slip while accelerating (the method's flaw)."""
     slips = {"FL": 0.03, "FR": 0.03, "RL": 0.0, "RR": 0.0}
-    late = _run(EstimatorParams(r_ref_m=0.3), lambda t: 10.0 + 2.0 * t, slips, gps_delay_s=0.2)
+    late = _run(params(r_ref_m=0.3), lambda t: 10.0 + 2.0 * t, slips, gps_delay_s=0.2)
     s_rl = np.median([e.wheels["RL"].slip for e in late if e.wheels["RL"].slip is not None and e.time_s > 1])
     # GPS speed read 0.2 s late at 2 m/s^2 is 0.4 m/s too low at ~15 m/s: a free-rolling wheel shows ~ +2.7 %
     assert 0.015 < s_rl < 0.04
@@ -166,7 +167,7 @@ def test_estimate_released_by_the_fix_that_ends_its_window(gps_latency_s: float 
     """At 20 Hz and W = 0.5 s the fix 0.25 s after an epoch closes its window: the estimate comes with that fix,
     whatever the fix's read jitter or the float rounding of epoch-second UTC times, not one GPS interval later.
     (Before, a fix read 1 ms early against the median offset made the estimate wait for the next one: 50 ms.)"""
-    p = EstimatorParams(window_s=0.5, r_ref_m=0.3, gps_latency_s=gps_latency_s)
+    p = params(window_s=0.5, r_ref_m=0.3, gps_latency_s=gps_latency_s)
     est = SlipEstimator(p)
     utc0 = 1_763_800_000.0  # epoch seconds: one ulp is 2.4e-7 s
     jitter = [0.0, -0.002, 0.0015, -0.001, 0.002, 0.0005, -0.0015]
@@ -201,7 +202,7 @@ def test_a_fix_with_a_nan_utc_time_counts_as_one_without() -> None:
     """A decoder that hands over NaN for the UTC time (instead of None) must not crash the estimate (it did:
     max() of an empty sequence in the coverage check); the estimates equal those of fixes without UTC."""
     def run(utc_of_k):  # type: ignore[no-untyped-def]
-        est = SlipEstimator(EstimatorParams(window_s=0.5, r_ref_m=0.3, gps_latency_s=None))
+        est = SlipEstimator(params(window_s=0.5, r_ref_m=0.3, gps_latency_s=None))
         out = []
         rev = 20.0 / (2 * math.pi * 0.3)
         for k in range(1, 4000):

@@ -70,9 +70,6 @@ class WptConfig(_Section):
     pulses_per_rev: int = Field(1000, gt=0)
 
 
-SPEED_UNITS = ("km/h", "kph", "m/s", "mph", "rpm", "rad/s", "deg/s")
-
-
 class WheelSourceConfig(_Section):
     """Where one wheel's motion comes from: a cumulative pulse count or a wheel-speed signal, by DBC names."""
 

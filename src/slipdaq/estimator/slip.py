@@ -20,7 +20,8 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, bisect_right
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -48,41 +49,47 @@ TIME_TOL_S = 1e-5
 rounding (a few ulps: 2.4e-7 s at today's epoch seconds) must not decide whether an estimate waits for one more fix."""
 
 
+PHASE_ACCEL_MPS2 = 0.3
+"""|a| above this is accelerating or braking; below it, cruising (or coasting)."""
+STANDSTILL_SPEED_MPS = 0.5
+"""Below this GPS speed the car stands still."""
+MAX_GPS_GAP_S = 1.0
+"""GPS fixes further apart than this do not make a window or a central difference."""
+GPS_LOST_AFTER_S = 1.0
+"""With no GPS fix for this long, estimates continue on the wheels' clock (slip against non-driven wheels)."""
+
+
 @dataclass(frozen=True, slots=True)
 class EstimatorParams:
-    window_s: float = 0.5
-    min_speed_mps: float = 1.0
-    cx_slip_min: float = 0.005
-    cx_slip_max: float = 0.10
-    mass_kg: float = 1300.0
-    driven_axle: str = "front"
-    brake_front_share: float = 0.7
-    pulses_per_rev: int = 1000
-    r_ref_m: float = 0.3075
-    r_ref_configured: bool = False
+    """The estimator's inputs from the config, flat. No defaults here: they are the config models' (config.py)."""
+
+    window_s: float
+    min_speed_mps: float
+    cx_slip_min: float
+    cx_slip_max: float
+    mass_kg: float
+    driven_axle: str
+    brake_front_share: float
+    pulses_per_rev: int
+    r_ref_m: float
+    r_ref_configured: bool
     """True when r_ref is tire.free_radius_m rather than the tire size."""
-    gps_latency_s: float | None = 0.0
+    gps_latency_s: float | None
     """Fixed GPS latency; None estimates it online ('auto')."""
-    max_latency_s: float = 0.4
-    calibrate_r0: bool = False
-    r0_min_speed_mps: float = 3.0
-    fit_min_speed_mps: float = 5.0
-    phase_accel_mps2: float = 0.3
-    """|a| above this is accelerating or braking; below it, cruising (or coasting)."""
-    standstill_speed_mps: float = 0.5
-    rolling_resistance_coeff: float = 0.0
-    drag_area_m2: float = 0.0
-    air_density_kgpm3: float = 1.2
-    grade_from_altitude: bool = False
-    max_gps_gap_s: float = 1.0
-    """GPS fixes further apart than this do not make a window or a central difference."""
-    gps_lost_after_s: float = 1.0
-    """With no GPS fix for this long, estimates continue on the wheels' clock (slip against non-driven wheels)."""
+    max_latency_s: float
+    calibrate_r0: bool
+    r0_min_speed_mps: float
+    fit_min_speed_mps: float
+    rolling_resistance_coeff: float
+    drag_area_m2: float
+    air_density_kgpm3: float
+    grade_from_altitude: bool
 
     @classmethod
-    def from_config(cls, cfg: Config) -> EstimatorParams:
+    def from_config(cls, cfg: Config, **overrides: Any) -> EstimatorParams:
+        """The parameters of cfg; overrides replace single values (tests)."""
         v, e = cfg.vehicle, cfg.estimator
-        return cls(
+        return replace(cls(
             window_s=e.window_s, min_speed_mps=e.min_speed_mps, cx_slip_min=e.cx_slip_min, cx_slip_max=e.cx_slip_max,
             mass_kg=v.mass_kg, driven_axle=v.driven_axle, brake_front_share=v.brake_front_share,
             pulses_per_rev=cfg.wpt.pulses_per_rev, r_ref_m=cfg.tire.radius_m,
@@ -91,7 +98,7 @@ class EstimatorParams:
             fit_min_speed_mps=e.fit_min_speed_mps, rolling_resistance_coeff=v.rolling_resistance_coeff,
             drag_area_m2=v.drag_area_m2, air_density_kgpm3=v.air_density_kgpm3,
             grade_from_altitude=e.grade_from_altitude,
-        )
+        ), **overrides)
 
 
 def driven_wheels(driven_axle: str) -> tuple[str, ...]:
@@ -131,11 +138,11 @@ def _div(a: float, b: float) -> float:
     return math.copysign(math.inf, a) * math.copysign(1.0, b)
 
 
-def phase_of(speed_mps: float, accel_mps2: float | None, threshold_mps2: float, standstill_mps: float) -> str:
-    """standstill below standstill_mps; accelerate / brake beyond +-threshold; cruise otherwise."""
-    if speed_mps < standstill_mps:
+def phase_of(speed_mps: float, accel_mps2: float | None) -> str:
+    """standstill below STANDSTILL_SPEED_MPS; accelerate / brake beyond +-PHASE_ACCEL_MPS2; cruise otherwise."""
+    if speed_mps < STANDSTILL_SPEED_MPS:
         return "standstill"
-    if accel_mps2 is None or abs(accel_mps2) <= threshold_mps2:
+    if accel_mps2 is None or abs(accel_mps2) <= PHASE_ACCEL_MPS2:
         return "cruise"
     return "accelerate" if accel_mps2 > 0 else "brake"
 
@@ -213,7 +220,7 @@ class SlipEstimator:
         if time_s < ring.last_t:
             return []  # out of order: keep the ring monotonic
         ring.append(time_s, revolutions)
-        if time_s - self._gps.last_t > self.p.gps_lost_after_s:
+        if time_s - self._gps.last_t > GPS_LOST_AFTER_S:
             return self._gps_lost()
         if not self._pending:
             return []
@@ -289,8 +296,8 @@ class SlipEstimator:
                     ptr[w] = e
 
         stop = m
-        if t_max - self._gps.last_t > self.p.gps_lost_after_s:  # the latest sample's test decides for all
-            lost_at = np.flatnonzero(time_s - self._gps.last_t > self.p.gps_lost_after_s)
+        if t_max - self._gps.last_t > GPS_LOST_AFTER_S:  # the latest sample's test decides for all
+            lost_at = np.flatnonzero(time_s - self._gps.last_t > GPS_LOST_AFTER_S)
             stop = int(lost_at[0]) if len(lost_at) else m
         out = []
         pos = 0
@@ -448,7 +455,7 @@ class SlipEstimator:
                 self._latency = None  # the estimate moved the wheels' latency fit
             self._head = None
         first = self._pending[0][0] if self._pending else self._gps.last_time
-        keep = first - self.p.max_latency_s - self.p.window_s - self.p.max_gps_gap_s - 2.0
+        keep = first - self.p.max_latency_s - self.p.window_s - MAX_GPS_GAP_S - 2.0
         self._gps.drop_before = keep
         self._gps_utc.drop_before = keep
         self._gps_acc.drop_before = keep
@@ -473,11 +480,11 @@ class SlipEstimator:
         i0 = max(bisect_right(fix_times, t0) - 1, 0)
         i1 = bisect_left(fix_times, t1)
         seg = fix_times[i0 : i1 + 1]
-        return max([b - a for a, b in zip(seg, seg[1:])]) <= self.p.max_gps_gap_s
+        return max([b - a for a, b in zip(seg, seg[1:])]) <= MAX_GPS_GAP_S
 
     def _accel(self, fix_times: list[float], speeds: list[float], t_c: float) -> float | None:
         i = bisect_left(fix_times, t_c)
-        if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * self.p.max_gps_gap_s:
+        if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * MAX_GPS_GAP_S:
             return None
         return _div(speeds[i + 1] - speeds[i - 1], fix_times[i + 1] - fix_times[i - 1])
 
@@ -557,7 +564,7 @@ class SlipEstimator:
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""
-        thr = self.p.phase_accel_mps2
+        thr = PHASE_ACCEL_MPS2
         return abs(accel) <= thr or (w in self._reference and accel >= -thr)
 
     def _update_lag(self, arrival_s: float, speed_mps: float, accel: float | None) -> None:
@@ -583,7 +590,7 @@ class SlipEstimator:
         if prev is None or accel is None:
             return
         a_prev, v_prev, arcs_prev = prev
-        thr = self.p.phase_accel_mps2
+        thr = PHASE_ACCEL_MPS2
         free = accel >= -thr if self._reference else abs(accel) <= thr
         if not free:  # the reference wheels are braked: drop the rows just before, skip the rows just after
             self._lag_queue.clear()
@@ -622,7 +629,7 @@ class SlipEstimator:
         weight = self._weight(fix_times, t0, t1)
         if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
             # While accelerating, the GPS latency must be known; at steady speed it does not matter.
-            steady = abs(accel) <= p.phase_accel_mps2
+            steady = abs(accel) <= PHASE_ACCEL_MPS2
             for w in WHEELS:
                 arc = arcs[w]
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
@@ -634,7 +641,7 @@ class SlipEstimator:
         self._last_center_s = t_c
         return Estimate(
             t_c, speed, accel, force, p.window_s, wheels,
-            phase=phase_of(speed, accel, p.phase_accel_mps2, p.standstill_speed_mps),
+            phase=phase_of(speed, accel),
             source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source,
         )
 
@@ -742,7 +749,7 @@ class SlipEstimator:
         wheels = self._with_reference_slip(wheels, arcs, r0)
         self._last_center_s = t_c
         return Estimate(t_c, speed, accel, None, p.window_s, wheels,
-                        phase=phase_of(speed, accel, p.phase_accel_mps2, p.standstill_speed_mps),
+                        phase=phase_of(speed, accel),
                         source="wheels", gps_latency_s=lat.latency_s, latency_source=lat.source)
 
     # ---- state for diagnostics ----------------------------------------------------------------------

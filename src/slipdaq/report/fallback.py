@@ -12,25 +12,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-STANDSTILL_MPS = 0.5
-"""Below this GPS speed a row is standstill."""
-CRUISE_ACCEL_MPS2 = 0.3
-"""|a| below this is cruise; above it, accelerate (a > 0) or brake (a < 0)."""
+from slipdaq.estimator.slip import STANDSTILL_SPEED_MPS, phase_of
+
+
 def derive_phases(rows: Sequence[dict[str, Any]]) -> list[str | None]:
-    """Phase of each row from speed_mps and accel_mps2; None where neither tells (no speed, or no a while moving)."""
+    """Phase of each row from speed_mps and accel_mps2 by the estimator's rule (`phase_of`); None where neither
+    tells (no speed, or no a while moving)."""
     out: list[str | None] = []
     for r in rows:
         v, a = r.get("speed_mps"), r.get("accel_mps2")
-        if v is None:
+        if v is None or (a is None and v >= STANDSTILL_SPEED_MPS):
             out.append(None)
-        elif v < STANDSTILL_MPS:
-            out.append("standstill")
-        elif a is None:
-            out.append(None)
-        elif abs(a) < CRUISE_ACCEL_MPS2:
-            out.append("cruise")
         else:
-            out.append("accelerate" if a > 0 else "brake")
+            out.append(phase_of(v, a))
     return out
 
 

@@ -40,6 +40,7 @@ Other figures per wheel and maneuver
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections.abc import Sequence
@@ -47,6 +48,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.config import Config, ConfigError, EstimatorConfig, parse_config
 from slipdaq.report import fallback
 from slipdaq.report.labels import format_labels
 
@@ -72,10 +74,13 @@ def debounce(phases: Sequence[str | None], min_run: int = MIN_RUN_ROWS) -> list[
     return [p for p, n in runs for _ in range(n)]
 
 
+_ESTIMATOR_DEFAULTS = EstimatorConfig()
+
+
 @dataclass(frozen=True)
 class LinearityRule:
-    slip_min: float = 0.005
-    slip_max: float = 0.10
+    slip_min: float = _ESTIMATOR_DEFAULTS.cx_slip_min
+    slip_max: float = _ESTIMATOR_DEFAULTS.cx_slip_max
     tolerance: float = 0.10
     """A bin is below the line when its median force is more than this fraction below it."""
     bin_width: float = 0.01
@@ -292,28 +297,16 @@ def maneuver_title(phase: str, speeds_mps: Sequence[float]) -> tuple[str, float,
     return f"{phase} {_round5(a)}–{_round5(b)} km/h", a * 3.6, b * 3.6
 
 
-def _config_latency(config_toml: str | None) -> float | None:
-    if not config_toml:
+def log_config(metadata: dict[str, str]) -> Config | None:
+    """The config a log was recorded with (config.py's models and defaults); None without one or with one this
+    version cannot read."""
+    text = metadata.get("config_toml")
+    if not text:
         return None
-    import tomllib
-
     try:
-        v = tomllib.loads(config_toml).get("gps", {}).get("latency_s", "auto")
-    except tomllib.TOMLDecodeError:
+        return parse_config(text)
+    except ConfigError:
         return None
-    return 0.0 if v == "auto" else float(v)
-
-
-def _estimator_rule(config_toml: str | None, base: LinearityRule) -> LinearityRule:
-    import dataclasses
-    import tomllib
-
-    try:
-        est = tomllib.loads(config_toml or "").get("estimator", {})
-    except tomllib.TOMLDecodeError:
-        return base
-    return dataclasses.replace(base, slip_min=float(est.get("cx_slip_min", base.slip_min)),
-                               slip_max=float(est.get("cx_slip_max", base.slip_max)))
 
 
 def summarize_wheel(
@@ -358,13 +351,16 @@ def summarize_log(
     rule: LinearityRule | None = None,
 ) -> LogSummary:
     """Every maneuver of one log, per wheel."""
-    rule = _estimator_rule(metadata.get("config_toml"), rule or LinearityRule())
+    cfg = log_config(metadata)
+    rule = rule or LinearityRule()
+    if cfg is not None:  # the bounds the estimator used for Cx
+        rule = dataclasses.replace(rule, slip_min=cfg.estimator.cx_slip_min, slip_max=cfg.estimator.cx_slip_max)
     diag = diagnostics or {}
     lost = {w: int(v) for w, v in (diag.get("lost_frames") or {}).items()}
     have_phase = any(r.get("phase") is not None for r in rows)
     phases = debounce([r.get("phase") for r in rows] if have_phase else fallback.derive_phases(rows))
     t0 = rows[0]["time_s"] if rows else None
-    cfg_latency = _config_latency(metadata.get("config_toml"))
+    cfg_latency = None if cfg is None else (cfg.latency_fixed_s or 0.0)  # "auto": 0
     maneuvers: list[ManeuverSummary] = []
     for phase in PHASES:
         prow = tuple(r for r, p in zip(rows, phases) if p == phase)
