@@ -9,7 +9,9 @@ on PYTHONPATH), alternating, and every call of those functions is timed. Per rou
 table gives the lowest of the rounds' medians (the round least disturbed by other load on the machine), in
 microseconds, and the ratio base/new. The estimates' JSON of both sides is compared: "identical" means byte for byte.
 
-    python benchmarks/perf_epoch.py [--base 8a93b17] [--seconds 30] [--rounds 5]
+    python benchmarks/perf_epoch.py [--base REV] [--seconds 30] [--rounds 5]
+
+REV defaults to the merge base of HEAD with main.
     python benchmarks/perf_epoch.py --check    # no timing: every output of both sides on CHECK_CASES, compared
 
 --check runs both sides on several drives (CHECK_CASES: configs, GPS lost, NMEA arrival jitter, epochs out of
@@ -26,11 +28,12 @@ import pickle
 import statistics
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from base_revision import add_base_argument, resolve, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 ROWS = (
@@ -228,7 +231,7 @@ def check(base: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--base", default="8a93b17", help="the revision to compare against (default 8a93b17)")
+    add_base_argument(ap)
     ap.add_argument("--seconds", type=float, default=30.0, help="seconds of simulated drive (default 30)")
     ap.add_argument("--rounds", type=int, default=5, help="alternating runs per side (default 5)")
     ap.add_argument("--check", action="store_true", help="compare every output on CHECK_CASES instead of timing")
@@ -243,10 +246,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory(prefix="perf-epoch-") as tmp_name:
         tmp = Path(tmp_name)
-        archive = tmp / "base.tar"
-        subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), a.base, "src", "config"], check=True)
-        with tarfile.open(archive) as tar:
-            tar.extractall(tmp / "base", filter="tar")
+        a.base = resolve(a.base)
+        unpack(a.base, tmp / "base")
         records = tmp / "records.pkl"
         sys.path.insert(0, str(ROOT / "src"))
         if a.check:

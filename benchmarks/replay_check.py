@@ -16,7 +16,9 @@ On a difference, the first differing message (topic, log time, bytes) is shown. 
 estimates, fixes, wheel samples and diagnostics equal those the live pipeline logged when it wrote the input
 (live = replay, whatever the batching).
 
-    python benchmarks/replay_check.py [--base 31a7796] [--work /tmp/replay-check] [--quick]
+    python benchmarks/replay_check.py [--base REV] [--work /tmp/replay-check] [--quick]
+
+REV defaults to the merge base of HEAD with main.
 """
 
 from __future__ import annotations
@@ -28,10 +30,11 @@ import random
 import shutil
 import subprocess
 import sys
-import tarfile
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from base_revision import add_base_argument, resolve, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "benchmarks"
@@ -226,7 +229,7 @@ def run(side: str, env: dict[str, str], args: list[str], cwd: Path) -> tuple[int
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--base", default="31a7796")
+    add_base_argument(ap)
     ap.add_argument("--work", type=Path, help="directory for the logs (default: a temporary one, removed)")
     ap.add_argument("--quick", action="store_true", help="fewer and shorter drives")
     ap.add_argument("--make-inputs", type=Path, help=argparse.SUPPRESS)
@@ -236,14 +239,9 @@ def main() -> int:
         return 0
     work = a.work or Path(tempfile.mkdtemp(prefix="replay-check-"))
     work.mkdir(parents=True, exist_ok=True)
-    base_dir = work / f"base-{a.base}"
-    if not (base_dir / "src").is_dir():
-        base_dir.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", a.base, "src", "config"], check=True,
-                                 capture_output=True).stdout
-        with tarfile.open(fileobj=__import__("io").BytesIO(archive)) as tar:
-            tar.extractall(base_dir, filter="data")
-    env_base = dict(os.environ, PYTHONPATH=str(base_dir / "src"))
+    a.base = resolve(a.base)
+    base_src = unpack(a.base, work / f"base-{a.base}")
+    env_base = dict(os.environ, PYTHONPATH=str(base_src))
     env_new = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     if not list(work.glob("in-*.mcap")):
         print(f"writing the input logs with {a.base} in {work} ...", flush=True)

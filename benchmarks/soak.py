@@ -220,13 +220,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--wpt-rate-hz", type=float, default=1000.0)
     p.add_argument("--gps-rate-hz", type=float, default=20.0)
     p.add_argument("--sample-every", type=float, default=10.0, help="RSS sample period, s")
+    p.add_argument("--warmup", type=float, default=None, help="RSS growth counts after this, s (default: 60 s or a fifth)")
     p.add_argument("--log-dir", help="where the log goes (default: a temporary directory, deleted)")
     p.add_argument("--json", help="write the summary and the samples here")
     a = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(a.log_dir) if a.log_dir else Path(tmp)
         r = run_soak(a.duration, log_dir, wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz,
-                     sample_every_s=a.sample_every, out=sys.stdout)
+                     sample_every_s=a.sample_every, warmup_s=a.warmup, out=sys.stdout)
         s = r.summary()
     print(json.dumps(s, indent=1))
     if a.json:

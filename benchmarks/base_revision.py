@@ -1,0 +1,40 @@
+"""The base revision a benchmark compares this tree against: given on the command line, by default the merge base
+of HEAD with main (what a branch changes); its `src` and `config` unpacked from git for PYTHONPATH."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import subprocess
+import tarfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def merge_base(branch: str = "main") -> str:
+    """The merge base of HEAD with `branch`, abbreviated; HEAD itself when there is none."""
+    got = subprocess.run(["git", "-C", str(ROOT), "merge-base", "HEAD", branch], capture_output=True, text=True)
+    rev = got.stdout.strip() if got.returncode == 0 else "HEAD"
+    return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", rev], capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def add_base_argument(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--base", default=None, metavar="REV",
+                    help="the revision to compare against (default: the merge base of HEAD with main)")
+
+
+def resolve(rev: str | None) -> str:
+    return rev if rev else merge_base()
+
+
+def unpack(rev: str, dest: Path) -> Path:
+    """`git archive REV src config` into dest (once); returns dest/src, to put on PYTHONPATH."""
+    if not (dest / "src").is_dir():
+        dest.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src", "config"], check=True,
+                                 capture_output=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(dest, filter="data")
+    return dest / "src"
