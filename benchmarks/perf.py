@@ -469,7 +469,7 @@ def _batched_log_estimates(log_path: Path, ids: dict[int, str]) -> tuple[dict[st
     time (its can_index: the frames before it), else the CAN frame with that time."""
     from mcap.reader import make_reader
 
-    from slipdaq.sinks.cdr import decode_can_batch
+    from slipdaq.logformat.cdr import decode_can_batch
 
     cols: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     lines: dict[int, tuple[float, int]] = {}
@@ -783,11 +783,11 @@ PROFILE_RULES: list[tuple[str, tuple[str, ...]]] = [
     ("decode: wheel frames (WheelDecoder: batch decode, unwrap, Seq)", ("WheelDecoder.", "decode/can_wheels.py")),
     ("epoch: GPS decode (NmeaDecoder, pynmea2, UBX)", ("NmeaDecoder.", "pynmea2", "decode/nmea.py",
                                                         "decode/ubx.py")),
-    ("epoch: estimates, fixes, diagnostics to JSON", ("json/encoder.py", "json/__init__.py", "estimate_to_dict",
+    ("epoch: estimates, fixes, diagnostics to JSON", ("json/encoder.py", "json/__init__.py", "logformat/json_codec.py",
                                                        "Estimate.as_row", "McapLogSink.on_estimate",
                                                        "McapLogSink.on_fix", "McapLogSink.on_diagnostics",
                                                        "Pipeline.diagnostics", "Pipeline.emit_diagnostics")),
-    ("log: CDR batches (sinks/cdr.py)", ("sinks/cdr.py",)),
+    ("log: CDR batches (logformat/cdr.py)", ("logformat/cdr.py",)),
     ("log: mcap Writer.add_message, chunks, zstd", ("mcap/", "zstandard")),
     ("log: McapLogSink (pending batches, topic dispatch)", ("McapLogSink.", "_Pending", "concat_can_batches",
                                                             "sinks/mcap_log.py")),

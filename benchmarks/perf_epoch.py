@@ -149,8 +149,8 @@ def worker(records_path: Path) -> dict[str, Any]:
     from slipdaq.decode.can_wheels import WheelDecoder
     from slipdaq.decode.nmea import NmeaDecoder
     from slipdaq.estimator import EstimatorParams, SlipEstimator
+    from slipdaq.logformat import json_codec as M
     from slipdaq.records import CanFrame, NmeaLine
-    from slipdaq.sinks import mcap_log as M
 
     cfg = load_config(packaged_config_path())
     wheels = WheelDecoder(cfg)

@@ -24,6 +24,7 @@ REV defaults to the merge base of HEAD with main.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import pickle
 import random
@@ -145,8 +146,8 @@ def make_inputs(work: Path, quick: bool) -> None:
     records = _faults(_records_of(pickle.loads(tmp.read_bytes())))
     tmp.unlink()
     _write_live(work / "in-faults.mcap", cfg, records, seed=99)
-    sys.path.insert(0, str(ROOT / "tests"))
-    from legacy_log import write_old_format_log  # the compatibility tests' writer (under the base's slipdaq here)
+    sys.path.insert(0, str(ROOT / "tools"))
+    from legacy_log import write_old_format_log  # the old format's writer (runs under the base's slipdaq here)
 
     write_old_format_log(work / "in-old-format.mcap", cfg, records)
     data = (work / "in-faults.mcap").read_bytes()
@@ -176,8 +177,40 @@ def _metadata(path: Path) -> dict[str, dict[str, str]]:
         return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
 
 
+def _schemas(path: Path) -> dict[str, tuple[str, bytes]]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    return {s.name: (s.encoding, s.data) for s in summary.schemas.values()} if summary else {}
+
+
+def _unordered(schema: Any) -> Any:
+    """A JSON Schema with its `required` lists as sets (their order means nothing)."""
+    if isinstance(schema, dict):
+        return {k: frozenset(v) if k == "required" else _unordered(v) for k, v in schema.items()}
+    return [_unordered(v) for v in schema] if isinstance(schema, list) else schema
+
+
+def _schema_order_only(a: Path, b: Path) -> list[str] | None:
+    """The schemas that differ only in the order of their keys and `required` lists (the same JSON Schema); None if
+    any differs more or the files have other schemas."""
+    sa, sb = _schemas(a), _schemas(b)
+    if sa.keys() != sb.keys():
+        return None
+    out = []
+    for name, (enc, data) in sa.items():
+        if (enc, data) == sb[name]:
+            continue
+        if enc != sb[name][0] or enc != "jsonschema" or _unordered(json.loads(data)) != _unordered(json.loads(sb[name][1])):
+            return None
+        out.append(name)
+    return out
+
+
 def compare(a: Path, b: Path) -> str:
-    """'' when identical (but for EXCLUDED_METADATA), else what differs first."""
+    """'' when identical (but for EXCLUDED_METADATA), "same: ..." when the messages and metadata are identical and
+    a JSON Schema differs only in the order of its keys, else what differs first."""
     ma, mb = _metadata(a), _metadata(b)
     da, db = a.read_bytes(), b.read_bytes()
     for key in EXCLUDED_METADATA:
@@ -197,6 +230,9 @@ def compare(a: Path, b: Path) -> str:
             return f"message {i} differs: base {p[:4]} {p[4][:200]!r} / new {q[:4]} {q[4][:200]!r}"
     if len(xa) != len(xb):
         return f"message counts differ: {len(xa)} != {len(xb)}"
+    reordered = _schema_order_only(a, b)
+    if reordered:
+        return f"same: messages and metadata identical; JSON Schema keys in another order: {', '.join(reordered)}"
     return f"messages equal ({len(xa)}), but the files differ (chunking or summary): {len(da)} vs {len(db)} bytes"
 
 
@@ -204,7 +240,7 @@ def live_vs_replay(inp: Path, out: Path) -> str:
     """The derived topics the live pipeline logged into inp against the replay's."""
     from collections import defaultdict
 
-    from slipdaq.sources.mcap_log import is_finished
+    from slipdaq.logformat.reader import is_finished
 
     if not is_finished(inp):
         return "n/a (unfinished input)"
@@ -220,6 +256,10 @@ def live_vs_replay(inp: Path, out: Path) -> str:
         return "n/a (raw-only log)"
     bad = [t for t in topics if got[inp][t] != got[out][t]]
     return "equal " + ", ".join(f"{t} {len(got[out][t])}" for t in topics) if not bad else f"DIFFER: {bad}"
+
+
+def _verdict(diff: str) -> str:
+    return "identical" if not diff else diff if diff.startswith("same:") else "DIFFERENT: " + diff
 
 
 def run(side: str, env: dict[str, str], args: list[str], cwd: Path) -> tuple[int, str]:
@@ -256,8 +296,9 @@ def main() -> int:
         shutil.copy(work / "import-rav4-base.mcap", work / "in-rav4.mcap")
     failures = 0
     diff = compare(work / "import-rav4-base.mcap", work / "import-rav4-new.mcap")
-    print(f"{'import rav4':<22} {'identical' if not diff else 'DIFFERENT: ' + diff}")
-    failures += bool(diff)
+    print(f"{'import rav4':<22} {_verdict(diff)}")
+    failures += bool(diff) and not diff.startswith("same:")
+    reordered = int(diff.startswith("same:"))
     for inp in sorted(work.glob("in-*.mcap")):
         outs, texts = {}, {}
         for side, env in (("base", env_base), ("new", env_new)):
@@ -270,10 +311,12 @@ def main() -> int:
             diff += f" output text differs: {texts['base']!r} != {texts['new']!r}"
         lvr = live_vs_replay(inp, outs["new"])
         n = len(_messages(outs["new"]))
-        print(f"replay {inp.stem[3:]:<15} {'identical' if not diff else 'DIFFERENT: ' + diff} ({n} messages);"
+        print(f"replay {inp.stem[3:]:<15} {_verdict(diff)} ({n} messages);"
               f" live vs replay: {lvr}", flush=True)
-        failures += bool(diff)
-    print("all identical" if not failures else f"{failures} DIFFERENT")
+        failures += bool(diff) and not diff.startswith("same:")
+        reordered += diff.startswith("same:")
+    print(f"{failures} DIFFERENT" if failures else "all identical" if not reordered else
+          f"all identical but for the order of JSON Schema keys in {reordered} files (the same schemas)")
     if a.work is None:
         shutil.rmtree(work)
     return 1 if failures else 0

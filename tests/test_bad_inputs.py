@@ -23,10 +23,10 @@ from conftest import CONFIG, DATA
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.daemon import new_log_path, run_daemon
+from slipdaq.logformat.reader import iter_estimates, iter_raw_records, read_metadata
+from slipdaq.logformat.rotation import segment_path
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
-from slipdaq.sinks.rotation import segment_path
-from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, read_metadata
 
 PYCAN = DATA / "python-can"
 

@@ -4,31 +4,27 @@ logs of the old per-frame format still read and replayed."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from conftest import CONFIG
-from legacy_log import write_old_format_log
+from conftest import CONFIG, ROOT
 from reliability_support import sim_records
 from slipdaq.cli import main
 from slipdaq.config import load_config
+from slipdaq.logformat.cdr import decode_can_batch, decode_wheel_batch
+from slipdaq.logformat.reader import iter_raw_batches, iter_raw_records, iter_topic
+from slipdaq.logformat.topics import MAX_BATCH_FRAMES, MAX_BATCH_SPAN_S, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_NMEA, TOPIC_WPT
+
+sys.path.insert(0, str(ROOT / "tools"))
+from legacy_log import write_old_format_log  # noqa: E402  (tools/: the old format's writer, shared with benchmarks)
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine
 from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.cdr import decode_can_batch, decode_wheel_batch
-from slipdaq.sinks.mcap_log import (
-    MAX_BATCH_FRAMES,
-    MAX_BATCH_SPAN_S,
-    TOPIC_CAN,
-    TOPIC_ESTIMATE,
-    TOPIC_NMEA,
-    TOPIC_WPT,
-    McapLogSink,
-)
-from slipdaq.sources.mcap_log import iter_raw_batches, iter_raw_records, iter_topic
+from slipdaq.sinks.mcap_log import McapLogSink
 
 
 def _odd_frames() -> list:
@@ -122,7 +118,7 @@ def test_old_per_frame_log_replays_to_the_same_estimates(tmp_path: Path, capsys)
     assert main(["replay", str(old), "-o", str(tmp_path / "new.mcap")]) == 0
     new = tmp_path / "new.mcap"
     got = [d for _, _, d in iter_topic(new, (TOPIC_ESTIMATE,))]
-    from slipdaq.sinks.mcap_log import estimate_to_dict
+    from slipdaq.logformat.json_codec import estimate_to_dict
     assert len(got) > 30 and got == [json.loads(json.dumps(estimate_to_dict(e))) for e in collect.estimates]
     assert list(iter_raw_records(new)) == records  # and the replay's log is in the new format, every frame kept
     with open(new, "rb") as f:
@@ -136,7 +132,7 @@ def test_batch_columns_round_trip() -> None:
               CanFrame(1.7, 0, bytes(64)), CanFrame(1.8, 5, b"", False, True)]
     b = CanFrameBatch.from_frames(frames)
     assert list(b.frames()) == frames and b.data.shape == (4, 64)
-    from slipdaq.sinks.cdr import encode_can_batch
+    from slipdaq.logformat.cdr import encode_can_batch
     first, back = decode_can_batch(encode_can_batch(7, b))
     assert first == 7 and list(back.frames()) == frames
     assert np.array_equal(back.dlc, [8, 1, 64, 0])

@@ -136,7 +136,8 @@ def test_the_order_does_not_depend_on_how_frames_were_grouped(tmp_path: Path) ->
 def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follows(tmp_path: Path) -> None:
     """A live log: 512 frames fill a /can/raw batch, then the bus and the GPS go quiet. The batch is written (in its
     turn, after the samples of its frames) with the next chunk, not held until another record comes."""
-    from slipdaq.sources.mcap_log import ScanResult, iter_raw_records
+    from slipdaq.logformat.reader import iter_raw_records
+    from slipdaq.logformat.salvage import ScanResult
 
     path = tmp_path / "quiet.mcap"
 

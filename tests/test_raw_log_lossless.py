@@ -24,10 +24,10 @@ from conftest import CONFIG, DATA, ROOT
 from reliability_support import nmea
 from slipdaq.cli import main
 from slipdaq.config import load_config
+from slipdaq.logformat.reader import iter_raw_records
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sources.can_bus import CanBusSource
-from slipdaq.sources.mcap_log import iter_raw_records
 
 PYCAN = DATA / "python-can"
 FILES = sorted(p.name for p in PYCAN.iterdir() if p.suffix in (".asc", ".blf", ".trc"))
@@ -250,8 +250,8 @@ def test_a_channel_that_appears_in_a_later_segment_is_named_after_recover(tmp_pa
     """A live run cut into segments (rotation) whose bus shows a second channel only in its third second: each
     segment names every channel its frames use, and so does `slipdaq recover` of the segments joined."""
     from reliability_support import sim_records
+    from slipdaq.logformat.rotation import RotationPolicy, run_segments
     from slipdaq.sinks.mcap_log import McapLogSink
-    from slipdaq.sinks.rotation import RotationPolicy, run_segments
 
     records = sim_records(5.0)
     t0 = records[0].timestamp_s

@@ -22,13 +22,14 @@ from slipdaq.config import load_config
 from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.can_errors import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED, error_classes
 from slipdaq.demo import demo_config
+from slipdaq.logformat.json_codec import estimate_to_dict
+from slipdaq.logformat.reader import iter_topic
+from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, RawRecord
 from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.mcap_log import TOPIC_DIAGNOSTICS, estimate_to_dict
 from slipdaq.sinks.status import StatusSink, _Rates, status_line
 from slipdaq.sources.can_bus import CanBusSource
-from slipdaq.sources.mcap_log import iter_topic
 
 WHEEL_IDS = {0x310 + i: w for i, w in enumerate(WHEELS)}
 

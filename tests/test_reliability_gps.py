@@ -22,13 +22,13 @@ from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.framing import MAX_FRAME_BYTES
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.demo import demo_config
+from slipdaq.logformat.reader import iter_estimates, iter_raw_records, iter_topic
+from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_EVENTS
 from slipdaq.records import NmeaLine, SourceEvent
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
-from slipdaq.sinks.mcap_log import TOPIC_DIAGNOSTICS, TOPIC_EVENTS
 from slipdaq.sinks.status import SourceStatus, StatusSink, _Rates, status_line
 from slipdaq.sources import serial_gps
-from slipdaq.sources.mcap_log import iter_estimates, iter_raw_records, iter_topic
 from slipdaq.sources.serial_gps import LineQuality, SerialGpsSource, valid_sentence
 
 RMC = nmea("GPRMC,120000.00,A,5200.00000,N,01000.00000,E,20.000,90.0,010126,,,A")

@@ -23,24 +23,25 @@ from conftest import CONFIG
 from reliability_support import DaemonProcess, fill, gps_lines, sim_records, small_tmpfs
 from slipdaq.cli import main
 from slipdaq.config import load_config
-from slipdaq.pipeline import Pipeline
-from slipdaq.records import CanFrame, NmeaLine, WheelSample
-from slipdaq.recover import ScanResult, recover, scan
-from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.cdr import decode_can_batch
-from slipdaq.sinks.durable import TRAILER
-from slipdaq.sinks.mcap_log import (
-    TOPIC_EVENTS,
-    McapLogSink,
+from slipdaq.logformat.cdr import decode_can_batch
+from slipdaq.logformat.durable import TRAILER
+from slipdaq.logformat.json_codec import (
     can_frame_json,
     can_frame_to_dict,
     estimate_to_dict,
     wheel_sample_json,
     wheel_sample_to_dict,
 )
-from slipdaq.sinks.rotation import RotationPolicy, run_segments
+from slipdaq.logformat.reader import is_finished, iter_estimates, iter_raw_records, iter_topic, read_metadata
+from slipdaq.logformat.rotation import RotationPolicy, run_segments
+from slipdaq.logformat.salvage import ScanResult, scan
+from slipdaq.logformat.topics import TOPIC_EVENTS
+from slipdaq.pipeline import Pipeline
+from slipdaq.records import CanFrame, NmeaLine, WheelSample
+from slipdaq.recover import recover
+from slipdaq.sinks import CollectingSink
+from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.status import SourceStatus, StatusSink, status_line
-from slipdaq.sources.mcap_log import is_finished, iter_estimates, iter_raw_records, iter_topic, read_metadata
 
 
 class FakeMonotonic:

@@ -13,13 +13,15 @@ import pytest
 from conftest import CONFIG
 from reliability_support import gps_lines, sim_records
 from slipdaq.config import load_config
+from slipdaq.logformat.json_codec import estimate_to_dict
+from slipdaq.logformat.reader import iter_topic
+from slipdaq.logformat.topics import TOPIC_EVENTS
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, NmeaLine, RawRecord
 from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.mcap_log import TOPIC_EVENTS, McapLogSink, estimate_to_dict
+from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sources.can_bus import CanBusSource
 from slipdaq.sources.clock import SteadyClock
-from slipdaq.sources.mcap_log import iter_topic
 from slipdaq.sources.serial_gps import SerialGpsSource
 
 

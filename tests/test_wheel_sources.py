@@ -14,10 +14,10 @@ from conftest import CONFIG, ROOT, write_config
 from slipdaq.cli import main
 from slipdaq.config import ConfigError, load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
+from slipdaq.logformat.reader import iter_estimates, iter_topic
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame
 from slipdaq.sinks import CollectingSink
-from slipdaq.sources.mcap_log import iter_estimates, iter_topic
 
 EXAMPLES = ROOT / "config" / "examples"
 RAV4 = ROOT / "tests" / "data" / "rav4-comma2k19"

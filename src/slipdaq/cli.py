@@ -241,15 +241,10 @@ def _unfinished_note(path: str, scanned: object) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
+    from slipdaq.logformat.salvage import ScanResult
     from slipdaq.offline import process_to_log
     from slipdaq.report.labels import LABEL_PREFIX
-    from slipdaq.sources.mcap_log import (
-        ScanResult,
-        config_from_log,
-        iter_raw_batches,
-        raw_record_count,
-        read_metadata,
-    )
     from slipdaq.sources.read_errors import guarded
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
@@ -267,8 +262,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from slipdaq.logformat.reader import iter_estimates, read_metadata
+    from slipdaq.logformat.salvage import ScanResult
     from slipdaq.sinks.csv_export import write_csv
-    from slipdaq.sources.mcap_log import ScanResult, iter_estimates, read_metadata
     from slipdaq.sources.read_errors import guarded
 
     read_metadata(args.log)

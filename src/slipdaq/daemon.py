@@ -18,11 +18,11 @@ from typing import TextIO
 import can
 
 from slipdaq.config import Config, ConfigError
+from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import RawRecord, SourceEvent, channel_name
 from slipdaq.sinks import EventFanout
 from slipdaq.sinks.mcap_log import McapLogSink
-from slipdaq.sinks.rotation import RotationPolicy, later_segments_glob
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 from slipdaq.sources.clock import SteadyClock

@@ -14,13 +14,13 @@ import can
 
 from slipdaq.config import Config, load_config, packaged_config_path
 from slipdaq.daemon import RunResult, new_log_path, open_bus, run_daemon
+from slipdaq.logformat.reader import iter_estimates
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
 from slipdaq.sim.vehicle import TruthSample
 from slipdaq.simulate import PtyGps
-from slipdaq.sources.mcap_log import iter_estimates
 
 
 def demo_config(gps_port: str, channel: str) -> Config:

@@ -360,28 +360,72 @@ class Estimate:
     latency_source: str = "fixed"
 
     def as_row(self) -> dict[str, float | str | None]:
-        """Flat mapping in the CSV/MCAP column names."""
-        row: dict[str, float | str | None] = {
-            "time_s": self.time_s,
-            "speed_mps": self.speed_mps,
-            "accel_mps2": self.accel_mps2,
-            "force_n": self.force_n,
-        }
-        for w, e in self.wheels.items():
-            row[f"slip_{w}"] = e.slip
-            row[f"re_{w}_m"] = e.re_m
-            row[f"r0_{w}_m"] = e.r0_m
-            row[f"cx_{w}_n"] = e.cx_n
-        row["phase"] = self.phase
-        row["source"] = self.source
-        row["gps_latency_s"] = self.gps_latency_s
-        row["latency_source"] = self.latency_source
-        for w, e in self.wheels.items():
-            row[f"r0_source_{w}"] = e.r0_source
-            row[f"slip_nd_{w}"] = e.slip_nd
-            row[f"cx_fit_{w}_n"] = e.cx_fit_n
-            row[f"cx_fit_{w}_conf"] = e.cx_fit_conf
+        """Flat mapping in the log's and the CSV's column names (ESTIMATE_COLUMNS, wheels in this estimate's order)."""
+        row: dict[str, float | str | None] = {}
+        for group in ESTIMATE_COLUMNS:
+            if group.per_wheel:
+                for w, we in self.wheels.items():
+                    for c in group.columns:
+                        row[c.key(w)] = getattr(we, c.attribute)
+            else:
+                for c in group.columns:
+                    row[c.name] = getattr(self, c.attribute)
         return row
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    """One column of a flat record: its name (`{w}` stands for the wheel), the attribute it holds, what kind of value
+    it is, and its unit in the name's suffix (`_s`, `_mps`, `_n`, `_m`)."""
+
+    name: str
+    attribute: str
+    kind: str
+    """'number', 'number?' (or undefined: null, an empty CSV cell), 'text', or 'enum'."""
+    values: tuple[str, ...] = ()
+    """enum: the values it takes."""
+
+    def key(self, wheel: str) -> str:
+        return self.name.format(w=wheel)
+
+
+@dataclass(frozen=True, slots=True)
+class ColumnGroup:
+    """Consecutive columns of a flat record: of the estimate itself, or of each wheel in turn (per_wheel)."""
+
+    columns: tuple[Column, ...]
+    per_wheel: bool
+    csv: str
+    """'contract' (the public CSV columns, in order), 'extra' (appended after them), '' (log only)."""
+
+
+PHASES = ("standstill", "accelerate", "cruise", "brake")
+
+ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
+    ColumnGroup((Column("time_s", "time_s", "number"), Column("speed_mps", "speed_mps", "number"),
+                 Column("accel_mps2", "accel_mps2", "number?"), Column("force_n", "force_n", "number?")),
+                per_wheel=False, csv="contract"),
+    ColumnGroup((Column("slip_{w}", "slip", "number?"), Column("re_{w}_m", "re_m", "number?"),
+                 Column("r0_{w}_m", "r0_m", "number"), Column("cx_{w}_n", "cx_n", "number?")),
+                per_wheel=True, csv="contract"),
+    ColumnGroup((Column("phase", "phase", "enum", PHASES), Column("source", "source", "text"),
+                 Column("gps_latency_s", "gps_latency_s", "number"), Column("latency_source", "latency_source", "text")),
+                per_wheel=False, csv="extra"),
+    ColumnGroup((Column("r0_source_{w}", "r0_source", "text"), Column("slip_nd_{w}", "slip_nd", "number?"),
+                 Column("cx_fit_{w}_n", "cx_fit_n", "number?"), Column("cx_fit_{w}_conf", "cx_fit_conf", "number?")),
+                per_wheel=True, csv="extra"),
+    ColumnGroup((Column("window_s", "window_s", "number"),), per_wheel=False, csv=""),
+    ColumnGroup((Column("force_{w}_n", "force_n", "number?"), Column("wheel_speed_{w}_mps", "speed_mps", "number?")),
+                per_wheel=True, csv=""),
+)
+"""An estimate's columns, declared once, in the order of its /estimate JSON and its CSV row: the log's JSON, its JSON
+Schema, the CSV's columns and Estimate.as_row are derived from this."""
+
+
+def column_names(groups: Sequence[ColumnGroup], wheels: Sequence[str], csv: str | None = None) -> tuple[str, ...]:
+    """The column names of the groups (those of one CSV class when csv is given), for these wheels."""
+    return tuple(c.key(w) if g.per_wheel else c.name for g in groups if csv is None or g.csv == csv
+                 for w in (wheels if g.per_wheel else ("",)) for c in g.columns)
 
 
 @dataclass(slots=True)

@@ -515,8 +515,8 @@ class LogContent:
 
 
 def read_log(path: Path) -> LogContent:
+    from slipdaq.logformat.reader import iter_raw_records
     from slipdaq.records import CanFrame
-    from slipdaq.sources.mcap_log import iter_raw_records
 
     out = LogContent()
     for r in iter_raw_records(path):
@@ -539,7 +539,7 @@ def pulse_count(data: bytes) -> int:
 
 
 def diagnostics(path: Path) -> list[dict[str, Any]]:
-    from slipdaq.sources.mcap_log import iter_topic
+    from slipdaq.logformat.reader import iter_topic
 
     return [d for _, _, d in iter_topic(path, ("/diagnostics",))]
 
@@ -556,7 +556,7 @@ def replay_differences(log: Path, out: Path) -> list[str]:
     import io
 
     from slipdaq.cli import main
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     with contextlib.redirect_stdout(io.StringIO()):
         rc = main(["replay", str(log), "-o", str(out)])

@@ -122,8 +122,8 @@ def env(tmp_path_factory: pytest.TempPathFactory, pytestconfig: pytest.Config) -
     t0 = time.time()
     zygote = Zygote()  # imports in parallel with this process's own imports below
     import slipdaq.cli  # noqa: F401
+    import slipdaq.logformat.reader  # noqa: F401
     import slipdaq.sim.emit  # noqa: F401
-    import slipdaq.sources.mcap_log  # noqa: F401
 
     report(f"test process imported slipdaq in {time.time() - t0:.0f} s")
     try:
@@ -147,7 +147,7 @@ def keep(path: Path, name: str) -> None:
 
 def _check_receive_buffer(log: Path) -> int:
     """The daemon's CAN socket got the receive buffer it asked for: Linux reports twice the size set."""
-    from slipdaq.sources.mcap_log import read_metadata
+    from slipdaq.logformat.reader import read_metadata
 
     meta = read_metadata(log)
     got, asked = int(meta["can_receive_buffer_bytes"]), int(meta["can_receive_buffer_requested_bytes"])
@@ -243,8 +243,8 @@ def case1(env: Env) -> Case1:
     When the run cannot be judged (the machine did not run the sender or the daemon in real time: see judge.py),
     the drive is played again into a new daemon, up to CASE1_ATTEMPTS times; then the verdict's reason fails the case.
     """
+    from slipdaq.logformat.reader import iter_estimates
     from slipdaq.sim.truth import truth_series
-    from slipdaq.sources.mcap_log import iter_estimates
 
     base = env.tmp / "case1"
     truth, nmea = _drive(env, base)
@@ -365,7 +365,7 @@ def test_case2_replay_bus_into_the_daemon_equals_slipdaq_replay(env: Env, case1:
     match, and the check of the daemon against its own log above holds whatever d was.
     """
     from slipdaq.cli import main as slipdaq_main
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     d = env.tmp / "case2"
     gps = "/tmp/hil-gps-case2"

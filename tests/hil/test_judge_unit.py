@@ -47,7 +47,7 @@ def _replayed(tmp_path: Path, *changes: tuple[str, str]) -> Path:
 
 
 def test_the_recorded_daemon_passes(recorded) -> None:  # type: ignore[no-untyped-def]
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
     verdict = judge_drive(iter_estimates(LOG), truth, wheels, shift)
@@ -66,7 +66,7 @@ def test_the_recorded_daemon_passes(recorded) -> None:  # type: ignore[no-untype
 def test_a_wrong_estimate_is_caught(  # type: ignore[no-untyped-def]
     recorded, tmp_path: Path, name: str, changes: list[tuple[str, str]], caught: list[str]
 ) -> None:
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
     verdict = judge_drive(iter_estimates(_replayed(tmp_path, *changes)), truth, wheels, shift)
@@ -76,7 +76,7 @@ def test_a_wrong_estimate_is_caught(  # type: ignore[no-untyped-def]
 
 def test_wrong_signs_are_caught(recorded) -> None:  # type: ignore[no-untyped-def]
     """Slip of the opposite sign (e.g. wheel and GPS distance swapped) within the error bounds' reach is caught."""
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
     flipped = [r | {"slip_FL": -r["slip_FL"]} if r["slip_FL"] is not None else r for r in iter_estimates(LOG)]
@@ -88,7 +88,7 @@ def test_wrong_signs_are_caught(recorded) -> None:  # type: ignore[no-untyped-de
 def test_a_sender_that_lags_gives_no_verdict(recorded) -> None:  # type: ignore[no-untyped-def]
     """Every other frame's count sampled 10 ms before its kernel stamp: the sender's share of a window's slip (up to 2
     points) is too large to judge the daemon on in most windows, and the judge says so rather than passing."""
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
     lagging = [dataclasses.replace(w, lags_s=[x + 0.010 * (k % 2) for k, x in enumerate(w.lags_s)]) for w in wheels]
@@ -101,7 +101,7 @@ def test_nmea_stamped_late_gives_no_verdict(recorded) -> None:  # type: ignore[n
     """NMEA lines stamped 15 ms later than they were (as on a host that starved the VM: 18 ms after plan, median,
     |slip error| median 0.46 points): the windows move against the wheel frames by that much, and the judge gives
     no verdict."""
-    from slipdaq.sources.mcap_log import iter_estimates
+    from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
     problems = judge_drive(iter_estimates(LOG), truth, wheels, [x + 0.015 for x in shift]).problems

@@ -36,7 +36,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 PRELOAD = (
     "numpy", "can", "can.interfaces.socketcan", "serial", "slipdaq.cli", "slipdaq.daemon", "slipdaq.simulate",
-    "slipdaq.sim.realtime", "slipdaq.sim.emit", "slipdaq.sources.mcap_log", "slipdaq.offline", "rich.live",
+    "slipdaq.sim.realtime", "slipdaq.sim.emit", "slipdaq.logformat.reader", "slipdaq.offline", "rich.live",
 )
 
 

@@ -14,11 +14,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from slipdaq.logformat.errors import LogError
+from slipdaq.logformat.reader import iter_topic, read_metadata
+from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE
 from slipdaq.outputs import atomic_tree
 from slipdaq.report.labels import labels_of
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
-from slipdaq.sinks.mcap_log import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE
-from slipdaq.sources.mcap_log import LogError, iter_topic, read_metadata
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")

@@ -8,14 +8,11 @@ from pathlib import Path
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.records import ESTIMATE_COLUMNS, column_names
 
-COLUMNS: tuple[str, ...] = ("time_s", "speed_mps", "accel_mps2", "force_n") + tuple(
-    c for w in WHEELS for c in (f"slip_{w}", f"re_{w}_m", f"r0_{w}_m", f"cx_{w}_n")
-)
+COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="contract")
 """The public contract's columns, in order."""
-EXTRA_COLUMNS: tuple[str, ...] = ("phase", "source", "gps_latency_s", "latency_source") + tuple(
-    c for w in WHEELS for c in (f"r0_source_{w}", f"slip_nd_{w}", f"cx_fit_{w}_n", f"cx_fit_{w}_conf")
-)
+EXTRA_COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="extra")
 """Appended after the contract's columns (extensions keep the contract's columns where they are)."""
 ALL_COLUMNS = COLUMNS + EXTRA_COLUMNS
 

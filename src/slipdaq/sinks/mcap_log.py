@@ -21,7 +21,26 @@ from mcap.writer import CompressionType, Writer
 import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
-from slipdaq.decode.nmea import DROP_REASONS
+from slipdaq.logformat import cdr
+from slipdaq.logformat.durable import CommitFile, LogWriteError, describe
+from slipdaq.logformat.json_codec import dumps, estimate_json, fix_json, nmea_line_json
+from slipdaq.logformat.rotation import RotationPolicy, segment_path
+from slipdaq.logformat.schemas import BATCH_SCHEMAS, SCHEMAS
+from slipdaq.logformat.topics import (
+    MAX_BATCH_FRAMES,
+    MAX_BATCH_SPAN_S,
+    METADATA_NAME,
+    PROFILE,
+    TOPIC_CAN,
+    TOPIC_DIAGNOSTICS,
+    TOPIC_ESTIMATE,
+    TOPIC_EVENTS,
+    TOPIC_GPS,
+    TOPIC_NMEA,
+    TOPIC_UBX,
+    TOPIC_WPT,
+    log_time_ns,
+)
 from slipdaq.records import (
     SAMPLE_HAS_COUNT,
     SAMPLE_HAS_SEQ,
@@ -37,264 +56,12 @@ from slipdaq.records import (
     WheelSample,
     WheelSampleBatch,
 )
-from slipdaq.sinks import Sink, cdr
-from slipdaq.sinks.durable import CommitFile, LogWriteError, describe
-from slipdaq.sinks.rotation import RotationPolicy, segment_path
+from slipdaq.sinks import Sink
 
 if TYPE_CHECKING:
     import asyncio
 
 log = logging.getLogger(__name__)
-
-PROFILE = "slipdaq"
-METADATA_NAME = "slipdaq"
-
-TOPIC_CAN = "/can/raw"
-TOPIC_NMEA = "/nmea/raw"
-TOPIC_UBX = "/gps/ubx/raw"
-TOPIC_WPT = "/wpt/count"
-TOPIC_GPS = "/gps/fix"
-TOPIC_ESTIMATE = "/estimate"
-TOPIC_DIAGNOSTICS = "/diagnostics"
-TOPIC_EVENTS = "/diagnostics/events"
-RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX)
-
-_NUM = {"type": "number"}
-_NUM_OR_NULL = {"type": ["number", "null"]}
-_INT = {"type": "integer"}
-_INT_OR_NULL = {"type": ["integer", "null"]}
-
-
-def _obj(title: str, props: dict[str, Any], optional: tuple[str, ...] = ()) -> dict[str, Any]:
-    """An object schema: every field the writer emits, all of them required but the optional ones."""
-    return {"title": title, "type": "object", "properties": props,
-            "required": [k for k in props if k not in optional]}
-
-
-def _estimate_props() -> dict[str, Any]:
-    text = {"type": "string"}
-    props: dict[str, Any] = {
-        "time_s": _NUM, "speed_mps": _NUM, "accel_mps2": _NUM_OR_NULL, "force_n": _NUM_OR_NULL, "window_s": _NUM,
-        "phase": {"type": "string", "enum": ["standstill", "accelerate", "cruise", "brake"]},
-        "source": text, "gps_latency_s": _NUM, "latency_source": text,
-    }
-    for w in WHEELS:
-        props |= {
-            f"slip_{w}": _NUM_OR_NULL, f"re_{w}_m": _NUM_OR_NULL, f"r0_{w}_m": _NUM, f"cx_{w}_n": _NUM_OR_NULL,
-            f"force_{w}_n": _NUM_OR_NULL, f"wheel_speed_{w}_mps": _NUM_OR_NULL, f"r0_source_{w}": text,
-            f"slip_nd_{w}": _NUM_OR_NULL, f"cx_fit_{w}_n": _NUM_OR_NULL, f"cx_fit_{w}_conf": _NUM_OR_NULL,
-        }
-    return props
-
-
-def _per_wheel(title: str) -> dict[str, Any]:
-    return _obj(title, {w: _INT for w in WHEELS})
-
-
-MAX_BATCH_FRAMES = 512
-MAX_BATCH_SPAN_S = 0.05
-"""/can/raw and /wpt/count: one message per batch of at most this many frames (samples) or this much log time."""
-
-BATCH_SCHEMAS: dict[str, tuple[str, str]] = {
-    TOPIC_CAN: (cdr.CAN_BATCH_SCHEMA_NAME, cdr.CAN_BATCH_SCHEMA),
-    TOPIC_WPT: (cdr.WHEEL_BATCH_SCHEMA_NAME, cdr.WHEEL_BATCH_SCHEMA),
-}
-"""The batched topics (ros2msg schema, CDR messages; sinks.cdr)."""
-
-LEGACY_SCHEMAS: dict[str, dict[str, Any]] = {
-    TOPIC_CAN: _obj("slipdaq.CanFrame", {
-        "timestamp_s": _NUM, "id": _INT, "extended": {"type": "boolean"}, "error": {"type": "boolean"},
-        "dlc": _INT, "data": {"type": "string", "description": "payload bytes as hex"},
-    }),
-    TOPIC_WPT: _obj("slipdaq.WheelSample", {
-        "timestamp_s": _NUM, "wheel": {"type": "string"}, "revolutions": _NUM, "count": _INT_OR_NULL, "raw": _NUM,
-        "seq": _INT_OR_NULL, "lost_frames": _INT,
-    }),
-}
-"""/can/raw and /wpt/count as logs before the batches had them: one JSON message per frame (still read)."""
-
-_CAN_INDEX = {"type": "integer", "description": "CAN frames processed before this record (its place among them)"}
-
-SCHEMAS: dict[str, dict[str, Any]] = {
-    TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}, "can_index": _CAN_INDEX}),
-    TOPIC_UBX: _obj("slipdaq.UbxFrame", {
-        "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole UBX frame as hex"},
-        "can_index": _CAN_INDEX,
-    }),
-    TOPIC_GPS: _obj("slipdaq.GpsFix", {
-        "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
-        "course_deg": _NUM_OR_NULL, "latitude_deg": _NUM_OR_NULL, "longitude_deg": _NUM_OR_NULL,
-        "altitude_m": _NUM_OR_NULL, "fix_quality": _INT_OR_NULL, "satellites": _INT_OR_NULL,
-        "sentence": {"type": "string"}, "speed_accuracy_mps": _NUM_OR_NULL,
-    }),
-    TOPIC_ESTIMATE: _obj("slipdaq.Estimate", _estimate_props()),
-    TOPIC_DIAGNOSTICS: _obj("slipdaq.Diagnostics", {
-        "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
-        "count_wraps": _per_wheel("wraps"),
-        "counter_resets": _per_wheel("resets"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
-        "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "ubx_frames": _INT, "bad_ubx_frames": _INT,
-        "estimates": _INT, "dropped_sentences": _obj("dropped_sentences", dict.fromkeys(DROP_REASONS, _INT)),
-        "estimator": _obj("estimator", {
-            "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
-            "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
-            "r0_m": _obj("r0", {w: _NUM for w in WHEELS}),
-            "r0_source": _obj("r0_source", {w: {"type": "string", "enum": [
-                "tire_size", "configured", "other_wheels", "calibrating", "calibrated"]} for w in WHEELS}),
-            "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
-            "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
-            "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,
-        }),
-    }),
-}
-
-
-_BOOL = {"type": "boolean"}
-_TEXT = {"type": "string"}
-_TEXT_OR_NULL = {"type": ["string", "null"]}
-
-LIVE_DIAGNOSTICS: dict[str, Any] = {
-    # the GPS port (sources.serial_gps.SerialGpsSource.status)
-    "gps_connected": _BOOL, "gps_state": {"type": "string", "enum": ["connected", "disconnected", "silent",
-                                                                       "unreadable"]},
-    "gps_gaps": _INT, "gps_gap_s": _NUM_OR_NULL, "gps_last_gap_s": _NUM_OR_NULL, "gps_reconnects": _INT,
-    "gps_bytes": _INT, "gps_unreadable_periods": _INT, "gps_error": _TEXT_OR_NULL,
-    # the log itself (McapLogSink.log_status)
-    "log_path": _TEXT, "log_segments": _INT, "log_write_failures": _INT, "log_dropped_messages": _INT,
-    "log_error": _TEXT_OR_NULL,
-    # the CAN reader (sources.can_bus.CanBusSource.status)
-    "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
-    "can_last_outage_s": _NUM_OR_NULL,
-}
-"""Keys a live run adds to /diagnostics (declared, not required)."""
-# JSON topics (all but BATCH_SCHEMAS)
-SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
-SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
-    "time_s": _NUM, "source": {"type": "string", "enum": ["gps", "can", "log", "clock"]}, "event": _TEXT,
-    "detail": _TEXT, "gap_s": _NUM_OR_NULL, "counters": {"type": "object", "additionalProperties": _INT},
-})
-
-
-def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:
-    return {"timestamp_s": f.timestamp_s, "id": f.arbitration_id, "extended": f.is_extended_id,
-            "error": f.is_error_frame, "dlc": len(f.data), "data": f.data.hex()}
-
-
-def can_frame_from_dict(d: dict[str, Any]) -> CanFrame:
-    return CanFrame(d["timestamp_s"], d["id"], bytes.fromhex(d["data"]), d["extended"], d["error"])
-
-
-def estimate_to_dict(e: Estimate) -> dict[str, Any]:
-    d: dict[str, Any] = e.as_row()
-    d["window_s"] = e.window_s
-    for w, we in e.wheels.items():
-        d[f"force_{w}_n"] = we.force_n
-        d[f"wheel_speed_{w}_mps"] = we.speed_mps
-    return d
-
-
-def _ns(t_s: float) -> int:
-    return max(int(round(t_s * 1e9)), 0)
-
-
-# ---- fast JSON for the two high-rate topics (byte-for-byte what json.dumps(..., separators=(",", ":")) gives) ----
-
-def _jnum(x: object) -> str:
-    """A JSON number, null or boolean as json.dumps writes it."""
-    if x is None:
-        return "null"
-    if x is True:
-        return "true"
-    if x is False:
-        return "false"
-    if type(x) is float:
-        return float.__repr__(x) if x - x == 0.0 else json.dumps(x)  # nan/inf: json's NaN/Infinity
-    if type(x) is int:
-        return int.__repr__(x)
-    return json.dumps(x)
-
-
-_JSON_STR = {w: json.dumps(w) for w in WHEELS}
-_json_string = json.encoder.encode_basestring_ascii
-"""A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
-
-
-def can_frame_json(f: CanFrame) -> bytes:
-    """/can/raw payload: equal to json.dumps(can_frame_to_dict(f), separators=(",", ":")).encode()."""
-    return (
-        f'{{"timestamp_s":{_jnum(f.timestamp_s)},"id":{_jnum(f.arbitration_id)},'
-        f'"extended":{_jnum(f.is_extended_id)},"error":{_jnum(f.is_error_frame)},"dlc":{len(f.data)},'
-        f'"data":"{f.data.hex()}"}}'
-    ).encode()
-
-
-def wheel_sample_json(s: WheelSample) -> bytes:
-    """/wpt/count payload: equal to json.dumps of its dict, with compact separators."""
-    wheel = _JSON_STR.get(s.wheel) or json.dumps(s.wheel)
-    return (
-        f'{{"timestamp_s":{_jnum(s.timestamp_s)},"wheel":{wheel},"revolutions":{_jnum(s.revolutions)},'
-        f'"count":{_jnum(s.count)},"raw":{_jnum(s.raw)},"seq":{_jnum(s.seq)},"lost_frames":{_jnum(s.lost_frames)}}}'
-    ).encode()
-
-
-def wheel_sample_to_dict(s: WheelSample) -> dict[str, Any]:
-    return {"timestamp_s": s.timestamp_s, "wheel": s.wheel, "revolutions": s.revolutions, "count": s.count,
-            "raw": s.raw, "seq": s.seq, "lost_frames": s.lost_frames}
-
-
-def _dumps(payload: dict[str, Any]) -> bytes:
-    return json.dumps(payload, separators=(",", ":")).encode()
-
-
-# ---- fixes and estimates, once per GPS epoch: written directly, byte for byte what _dumps of their dicts gives ----
-
-_JSON_TEXT = {t: json.dumps(t) for t in (
-    "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
-    "calibrating", "other_wheels", "tire_size", "configured", "RMC", "VTG", "UBX")}
-
-
-def _jval(x: object) -> str:
-    """_jnum, and the known texts without json.dumps."""
-    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)
-
-
-_EST_WHEEL_KEYS = {w: tuple(json.dumps(k.format(w)) + ":" for k in (
-    "slip_{}", "re_{}_m", "r0_{}_m", "cx_{}_n", "r0_source_{}", "slip_nd_{}", "cx_fit_{}_n", "cx_fit_{}_conf",
-    "force_{}_n", "wheel_speed_{}_mps")) for w in WHEELS}
-_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)
-
-
-def estimate_json(e: Estimate) -> bytes:
-    """/estimate payload: equal to _dumps(estimate_to_dict(e)) (the same keys in the same order)."""
-    keys = [_EST_WHEEL_KEYS.get(w) for w in e.wheels]
-    if None in keys:  # a wheel name of its own: the general path
-        return _dumps(estimate_to_dict(e))
-    j, wheels = _jval, list(zip(keys, e.wheels.values()))
-    parts = [f'{{"time_s":{j(e.time_s)},"speed_mps":{j(e.speed_mps)},"accel_mps2":{j(e.accel_mps2)},'
-             f'"force_n":{j(e.force_n)}']
-    parts += [f",{k[0]}{j(we.slip)},{k[1]}{j(we.re_m)},{k[2]}{j(we.r0_m)},{k[3]}{j(we.cx_n)}"  # type: ignore[index]
-              for k, we in wheels]
-    parts.append(f',"phase":{j(e.phase)},"source":{j(e.source)},"gps_latency_s":{j(e.gps_latency_s)},'
-                 f'"latency_source":{j(e.latency_source)}')
-    parts += [f",{k[4]}{j(we.r0_source)},{k[5]}{j(we.slip_nd)},{k[6]}{j(we.cx_fit_n)},"  # type: ignore[index]
-              f"{k[7]}{j(we.cx_fit_conf)}" for k, we in wheels]  # type: ignore[index]
-    parts.append(f',"window_s":{j(e.window_s)}')
-    parts += [f",{k[8]}{j(we.force_n)},{k[9]}{j(we.speed_mps)}" for k, we in wheels]  # type: ignore[index]
-    parts.append("}")
-    return "".join(parts).encode()
-
-
-def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
-    """/nmea/raw payload: equal to _dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
-    t, text = line.timestamp_s, line.line
-    if type(t) is float and type(text) is str and type(can_index) is int:
-        return f'{{"timestamp_s":{_jnum(t)},"line":{_json_string(text)},"can_index":{can_index}}}'.encode()
-    return _dumps({"timestamp_s": t, "line": text, "can_index": can_index})
-
-
-def fix_json(fix: GpsFix) -> bytes:
-    """/gps/fix payload: equal to _dumps of the fix's fields in order."""
-    return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
-
 
 class _Pending:
     """Records waiting for their batch message (/can/raw, /wpt/count): whole batches and runs of single records, in
@@ -393,10 +160,10 @@ class McapLogSink(Sink):
 
     Live runs (flush_every_s set): a chunk is closed and committed at least every flush_every_s seconds of the
     monotonic clock, whether records come or not (a timer on the running event loop, when there is one), and the
-    file on disk is a complete MCAP file after every commit (sinks.durable), fsynced in the background. A failed
+    file on disk is a complete MCAP file after every commit (logformat.durable), fsynced in the background. A failed
     write (disk full) never raises out of the sink: it is reported (`error`, `log_status()`, an event), the file
     stays readable up to its last commit, the pipeline goes on, messages are counted as dropped, and every
-    RETRY_AFTER_FAILURE_S a new segment is tried. `rotation` cuts the log into segments (sinks.rotation).
+    RETRY_AFTER_FAILURE_S a new segment is tried. `rotation` cuts the log into segments (logformat.rotation).
     """
 
     new_files_only = False
@@ -619,7 +386,7 @@ class McapLogSink(Sink):
 
     def on_source_event(self, event: SourceEvent) -> None:
         """A source's event (GPS unplugged, CAN reader error, ...) -> /diagnostics/events."""
-        self._write(TOPIC_EVENTS, event.time_s, _dumps(event.as_dict()))
+        self._write(TOPIC_EVENTS, event.time_s, dumps(event.as_dict()))
 
     def log_status(self) -> dict[str, object]:
         """The log's state, for the live view and each /diagnostics record of a live run."""
@@ -664,7 +431,7 @@ class McapLogSink(Sink):
                 self.dropped_messages += 1
                 return
         self._seq += 1
-        ns = _ns(log_time_s)
+        ns = log_time_ns(log_time_s)
         if ns < self._last_ns:
             ns = self._last_ns
         self._last_ns = ns
@@ -768,7 +535,7 @@ class McapLogSink(Sink):
         elif isinstance(record, UbxFrame):
             self.flush_batches()
             self._write(TOPIC_UBX, record.timestamp_s,
-                        _dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex(),
+                        dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex(),
                                 "can_index": self.can_index}))
         else:  # a raw record type this sink has no topic for yet: say so once, do not stop the run
             self.unlogged_records += 1
@@ -828,7 +595,7 @@ class McapLogSink(Sink):
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         if self._flush_every_s is not None:  # live: the log's own state goes with the counters
             diagnostics = diagnostics | self.log_status()
-        self._write(TOPIC_DIAGNOSTICS, log_time_s, _dumps(diagnostics))
+        self._write(TOPIC_DIAGNOSTICS, log_time_s, dumps(diagnostics))
 
     @property
     def size_bytes(self) -> int:

@@ -2,7 +2,7 @@
 
 CDR (XCDR1, little endian) is what ROS 2 bags use; Foxglove and mcap-ros2-support decode it without ROS from the
 schema text below. A batch is built from numpy columns with no per-frame Python, and read back with np.frombuffer.
-Logs written before the batches (one JSON message per frame) are still read (sources.mcap_log), and batches
+Logs written before the batches (one JSON message per frame) are still read (logformat.reader), and batches
 written before /can/raw had its `channel` field (their own schema ends at `data`): every frame then has channel 0.
 """
 

@@ -7,7 +7,7 @@ flush(), at least once a second in live runs), appends them to the file followed
 any moment outside that one write() the file on disk is a valid MCAP file without a summary section, which the
 standard MCAP readers read linearly (mcap's SeekingReader falls back to its NonSeekingReader when the footer says
 there is no summary). A process killed inside the write, or a power loss before the data reached the disk, leaves a
-torn tail: `slipdaq recover` (slipdaq.recover) keeps everything before it.
+torn tail: `slipdaq recover` (logformat.salvage, slipdaq.recover) keeps everything before it.
 
 After each commit the file is fsynced in a background thread (with fsync=True), so that a power loss costs at most
 the data of the last second or two, without blocking the event loop on a slow disk.

@@ -1,7 +1,7 @@
 """Read a slipdaq MCAP log back: its config, its metadata and its raw records in recorded order.
 
 A finished log (with its summary) is read with the standard MCAP reader. A log that was never finished (the daemon
-was killed, or lost power) is read record by record up to its last complete chunk (slipdaq.recover.scan); pass a
+was killed, or lost power) is read record by record up to its last complete chunk (logformat.salvage.scan); pass a
 ScanResult to learn how far that got.
 """
 
@@ -16,10 +16,11 @@ from mcap.reader import make_reader
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, parse_config
-from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
-from slipdaq.recover import LogError, ScanResult, scan, scan_messages, scan_metadata
-from slipdaq.sinks import cdr
-from slipdaq.sinks.mcap_log import (
+from slipdaq.logformat import cdr
+from slipdaq.logformat.errors import LogError
+from slipdaq.logformat.json_codec import can_frame_from_dict, can_frame_to_dict, wheel_sample_to_dict
+from slipdaq.logformat.salvage import ScanResult, scan, scan_messages, scan_metadata
+from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
     METADATA_NAME,
     RAW_TOPICS,
@@ -27,10 +28,9 @@ from slipdaq.sinks.mcap_log import (
     TOPIC_ESTIMATE,
     TOPIC_UBX,
     TOPIC_WPT,
-    can_frame_from_dict,
-    can_frame_to_dict,
-    wheel_sample_to_dict,
+    log_time_ns,
 )
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
 
 __all__ = ["LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",
            "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
@@ -118,10 +118,6 @@ def iter_messages(
                 yield channel.topic, channel.message_encoding, message.log_time, message.data
 
 
-def _ns(t_s: float) -> int:
-    return max(int(round(t_s * 1e9)), 0)
-
-
 def iter_topic(
     path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
@@ -134,10 +130,10 @@ def iter_topic(
             yield topic, log_time, json.loads(data)
         elif topic == TOPIC_CAN:
             for f in cdr.decode_can_batch(data)[1].frames():
-                yield topic, _ns(f.timestamp_s), can_frame_to_dict(f)
+                yield topic, log_time_ns(f.timestamp_s), can_frame_to_dict(f)
         elif topic == TOPIC_WPT:
             for s in cdr.decode_wheel_batch(data)[1].samples(WHEELS):
-                yield topic, _ns(s.timestamp_s), wheel_sample_to_dict(s)
+                yield topic, log_time_ns(s.timestamp_s), wheel_sample_to_dict(s)
 
 
 def iter_raw_batches(

@@ -1,0 +1,132 @@
+"""The JSON messages of the log: records to dicts and to bytes (byte for byte what json.dumps with compact
+separators gives, written directly for the topics written at high rate or once per GPS epoch), and back."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from slipdaq import WHEELS
+from slipdaq.records import ESTIMATE_COLUMNS, CanFrame, Estimate, GpsFix, NmeaLine, WheelSample
+
+
+def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:
+    return {"timestamp_s": f.timestamp_s, "id": f.arbitration_id, "extended": f.is_extended_id,
+            "error": f.is_error_frame, "dlc": len(f.data), "data": f.data.hex()}
+
+
+def can_frame_from_dict(d: dict[str, Any]) -> CanFrame:
+    return CanFrame(d["timestamp_s"], d["id"], bytes.fromhex(d["data"]), d["extended"], d["error"])
+
+
+def estimate_to_dict(e: Estimate) -> dict[str, Any]:
+    return dict(e.as_row())
+
+
+# ---- fast JSON for the two high-rate topics (byte-for-byte what json.dumps(..., separators=(",", ":")) gives) ----
+
+def _jnum(x: object) -> str:
+    """A JSON number, null or boolean as json.dumps writes it."""
+    if x is None:
+        return "null"
+    if x is True:
+        return "true"
+    if x is False:
+        return "false"
+    if type(x) is float:
+        return float.__repr__(x) if x - x == 0.0 else json.dumps(x)  # nan/inf: json's NaN/Infinity
+    if type(x) is int:
+        return int.__repr__(x)
+    return json.dumps(x)
+
+
+_JSON_STR = {w: json.dumps(w) for w in WHEELS}
+_json_string = json.encoder.encode_basestring_ascii
+"""A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
+
+
+def can_frame_json(f: CanFrame) -> bytes:
+    """/can/raw payload: equal to json.dumps(can_frame_to_dict(f), separators=(",", ":")).encode()."""
+    return (
+        f'{{"timestamp_s":{_jnum(f.timestamp_s)},"id":{_jnum(f.arbitration_id)},'
+        f'"extended":{_jnum(f.is_extended_id)},"error":{_jnum(f.is_error_frame)},"dlc":{len(f.data)},'
+        f'"data":"{f.data.hex()}"}}'
+    ).encode()
+
+
+def wheel_sample_json(s: WheelSample) -> bytes:
+    """/wpt/count payload: equal to json.dumps of its dict, with compact separators."""
+    wheel = _JSON_STR.get(s.wheel) or json.dumps(s.wheel)
+    return (
+        f'{{"timestamp_s":{_jnum(s.timestamp_s)},"wheel":{wheel},"revolutions":{_jnum(s.revolutions)},'
+        f'"count":{_jnum(s.count)},"raw":{_jnum(s.raw)},"seq":{_jnum(s.seq)},"lost_frames":{_jnum(s.lost_frames)}}}'
+    ).encode()
+
+
+def wheel_sample_to_dict(s: WheelSample) -> dict[str, Any]:
+    return {"timestamp_s": s.timestamp_s, "wheel": s.wheel, "revolutions": s.revolutions, "count": s.count,
+            "raw": s.raw, "seq": s.seq, "lost_frames": s.lost_frames}
+
+
+def dumps(payload: dict[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":")).encode()
+
+
+# ---- fixes and estimates, once per GPS epoch: written directly, byte for byte what dumps of their dicts gives ----
+
+_JSON_TEXT = {t: json.dumps(t) for t in (
+    "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
+    "calibrating", "other_wheels", "tire_size", "configured", "RMC", "VTG", "UBX")}
+
+
+def _jval(x: object) -> str:
+    """_jnum, and the known texts without json.dumps."""
+    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)
+
+
+_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)
+
+
+def _json_key(name: str) -> str:
+    return json.dumps(name) + ":"
+
+
+_ESTIMATE_KEYS = [None if g.per_wheel else [(_json_key(c.name), c.attribute) for c in g.columns]
+                  for g in ESTIMATE_COLUMNS]
+_WHEEL_KEYS: dict[str, list[list[tuple[str, str]]]] = {}
+
+
+def _wheel_keys(wheel: str) -> list[list[tuple[str, str]]]:
+    """Per column group of ESTIMATE_COLUMNS: (JSON key and colon, attribute) of this wheel's columns."""
+    keys = _WHEEL_KEYS.get(wheel)
+    if keys is None:
+        keys = _WHEEL_KEYS[wheel] = [[(_json_key(c.key(wheel)), c.attribute) for c in g.columns] if g.per_wheel
+                                     else [] for g in ESTIMATE_COLUMNS]
+    return keys
+
+
+def estimate_json(e: Estimate) -> bytes:
+    """/estimate payload: equal to dumps(estimate_to_dict(e)) (ESTIMATE_COLUMNS, in order)."""
+    j = _jval
+    wheels = [(_wheel_keys(w), we) for w, we in e.wheels.items()]
+    parts: list[str] = []
+    for g, scalar in enumerate(_ESTIMATE_KEYS):
+        if scalar is not None:
+            parts += [k + j(getattr(e, a)) for k, a in scalar]
+        else:
+            for keys, we in wheels:
+                parts += [k + j(getattr(we, a)) for k, a in keys[g]]
+    return ("{" + ",".join(parts) + "}").encode()
+
+
+def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
+    """/nmea/raw payload: equal to dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
+    t, text = line.timestamp_s, line.line
+    if type(t) is float and type(text) is str and type(can_index) is int:
+        return f'{{"timestamp_s":{_jnum(t)},"line":{_json_string(text)},"can_index":{can_index}}}'.encode()
+    return dumps({"timestamp_s": t, "line": text, "can_index": can_index})
+
+
+def fix_json(fix: GpsFix) -> bytes:
+    """/gps/fix payload: equal to dumps of the fix's fields in order."""
+    return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()

@@ -1,0 +1,117 @@
+"""The schemas of the log's topics: JSON Schema for the JSON topics (Foxglove plots every numeric field), ros2msg
+for the CDR batches (logformat.cdr)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from slipdaq import WHEELS
+from slipdaq.decode.nmea import DROP_REASONS
+from slipdaq.logformat import cdr
+from slipdaq.logformat.topics import (
+    TOPIC_CAN,
+    TOPIC_DIAGNOSTICS,
+    TOPIC_ESTIMATE,
+    TOPIC_EVENTS,
+    TOPIC_GPS,
+    TOPIC_NMEA,
+    TOPIC_UBX,
+    TOPIC_WPT,
+)
+from slipdaq.records import ESTIMATE_COLUMNS, Column, ColumnGroup
+
+_NUM = {"type": "number"}
+_NUM_OR_NULL = {"type": ["number", "null"]}
+_INT = {"type": "integer"}
+_INT_OR_NULL = {"type": ["integer", "null"]}
+
+
+def _obj(title: str, props: dict[str, Any], optional: tuple[str, ...] = ()) -> dict[str, Any]:
+    """An object schema: every field the writer emits, all of them required but the optional ones."""
+    return {"title": title, "type": "object", "properties": props,
+            "required": [k for k in props if k not in optional]}
+
+
+_COLUMN_KINDS: dict[str, dict[str, Any]] = {"number": _NUM, "number?": _NUM_OR_NULL, "text": {"type": "string"}}
+
+
+def _column(c: Column) -> dict[str, Any]:
+    return {"type": "string", "enum": list(c.values)} if c.kind == "enum" else _COLUMN_KINDS[c.kind]
+
+
+def columns_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, Any]:
+    """The JSON Schema of a flat record declared as column groups (records.ESTIMATE_COLUMNS), for WHEELS."""
+    return _obj(title, {c.key(w) if g.per_wheel else c.name: _column(c) for g in groups
+                        for w in (WHEELS if g.per_wheel else ("",)) for c in g.columns})
+
+
+def _per_wheel(title: str) -> dict[str, Any]:
+    return _obj(title, {w: _INT for w in WHEELS})
+
+
+BATCH_SCHEMAS: dict[str, tuple[str, str]] = {
+    TOPIC_CAN: (cdr.CAN_BATCH_SCHEMA_NAME, cdr.CAN_BATCH_SCHEMA),
+    TOPIC_WPT: (cdr.WHEEL_BATCH_SCHEMA_NAME, cdr.WHEEL_BATCH_SCHEMA),
+}
+"""The batched topics (ros2msg schema, CDR messages; logformat.cdr)."""
+
+
+_CAN_INDEX = {"type": "integer", "description": "CAN frames processed before this record (its place among them)"}
+
+SCHEMAS: dict[str, dict[str, Any]] = {
+    TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}, "can_index": _CAN_INDEX}),
+    TOPIC_UBX: _obj("slipdaq.UbxFrame", {
+        "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole UBX frame as hex"},
+        "can_index": _CAN_INDEX,
+    }),
+    TOPIC_GPS: _obj("slipdaq.GpsFix", {
+        "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
+        "course_deg": _NUM_OR_NULL, "latitude_deg": _NUM_OR_NULL, "longitude_deg": _NUM_OR_NULL,
+        "altitude_m": _NUM_OR_NULL, "fix_quality": _INT_OR_NULL, "satellites": _INT_OR_NULL,
+        "sentence": {"type": "string"}, "speed_accuracy_mps": _NUM_OR_NULL,
+    }),
+    TOPIC_ESTIMATE: columns_schema("slipdaq.Estimate", ESTIMATE_COLUMNS),
+    TOPIC_DIAGNOSTICS: _obj("slipdaq.Diagnostics", {
+        "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
+        "count_wraps": _per_wheel("wraps"),
+        "counter_resets": _per_wheel("resets"), "unknown_frames": _INT, "error_frames": _INT, "bad_frames": _INT,
+        "nmea_lines": _INT, "bad_sentences": _INT, "gps_fixes": _INT, "ubx_frames": _INT, "bad_ubx_frames": _INT,
+        "estimates": _INT, "dropped_sentences": _obj("dropped_sentences", dict.fromkeys(DROP_REASONS, _INT)),
+        "estimator": _obj("estimator", {
+            "gps_latency_s": _NUM, "latency_source": {"type": "string"}, "gps_latency_utc_s": _NUM_OR_NULL,
+            "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
+            "r0_m": _obj("r0", {w: _NUM for w in WHEELS}),
+            "r0_source": _obj("r0_source", {w: {"type": "string", "enum": [
+                "tire_size", "configured", "other_wheels", "calibrating", "calibrated"]} for w in WHEELS}),
+            "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
+            "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
+            "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,
+        }),
+    }),
+}
+
+
+_BOOL = {"type": "boolean"}
+_TEXT = {"type": "string"}
+_TEXT_OR_NULL = {"type": ["string", "null"]}
+
+LIVE_DIAGNOSTICS: dict[str, Any] = {
+    # the GPS port (sources.serial_gps.SerialGpsSource.status)
+    "gps_connected": _BOOL, "gps_state": {"type": "string", "enum": ["connected", "disconnected", "silent",
+                                                                       "unreadable"]},
+    "gps_gaps": _INT, "gps_gap_s": _NUM_OR_NULL, "gps_last_gap_s": _NUM_OR_NULL, "gps_reconnects": _INT,
+    "gps_bytes": _INT, "gps_unreadable_periods": _INT, "gps_error": _TEXT_OR_NULL,
+    # the log itself (McapLogSink.log_status)
+    "log_path": _TEXT, "log_segments": _INT, "log_write_failures": _INT, "log_dropped_messages": _INT,
+    "log_error": _TEXT_OR_NULL,
+    # the CAN reader (sources.can_bus.CanBusSource.status)
+    "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
+    "can_last_outage_s": _NUM_OR_NULL,
+}
+"""Keys a live run adds to /diagnostics (declared, not required)."""
+# JSON topics (all but BATCH_SCHEMAS)
+SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
+SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
+    "time_s": _NUM, "source": {"type": "string", "enum": ["gps", "can", "log", "clock"]}, "event": _TEXT,
+    "detail": _TEXT, "gap_s": _NUM_OR_NULL, "counters": {"type": "object", "additionalProperties": _INT},
+})

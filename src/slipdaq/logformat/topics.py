@@ -1,0 +1,26 @@
+"""The log's topics: one per record stream, raw and derived, and the metadata record that makes a log replayable
+(the config's TOML and the DBC's text, in the `slipdaq` metadata record)."""
+
+from __future__ import annotations
+
+PROFILE = "slipdaq"
+METADATA_NAME = "slipdaq"
+
+TOPIC_CAN = "/can/raw"
+TOPIC_NMEA = "/nmea/raw"
+TOPIC_UBX = "/gps/ubx/raw"
+TOPIC_WPT = "/wpt/count"
+TOPIC_GPS = "/gps/fix"
+TOPIC_ESTIMATE = "/estimate"
+TOPIC_DIAGNOSTICS = "/diagnostics"
+TOPIC_EVENTS = "/diagnostics/events"
+RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX)
+
+MAX_BATCH_FRAMES = 512
+MAX_BATCH_SPAN_S = 0.05
+"""/can/raw and /wpt/count: one message per batch of at most this many frames (samples) or this much log time."""
+
+
+def log_time_ns(t_s: float) -> int:
+    """A record's log time: nanoseconds since the Unix epoch (never negative), as MCAP stores it."""
+    return max(int(round(t_s * 1e9)), 0)
