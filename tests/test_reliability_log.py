@@ -120,16 +120,16 @@ def test_file_is_complete_mcap_after_every_commit(tmp_path: Path) -> None:
     checked = 0
     for r in records:
         mono.t = 1000.0 + r.timestamp_s - t0
-        commits = sink._file.commits  # type: ignore[union-attr]
+        commits = sink.log.commits
         p.process(r)
-        if sink._file.commits != commits:  # type: ignore[union-attr]
+        if sink.log.commits != commits:
             data = path.read_bytes()
             assert data.endswith(TRAILER)
             with open(path, "rb") as f:
                 reader = make_reader(f)
                 assert reader.get_summary() is None
                 n = sum(1 for _ in reader.iter_messages(log_time_order=False))
-            assert n == sink.messages - sink._unflushed
+            assert n == sink.log.messages - sink.log.unflushed
             checked += 1
     sink.close()
     assert checked >= 3 and is_finished(path)

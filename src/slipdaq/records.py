@@ -485,8 +485,7 @@ class Diagnostics:
 class SourceEvent:
     time_s: float
     """When it happened, in the log's clock."""
-    source: str
-    """'gps', 'can', 'log' or 'clock'."""
+    source: str = field(metadata={"enum": ("gps", "can", "log", "clock")})
     event: str
     """gps: connected, disconnected, silent, unreadable, readable, emit_error; can: reader_error, down, up;
     log: write_failed, resumed, rotated; clock: stepped."""

@@ -3,6 +3,7 @@ for the CDR batches (logformat.cdr)."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from slipdaq import WHEELS
@@ -18,7 +19,7 @@ from slipdaq.logformat.topics import (
     TOPIC_UBX,
     TOPIC_WPT,
 )
-from slipdaq.records import ESTIMATE_COLUMNS, Column, ColumnGroup
+from slipdaq.records import ESTIMATE_COLUMNS, Column, ColumnGroup, GpsFix, SourceEvent
 
 _NUM = {"type": "number"}
 _NUM_OR_NULL = {"type": ["number", "null"]}
@@ -58,18 +59,46 @@ BATCH_SCHEMAS: dict[str, tuple[str, str]] = {
 
 _CAN_INDEX = {"type": "integer", "description": "CAN frames processed before this record (its place among them)"}
 
+_BOOL = {"type": "boolean"}
+_TEXT = {"type": "string"}
+_FIELD_TYPES: dict[str, dict[str, Any]] = {
+    "float": _NUM, "float | None": _NUM_OR_NULL, "int": _INT, "int | None": _INT_OR_NULL, "bool": _BOOL, "str": _TEXT,
+    "dict[str, int]": {"type": "object", "additionalProperties": _INT},
+}
+
+
+def dataclass_schema(title: str, cls: type) -> dict[str, Any]:
+    """The JSON Schema of a record dataclass, from its fields' types (a field's metadata "enum": its values)."""
+    props: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        enum = f.metadata.get("enum")
+        props[f.name] = {"type": "string", "enum": list(enum)} if enum else _FIELD_TYPES[str(f.type)]
+    return _obj(title, props)
+
+
+_TEXT_OR_NULL = {"type": ["string", "null"]}
+
+LIVE_DIAGNOSTICS: dict[str, Any] = {
+    # the GPS port (sources.serial_gps.SerialGpsSource.status)
+    "gps_connected": _BOOL, "gps_state": {"type": "string", "enum": ["connected", "disconnected", "silent",
+                                                                       "unreadable"]},
+    "gps_gaps": _INT, "gps_gap_s": _NUM_OR_NULL, "gps_last_gap_s": _NUM_OR_NULL, "gps_reconnects": _INT,
+    "gps_bytes": _INT, "gps_unreadable_periods": _INT, "gps_error": _TEXT_OR_NULL,
+    # the log itself (McapLogSink.log_status)
+    "log_path": _TEXT, "log_segments": _INT, "log_write_failures": _INT, "log_dropped_messages": _INT,
+    "log_error": _TEXT_OR_NULL,
+    # the CAN reader (sources.can_bus.CanBusSource.status)
+    "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
+    "can_last_outage_s": _NUM_OR_NULL,
+}
+"""Keys a live run adds to /diagnostics (declared, not required)."""
 SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}, "can_index": _CAN_INDEX}),
     TOPIC_UBX: _obj("slipdaq.UbxFrame", {
         "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole UBX frame as hex"},
         "can_index": _CAN_INDEX,
     }),
-    TOPIC_GPS: _obj("slipdaq.GpsFix", {
-        "timestamp_s": _NUM, "speed_mps": _NUM, "fix_time_utc_s": _NUM_OR_NULL, "valid": {"type": "boolean"},
-        "course_deg": _NUM_OR_NULL, "latitude_deg": _NUM_OR_NULL, "longitude_deg": _NUM_OR_NULL,
-        "altitude_m": _NUM_OR_NULL, "fix_quality": _INT_OR_NULL, "satellites": _INT_OR_NULL,
-        "sentence": {"type": "string"}, "speed_accuracy_mps": _NUM_OR_NULL,
-    }),
+    TOPIC_GPS: dataclass_schema("slipdaq.GpsFix", GpsFix),
     TOPIC_ESTIMATE: columns_schema("slipdaq.Estimate", ESTIMATE_COLUMNS),
     TOPIC_DIAGNOSTICS: _obj("slipdaq.Diagnostics", {
         "time_s": _NUM, "can_frames": _INT, "wpt_frames": _per_wheel("frames"), "lost_frames": _per_wheel("lost"),
@@ -87,31 +116,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
             "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,
         }),
-    }),
+    } | LIVE_DIAGNOSTICS, optional=tuple(LIVE_DIAGNOSTICS)),
+    TOPIC_EVENTS: dataclass_schema("slipdaq.SourceEvent", SourceEvent),
 }
-
-
-_BOOL = {"type": "boolean"}
-_TEXT = {"type": "string"}
-_TEXT_OR_NULL = {"type": ["string", "null"]}
-
-LIVE_DIAGNOSTICS: dict[str, Any] = {
-    # the GPS port (sources.serial_gps.SerialGpsSource.status)
-    "gps_connected": _BOOL, "gps_state": {"type": "string", "enum": ["connected", "disconnected", "silent",
-                                                                       "unreadable"]},
-    "gps_gaps": _INT, "gps_gap_s": _NUM_OR_NULL, "gps_last_gap_s": _NUM_OR_NULL, "gps_reconnects": _INT,
-    "gps_bytes": _INT, "gps_unreadable_periods": _INT, "gps_error": _TEXT_OR_NULL,
-    # the log itself (McapLogSink.log_status)
-    "log_path": _TEXT, "log_segments": _INT, "log_write_failures": _INT, "log_dropped_messages": _INT,
-    "log_error": _TEXT_OR_NULL,
-    # the CAN reader (sources.can_bus.CanBusSource.status)
-    "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
-    "can_last_outage_s": _NUM_OR_NULL,
-}
-"""Keys a live run adds to /diagnostics (declared, not required)."""
-# JSON topics (all but BATCH_SCHEMAS)
-SCHEMAS[TOPIC_DIAGNOSTICS]["properties"].update(LIVE_DIAGNOSTICS)
-SCHEMAS[TOPIC_EVENTS] = _obj("slipdaq.SourceEvent", {
-    "time_s": _NUM, "source": {"type": "string", "enum": ["gps", "can", "log", "clock"]}, "event": _TEXT,
-    "detail": _TEXT, "gap_s": _NUM_OR_NULL, "counters": {"type": "object", "additionalProperties": _INT},
-})
+"""The JSON topics (all but BATCH_SCHEMAS), in the order their channels are registered."""

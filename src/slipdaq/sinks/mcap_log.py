@@ -7,7 +7,6 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 from __future__ import annotations
 
 import datetime as dt
-import json
 import logging
 import sys
 import time
@@ -16,21 +15,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.logformat import cdr
-from slipdaq.logformat.durable import CommitFile, LogWriteError, describe
 from slipdaq.logformat.json_codec import dumps, estimate_json, fix_json, nmea_line_json
-from slipdaq.logformat.rotation import RotationPolicy, segment_path
-from slipdaq.logformat.schemas import BATCH_SCHEMAS, SCHEMAS
+from slipdaq.logformat.rotation import RotationPolicy
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
     MAX_BATCH_SPAN_S,
-    METADATA_NAME,
-    PROFILE,
     TOPIC_CAN,
     TOPIC_DIAGNOSTICS,
     TOPIC_ESTIMATE,
@@ -39,8 +33,8 @@ from slipdaq.logformat.topics import (
     TOPIC_NMEA,
     TOPIC_UBX,
     TOPIC_WPT,
-    log_time_ns,
 )
+from slipdaq.logformat.writer import RETRY_AFTER_FAILURE_S, LogWriter
 from slipdaq.records import (
     SAMPLE_HAS_COUNT,
     SAMPLE_HAS_SEQ,
@@ -151,19 +145,14 @@ def samples_to_batch(samples: list[WheelSample]) -> WheelSampleBatch:
     )
 
 
-RETRY_AFTER_FAILURE_S = 5.0
-"""After a failed write (disk full), how often a new segment is tried."""
-
-
 class McapLogSink(Sink):
-    """Writes every record and result to an MCAP file (zstd chunks), crash-safe; call close() to finish it.
+    """Writes every record and result to an MCAP log (logformat.writer), crash-safe; call close() to finish it.
 
-    Live runs (flush_every_s set): a chunk is closed and committed at least every flush_every_s seconds of the
-    monotonic clock, whether records come or not (a timer on the running event loop, when there is one), and the
-    file on disk is a complete MCAP file after every commit (logformat.durable), fsynced in the background. A failed
-    write (disk full) never raises out of the sink: it is reported (`error`, `log_status()`, an event), the file
-    stays readable up to its last commit, the pipeline goes on, messages are counted as dropped, and every
-    RETRY_AFTER_FAILURE_S a new segment is tried. `rotation` cuts the log into segments (logformat.rotation).
+    CAN frames and wheel samples go into /can/raw and /wpt/count batches (pending until full, then written in the
+    order of processing). Live runs (flush_every_s set): a chunk is closed and committed at least every
+    flush_every_s seconds of the monotonic clock, whether records come or not (a timer on the running event loop,
+    when there is one), and a failed write (disk full) never raises out of the sink: it is reported (`error`,
+    `log_status()`, an event) and the pipeline goes on. `rotation` cuts the log into segments.
     """
 
     new_files_only = False
@@ -189,18 +178,14 @@ class McapLogSink(Sink):
         rotated, clock stepped), e.g. the live view. fsync: default on for live runs (flush_every_s set).
         can_channels: the CAN channel names known before the first frame (a live run's bus); the frames' other
         channels are added as they come."""
-        self.first_path = Path(path)
-        self.first_path.parent.mkdir(parents=True, exist_ok=True)
-        self.path = self.first_path
-        self._config = config
-        self._chunk_size = config.log.chunk_size_bytes
+        first_path = Path(path)
+        first_path.parent.mkdir(parents=True, exist_ok=True)
         self._flush_every_s = flush_every_s
-        self._fsync = flush_every_s is not None if fsync is None else fsync
-        self._rotation = rotation if rotation is not None and rotation.enabled else None
         self._clock = clock or time.time
         self._on_event = on_event
         self._mono = monotonic
-        self._meta = {
+        self.closed = False
+        meta = {
             "version": slipdaq.__version__,
             "mode": mode,
             "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -209,28 +194,6 @@ class McapLogSink(Sink):
             "config_source_toml": config.source_text,
             "dbc": config.load_dbc_text(),
         } | (metadata or {})
-        self.can_channels: list[str | None] = []
-        """The log's CAN channel names: a /can/raw frame's `channel` is an index into it (metadata can_channels)."""
-        self._channel_names: tuple[str | None, ...] = ()
-        self._add_channels(can_channels)
-        self._seq = 0
-        self.messages = 0
-        self.dropped_messages = 0
-        """Messages not written because the log could not be written (disk full)."""
-        self.unlogged_records = 0
-        self.write_failures = 0
-        self.error: str | None = None
-        """While the log cannot be written: what failed (one line); None when writing."""
-        self.segments: list[Path] = []
-        self.closed = False
-        self._file: CommitFile | None = None
-        self._writer: Writer | None = None
-        self._channels: dict[str, int] = {}
-        self._unflushed = 0
-        self._last_flush = self._mono()
-        self._opened_at = self._last_flush
-        self._failed_since: float | None = None
-        self._last_try = 0.0
         self._timer: asyncio.TimerHandle | None = None
         self._can = _PendingCan()
         self._samples = _PendingSamples()
@@ -239,11 +202,10 @@ class McapLogSink(Sink):
         message), written in that order before the next other message (see _drain)."""
         self._piece_first = 0
         """Number of the first frame of the last on_can_batch (its samples' `frame` counts from there)."""
-        self._last_ns = 0
-        """Log time of the last message written: no message is written with an earlier one."""
         self.can_index = 0
         """CAN frames received so far (the next frame's index; GPS lines record it as can_index)."""
         self._sample_index = 0
+        self.unlogged_records = 0
         self._in_flush = False
         self._loop: asyncio.AbstractEventLoop | None = None
         aio = sys.modules.get("asyncio")  # not imported: no event loop is running (offline runs do not import it)
@@ -252,134 +214,47 @@ class McapLogSink(Sink):
                 self._loop = aio.get_running_loop()
             except RuntimeError:
                 pass
-        try:
-            self._open_segment(1)
-        except LogWriteError as e:
-            if not e.disk_full:
-                raise
-            self._fail(e)  # a full disk at the start: estimate anyway, retry, and say so
+        self.log = LogWriter(
+            first_path, meta, chunk_size_bytes=config.log.chunk_size_bytes,
+            fsync=flush_every_s is not None if fsync is None else fsync, survive_failures=flush_every_s is not None,
+            new_files_only=self.new_files_only, rotation=rotation, monotonic=monotonic, on_event=self._log_event,
+            can_channels=can_channels,
+        )
         self._arm_timer()
 
-    # ---- segments ----
-    def _segment_meta(self, number: int) -> dict[str, str]:
-        """The `slipdaq` metadata record of segment `number`."""
-        meta = dict(self._meta)
-        if number > 1 or self._rotation is not None:
-            meta["segment"] = str(number)
-            meta["first_segment"] = self.first_path.name
-        if number > 1:
-            meta["previous_segment"] = segment_path(self.first_path, number - 1).name
-        return meta
+    # ---- the log's state ----
+    @property
+    def path(self) -> Path:
+        return self.log.path
 
-    def _add_channels(self, names: Sequence[str | None]) -> None:
-        """CAN channel names into can_channels (new ones at its end). When it grows while a segment is open, a copy
-        of the `slipdaq` metadata record with the longer list is written at once: before any frame that uses it
-        (readers take the last record)."""
-        new = [n for n in dict.fromkeys(names) if n not in self._channel_names]
-        if not new:
-            return
-        self.can_channels += new
-        self._channel_names = tuple(self.can_channels)
-        self._meta["can_channels"] = json.dumps(self.can_channels)
-        if getattr(self, "_writer", None) is not None:
-            try:
-                self._writer.add_metadata(METADATA_NAME, self._segment_meta(len(self.segments)))  # type: ignore[union-attr]
-            except LogWriteError as e:
-                self._fail(e)
+    @property
+    def segments(self) -> list[Path]:
+        return self.log.segments
 
-    def _open_segment(self, number: int) -> None:
-        path = segment_path(self.first_path, number)
-        file = CommitFile(path, fsync=self._fsync, new_file=self.new_files_only)
-        try:
-            writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
-            writer.start(profile=PROFILE, library=f"slipdaq {slipdaq.__version__}")
-            channels: dict[str, int] = {}
-            for topic, (name, text) in BATCH_SCHEMAS.items():
-                sid = writer.register_schema(name, cdr.SCHEMA_ENCODING, text.encode())
-                channels[topic] = writer.register_channel(topic, cdr.ENCODING, sid)
-            for topic, schema in SCHEMAS.items():
-                sid = writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
-                channels[topic] = writer.register_channel(topic, "json", sid)
-            writer.add_metadata(METADATA_NAME, self._segment_meta(number))
-            file.commit()  # header and metadata on disk: a valid (empty) log from the start
-        except BaseException:
-            file.abandon()
-            if not file.commits:
-                path.unlink(missing_ok=True)
-            raise
-        self._file, self._writer, self._channels = file, writer, channels
-        self.path = path
-        self.segments.append(path)
-        self._opened_at = self._mono()
-        self._last_flush = self._opened_at
+    @property
+    def error(self) -> str | None:
+        return self.log.error
 
-    def _finish_segment(self) -> None:
-        writer, file = self._writer, self._file
-        self._writer = self._file = None
-        if writer is None or file is None:
-            return
-        try:
-            writer.finish()
-            file.close()
-        except OSError as e:
-            file.abandon()
-            self._fail(e if isinstance(e, LogWriteError) else LogWriteError(e.errno, describe(e), str(file.path)))
+    @property
+    def dropped_messages(self) -> int:
+        return self.log.dropped_messages
 
-    def _fail(self, e: LogWriteError) -> None:
-        """Writing failed: keep the file as it was at its last commit, drop this segment, retry later.
+    @property
+    def size_bytes(self) -> int:
+        """Bytes of the segment being written (committed and buffered)."""
+        return self.log.size_bytes
 
-        Offline runs (no flush_every_s: replay, import) raise instead: their output would be incomplete."""
-        if self._flush_every_s is None:
-            if self._file is not None:
-                self._file.abandon()
-            self._writer = self._file = None
-            raise e
-        if self._file is not None:
-            self._file.abandon()
-        self._writer = self._file = None
-        self.write_failures += 1
-        self._failed_since = self._mono()
-        self._last_try = self._failed_since
-        self.error = f"log write failed: {e.strerror} ({e.filename or self.path})"
-        log.error("%s; estimating goes on, logging resumes in a new file when it can be written", self.error)
-        self._event("write_failed", f"{self.error}; the file is readable up to its last second before that")
+    def log_status(self) -> dict[str, object]:
+        """The log's state, for the live view and each /diagnostics record of a live run."""
+        w = self.log
+        return {"log_path": str(w.path), "log_segments": len(w.segments), "log_write_failures": w.write_failures,
+                "log_dropped_messages": w.dropped_messages, "log_error": w.error}
 
-    def _try_resume(self) -> None:
-        now = self._mono()
-        if now - self._last_try < RETRY_AFTER_FAILURE_S:
-            return
-        self._last_try = now
-        try:
-            self._open_segment(len(self.segments) + 1)
-        except OSError as e:
-            log.debug("log still not writable: %s", e)
-            return
-        gap = now - (self._failed_since or now)
-        text = f"logging again in {self.path.name} after {gap:.1f} s; {self.dropped_messages} messages dropped"
-        self.error = None
-        self._failed_since = None
-        log.error("%s", text)
-        self._event("resumed", text, gap_s=gap)
-
-    def _rotate(self) -> None:
-        old = self.path
-        self._finish_segment()
-        if self._writer is None and self.error is None:
-            try:
-                self._open_segment(len(self.segments) + 1)
-            except OSError as e:
-                self._fail(e if isinstance(e, LogWriteError) else LogWriteError(e.errno, describe(e), str(old)))
-                return
-            self._event("rotated", f"{old.name} finished, continuing in {self.path.name}")
-
-    # ---- events and status ----
-    def _counters(self) -> dict[str, int]:
-        return {"segments": len(self.segments), "write_failures": self.write_failures,
-                "dropped_messages": self.dropped_messages}
-
-    def _event(self, event: str, detail: str, gap_s: float | None = None) -> None:
-        ev = SourceEvent(self._clock(), "log", event, detail, gap_s, self._counters())
-        if self._writer is not None:
+    # ---- events ----
+    def _log_event(self, writer: LogWriter, event: str, detail: str, gap_s: float | None) -> None:
+        """The writer's events (write failed, resumed, rotated): into the log when it is writing, and to on_event."""
+        ev = SourceEvent(self._clock(), "log", event, detail, gap_s, writer.counters())
+        if writer.writing:
             self.on_source_event(ev)
         if self._on_event is not None:
             self._on_event(ev)
@@ -387,12 +262,6 @@ class McapLogSink(Sink):
     def on_source_event(self, event: SourceEvent) -> None:
         """A source's event (GPS unplugged, CAN reader error, ...) -> /diagnostics/events."""
         self._write(TOPIC_EVENTS, event.time_s, dumps(event.as_dict()))
-
-    def log_status(self) -> dict[str, object]:
-        """The log's state, for the live view and each /diagnostics record of a live run."""
-        return {"log_path": str(self.path), "log_segments": len(self.segments),
-                "log_write_failures": self.write_failures, "log_dropped_messages": self.dropped_messages,
-                "log_error": self.error}
 
     # ---- writing ----
     def _write(self, topic: str, log_time_s: float, data: bytes) -> None:
@@ -414,41 +283,12 @@ class McapLogSink(Sink):
             self._in_flush = in_flush
 
     def _emit(self, topic: str, log_time_s: float, data: bytes) -> None:
-        """Write one message, its log time no earlier than the last message's (the file is in log-time order; a
-        record that arrived after a later-stamped one, e.g. a GPS line read before the CAN frames stamped before it,
-        is logged when it was processed)."""
-        if self._writer is None:
-            if self.closed:
-                return
-            self.dropped_messages += 1
-            self._try_resume()
-            if self._writer is None:
-                return
+        """Write one message (a record that arrived after a later-stamped one, e.g. a GPS line read before the CAN
+        frames stamped before it, is logged when it was processed); commit when a live run's period is up."""
         now = self._mono()
-        if self._rotation is not None and self._rotation_due(now):
-            self._rotate()
-            if self._writer is None:
-                self.dropped_messages += 1
-                return
-        self._seq += 1
-        ns = log_time_ns(log_time_s)
-        if ns < self._last_ns:
-            ns = self._last_ns
-        self._last_ns = ns
-        try:
-            self._writer.add_message(self._channels[topic], log_time=ns, data=data, publish_time=ns,
-                                     sequence=self._seq & 0xFFFFFFFF)
-            self.messages += 1
-            self._unflushed += 1
-            if (self._flush_every_s is not None and now - self._last_flush >= self._flush_every_s
-                    and not self._in_flush):
-                self.flush()
-        except LogWriteError as e:
-            self._fail(e)
-
-    def _rotation_due(self, now: float) -> bool:
-        assert self._rotation is not None and self._file is not None
-        return self._rotation.due(self._file.tell(), now - self._opened_at)
+        if (self.log.write(topic, log_time_s, data, now) and self._flush_every_s is not None
+                and now - self.log.last_commit >= self._flush_every_s and not self._in_flush):
+            self.flush()
 
     def flush_batches(self) -> None:
         """Write the pending /can/raw and /wpt/count batches now."""
@@ -461,60 +301,52 @@ class McapLogSink(Sink):
 
     def flush(self) -> None:
         """Close the chunk in progress and commit the file (it is then complete up to here on disk)."""
-        if self._writer is None:
+        if not self.log.writing:
             return
         self._in_flush = True
         try:
             self.flush_batches()
         finally:
             self._in_flush = False
-        if self._writer is None:
-            return
-        try:
-            self._writer.flush()
-        except LogWriteError as e:
-            self._fail(e)
-            return
-        self._unflushed = 0
-        self._last_flush = self._mono()
+        self.log.commit()
 
     def _to_flush(self) -> bool:
-        """Anything not on disk yet: messages since the last flush, batches open or closed and not written."""
-        return bool(self._unflushed or self._can.n or self._samples.n or self._ready)
+        """Anything not on disk yet: messages since the last commit, batches open or closed and not written."""
+        return bool(self.log.unflushed or self._can.n or self._samples.n or self._ready)
 
     def _arm_timer(self) -> None:
         if self._loop is None or self._flush_every_s is None or self.closed or self._loop.is_closed():
             return
-        delay = max(0.0, self._last_flush + self._flush_every_s - self._mono())
+        delay = max(0.0, self.log.last_commit + self._flush_every_s - self._mono())
         if delay <= 0.0 and not self._to_flush():
             delay = self._flush_every_s  # nothing to flush (no record for a while): look again later, do not spin
-        if self._writer is None:  # failed: look again when a retry is due
-            delay = max(0.05, self._last_try + RETRY_AFTER_FAILURE_S - self._mono())
+        if not self.log.writing:  # failed: look again when a retry is due
+            delay = max(0.05, self.log.last_try + RETRY_AFTER_FAILURE_S - self._mono())
         self._timer = self._loop.call_later(min(delay, self._flush_every_s), self._tick)
 
     def _tick(self) -> None:
         """On the event loop: close the chunk when it is due even if no record came, rotate, retry, clock steps."""
         self._timer = None
-        if self.closed:
+        if self.closed or self._flush_every_s is None:
             return
         step = getattr(self._clock, "check_step", None)
         if step is not None:
             s = step()
             if s is not None:
+                offset = getattr(self._clock, "offset_s", lambda: 0.0)()
                 ev = SourceEvent(self._clock(), "clock", "stepped",
                                  f"host clock stepped by {s:+.3f} s; log times go on from the run's start "
-                                 f"(host clock - log clock = {self._clock.offset_s():+.3f} s)",  # type: ignore[attr-defined]
+                                 f"(host clock - log clock = {offset:+.3f} s)",
                                  None, {"steps": getattr(self._clock, "steps", 0)})
                 self.on_source_event(ev)
                 if self._on_event is not None:
                     self._on_event(ev)
         now = self._mono()
-        if self._writer is None:
-            self._try_resume()
-        elif self._rotation is not None and self._rotation_due(now):
-            self._rotate()
-        elif (self._to_flush()
-              and now - self._last_flush >= self._flush_every_s - 1e-3):  # type: ignore[operator]
+        if not self.log.writing:
+            self.log.try_resume()
+        elif self.log.rotation_due(now):
+            self.log.rotate()
+        elif self._to_flush() and now - self.log.last_commit >= self._flush_every_s - 1e-3:
             self.flush()
         self._arm_timer()
 
@@ -523,8 +355,8 @@ class McapLogSink(Sink):
         if isinstance(record, CanFrame):
             if self._ready:
                 self._drain()
-            if record.channel not in self._channel_names:
-                self._add_channels((record.channel,))
+            if record.channel not in self.log.channel_names:
+                self.log.add_channels((record.channel,))
             full = self._can.add_one(record, record.timestamp_s, self.can_index, self.can_index)
             self.can_index += 1
             if full:
@@ -546,7 +378,7 @@ class McapLogSink(Sink):
         """Close the pending /can/raw batch: its log time is its last frame's (it is complete then)."""
         p = self._can
         first, t, frame = p.first_index, p.t_last, p.frame_last
-        data = cdr.reencode_can_batch(first, p.take(self._channel_names))
+        data = cdr.reencode_can_batch(first, p.take(self.log.channel_names))
         self._ready.append((frame, 0, len(self._ready), TOPIC_CAN, t, data))
 
     def _flush_samples(self) -> None:
@@ -560,8 +392,8 @@ class McapLogSink(Sink):
         """Consecutive frames (Pipeline.process_can_batch): into /can/raw batches by the same rule as on_raw."""
         if self._ready:
             self._drain()
-        if batch.channels != self._channel_names[: len(batch.channels)]:
-            self._add_channels(batch.channels)
+        if batch.channels != self.log.channel_names[: len(batch.channels)]:
+            self.log.add_channels(batch.channels)
         n = len(batch)
         first = self._piece_first = self.can_index
         self._can.add_run(batch.timestamp_s, first,
@@ -597,19 +429,14 @@ class McapLogSink(Sink):
             diagnostics = diagnostics | self.log_status()
         self._write(TOPIC_DIAGNOSTICS, log_time_s, dumps(diagnostics))
 
-    @property
-    def size_bytes(self) -> int:
-        """Bytes of the segment being written (committed and buffered)."""
-        return self._file.tell() if self._file is not None else 0
-
     def close(self) -> None:
         """Finish the file (summary and footer). Safe to call twice; never raises for a failed write."""
         if self.closed:
             return
-        if self._writer is not None:
+        if self.log.writing:
             self.flush_batches()
         self.closed = True
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        self._finish_segment()
+        self.log.close()
