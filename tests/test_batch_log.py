@@ -118,8 +118,7 @@ def test_old_per_frame_log_replays_to_the_same_estimates(tmp_path: Path, capsys)
     assert main(["replay", str(old), "-o", str(tmp_path / "new.mcap")]) == 0
     new = tmp_path / "new.mcap"
     got = [d for _, _, d in iter_topic(new, (TOPIC_ESTIMATE,))]
-    from slipdaq.logformat.json_codec import estimate_to_dict
-    assert len(got) > 30 and got == [json.loads(json.dumps(estimate_to_dict(e))) for e in collect.estimates]
+    assert len(got) > 30 and got == [json.loads(json.dumps(e.as_row())) for e in collect.estimates]
     assert list(iter_raw_records(new)) == records  # and the replay's log is in the new format, every frame kept
     with open(new, "rb") as f:
         summary = make_reader(f).get_summary()

@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from slipdaq import WHEELS
-from slipdaq.logformat.json_codec import dumps, estimate_json, estimate_to_dict, fix_json
+from slipdaq.logformat.json_codec import dumps, estimate_json, fix_json
 from slipdaq.records import Estimate, GpsFix, WheelEstimate
 
 FLOAT = st.floats(allow_nan=True, allow_infinity=True)
@@ -30,7 +30,7 @@ def estimates(draw: st.DrawFn) -> Estimate:
 
 @given(estimates())
 def test_estimate_json_is_json_dumps(e: Estimate) -> None:
-    assert estimate_json(e) == dumps(estimate_to_dict(e))
+    assert estimate_json(e) == dumps(e.as_row())
 
 
 @given(st.builds(GpsFix, FLOAT, FLOAT, OPT_FLOAT, st.booleans(), OPT_FLOAT, OPT_FLOAT, OPT_FLOAT, OPT_FLOAT,

@@ -22,7 +22,6 @@ from slipdaq.config import load_config
 from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.can_errors import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED, error_classes
 from slipdaq.demo import demo_config
-from slipdaq.logformat.json_codec import estimate_to_dict
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS
 from slipdaq.pipeline import Pipeline
@@ -38,7 +37,7 @@ def _run(records: list[RawRecord]) -> tuple[Pipeline, list[dict], StatusSink]:
     collect, status = CollectingSink(), StatusSink()
     p = Pipeline(load_config(CONFIG), [collect, status])
     p.run(records)
-    return p, [estimate_to_dict(e) for e in collect.estimates], status
+    return p, [e.as_row() for e in collect.estimates], status
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ import pytest
 from conftest import CONFIG
 from reliability_support import gps_lines, sim_records
 from slipdaq.config import load_config
-from slipdaq.logformat.json_codec import estimate_to_dict
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.logformat.topics import TOPIC_EVENTS
 from slipdaq.pipeline import Pipeline
@@ -93,7 +92,7 @@ def _stamped(records: list[RawRecord], step_at_s: float, step_s: float, steady: 
 def _estimates(records: list[RawRecord]) -> list[dict]:
     c = CollectingSink()
     Pipeline(load_config(CONFIG), [c]).run(records)
-    return [estimate_to_dict(e) for e in c.estimates]
+    return [e.as_row() for e in c.estimates]
 
 
 @pytest.mark.parametrize("step_s", [-2.0, 3.0])

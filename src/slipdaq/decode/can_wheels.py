@@ -212,7 +212,6 @@ class WheelDecoder:
                 self._lut[entry.message.frame_id] = i
         self._ids_beyond_lut = any(fid >= 2048 for fid in self._by_id)
         self._groups = _groups(self._entries, self._wheel_index)
-        self._grouped = {e for g in self._groups for e in g.entries}
 
     @property
     def fast_messages(self) -> list[str]:

@@ -92,14 +92,6 @@ class CommitFile:
         self.commit()
 
     # ---- durability ----
-    @property
-    def committed_bytes(self) -> int:
-        return self._committed
-
-    @property
-    def pending_bytes(self) -> int:
-        return len(self._pending)
-
     def commit(self, *, final: bool = False) -> None:
         """Write what is buffered and (unless final) the provisional trailer, in one write at the committed end.
 

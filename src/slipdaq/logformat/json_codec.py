@@ -19,11 +19,6 @@ def can_frame_from_dict(d: dict[str, Any]) -> CanFrame:
     return CanFrame(d["timestamp_s"], d["id"], bytes.fromhex(d["data"]), d["extended"], d["error"])
 
 
-def estimate_to_dict(e: Estimate) -> dict[str, Any]:
-    return dict(e.as_row())
-
-
-# ---- fast JSON for the two high-rate topics (byte-for-byte what json.dumps(..., separators=(",", ":")) gives) ----
 
 def _jnum(x: object) -> str:
     """A JSON number, null or boolean as json.dumps writes it."""
@@ -45,22 +40,6 @@ _json_string = json.encoder.encode_basestring_ascii
 """A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
 
 
-def can_frame_json(f: CanFrame) -> bytes:
-    """/can/raw payload: equal to json.dumps(can_frame_to_dict(f), separators=(",", ":")).encode()."""
-    return (
-        f'{{"timestamp_s":{_jnum(f.timestamp_s)},"id":{_jnum(f.arbitration_id)},'
-        f'"extended":{_jnum(f.is_extended_id)},"error":{_jnum(f.is_error_frame)},"dlc":{len(f.data)},'
-        f'"data":"{f.data.hex()}"}}'
-    ).encode()
-
-
-def wheel_sample_json(s: WheelSample) -> bytes:
-    """/wpt/count payload: equal to json.dumps of its dict, with compact separators."""
-    wheel = _JSON_STR.get(s.wheel) or json.dumps(s.wheel)
-    return (
-        f'{{"timestamp_s":{_jnum(s.timestamp_s)},"wheel":{wheel},"revolutions":{_jnum(s.revolutions)},'
-        f'"count":{_jnum(s.count)},"raw":{_jnum(s.raw)},"seq":{_jnum(s.seq)},"lost_frames":{_jnum(s.lost_frames)}}}'
-    ).encode()
 
 
 def wheel_sample_to_dict(s: WheelSample) -> dict[str, Any]:
@@ -106,7 +85,7 @@ def _wheel_keys(wheel: str) -> list[list[tuple[str, str]]]:
 
 
 def estimate_json(e: Estimate) -> bytes:
-    """/estimate payload: equal to dumps(estimate_to_dict(e)) (ESTIMATE_COLUMNS, in order)."""
+    """/estimate payload: equal to dumps(e.as_row()) (ESTIMATE_COLUMNS, in order)."""
     j = _jval
     wheels = [(_wheel_keys(w), we) for w, we in e.wheels.items()]
     parts: list[str] = []
