@@ -175,7 +175,7 @@ class Config(_Section):
         return None if self.gps.latency_s == "auto" else float(self.gps.latency_s)
 
     def wheel_source(self, wheel: str) -> WheelSourceConfig:
-        return self.wheels.get(wheel) or default_wheel_source(wheel)  # type: ignore[call-overload]
+        return self.wheels.get(wheel) or default_wheel_source(wheel)  # type: ignore[call-overload]  # wheel is one of WHEELS, the Literal keys of the dict
 
     def to_toml(self) -> str:
         """The effective config as TOML (what a log stores, so that replay runs with exactly these values)."""

@@ -54,7 +54,7 @@ def open_bus(config: Config, **overrides: object) -> can.BusABC:
         "interface": config.can.interface, "channel": config.can.channel, "bitrate": config.can.bitrate,
     } | overrides
     try:
-        bus = can.Bus(**kwargs)  # type: ignore[arg-type]
+        bus = can.Bus(**kwargs)  # type: ignore[arg-type]  # python-can's Bus takes each interface's own keyword arguments
     except (can.CanInterfaceNotImplementedError, ValueError) as e:
         raise ConfigError(f"{config.source_path or '<config>'}: can.interface: {e}") from None
     except (can.CanError, OSError) as e:

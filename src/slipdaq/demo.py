@@ -48,7 +48,7 @@ async def run_demo_async(
         await asyncio.sleep(0.2)
         run = replace(settings or SimSettings(), start_utc_s=time.time() + 0.1)
         started.append(run)
-        events = generate(cfg, scenario, road, run, duration_s=duration_s)  # type: ignore[arg-type]
+        events = generate(cfg, scenario, road, run, duration_s=duration_s)  # type: ignore[arg-type]  # the scenario and road names are the Literal's values
         await play(events, bus=bus, nmea_write=gps.write, on_truth=truth.append, start_wall_s=run.start_utc_s,
                    stamp_frames=True)
 

@@ -162,7 +162,7 @@ class Pipeline:
                     self._queue_pos, self._item_first = k, self.can_frames
                     self.process_can_batch(item)
                 else:
-                    self.process(item)  # type: ignore[arg-type]
+                    self.process(item)  # type: ignore[arg-type]  # a queue item that is not a batch is one raw record
         finally:
             self._queue = self._ahead = None
 
@@ -190,7 +190,7 @@ class Pipeline:
                 n += len(b)
                 if n >= AHEAD_MAX_FRAMES:
                     break
-            elif isinstance(it, list) or it.timestamp_s >= due:  # type: ignore[union-attr]
+            elif isinstance(it, list) or it.timestamp_s >= due:  # type: ignore[union-attr]  # not a batch or a list: a raw record, which has timestamp_s
                 break
         if not parts:
             return None
@@ -288,4 +288,4 @@ class Pipeline:
     def emit_diagnostics(self) -> None:
         d = self.diagnostics().as_dict()
         for s in self.sinks:
-            s.on_diagnostics(d, d["time_s"])  # type: ignore[arg-type]
+            s.on_diagnostics(d, d["time_s"])  # type: ignore[arg-type]  # Diagnostics.as_dict's time_s is a float

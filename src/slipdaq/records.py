@@ -455,25 +455,9 @@ class Diagnostics:
     """Calibration state: latency by each method, r0 and its standard error, fitted Cx, per wheel."""
 
     def as_dict(self) -> dict[str, object]:
-        return {
-            "time_s": self.time_s,
-            "can_frames": self.can_frames,
-            "wpt_frames": dict(self.wpt_frames),
-            "lost_frames": dict(self.lost_frames),
-            "count_wraps": dict(self.count_wraps),
-            "counter_resets": dict(self.counter_resets),
-            "unknown_frames": self.unknown_frames,
-            "error_frames": self.error_frames,
-            "bad_frames": self.bad_frames,
-            "nmea_lines": self.nmea_lines,
-            "bad_sentences": self.bad_sentences,
-            "dropped_sentences": dict(self.dropped_sentences),
-            "gps_fixes": self.gps_fixes,
-            "ubx_frames": self.ubx_frames,
-            "bad_ubx_frames": self.bad_ubx_frames,
-            "estimates": self.estimates,
-            "estimator": dict(self.estimator),
-        }
+        """Every field in declaration order (the /diagnostics JSON), the dicts copied."""
+        return {name: dict(v) if isinstance(v, dict) else v for name in self.__slots__
+                for v in (getattr(self, name),)}
 
 # ---- source and log events ----------------------------------------------------------------------------------------
 # What happened to the devices and the log file, beside the records: a GPS unplugged and plugged back, a receiver at

@@ -64,20 +64,20 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
             local_channel: dict[int, int] = {}
             for kind, item in scan(p, res):
                 if kind == "schema":
-                    s: Schema = item  # type: ignore[assignment]
+                    s: Schema = item  # type: ignore[assignment]  # scan() yields (kind, record); kind names the record's type
                     key = (s.name, s.encoding, bytes(s.data))
                     if key not in schema_ids:
                         schema_ids[key] = writer.register_schema(s.name, s.encoding, s.data)
                     local_schema[s.id] = schema_ids[key]
                 elif kind == "channel":
-                    c: Channel = item  # type: ignore[assignment]
+                    c: Channel = item  # type: ignore[assignment]  # scan() yields (kind, record); kind names the record's type
                     ckey = (c.topic, c.message_encoding)
                     if ckey not in channel_ids:
                         channel_ids[ckey] = writer.register_channel(
                             c.topic, c.message_encoding, local_schema.get(c.schema_id, 0), dict(c.metadata))
                     local_channel[c.id] = channel_ids[ckey]
                 elif kind == "metadata":
-                    m: Metadata = item  # type: ignore[assignment]
+                    m: Metadata = item  # type: ignore[assignment]  # scan() yields (kind, record); kind names the record's type
                     data = dict(m.metadata)
                     if m.name == metadata_name:
                         if n and data.get("can_channels") == channels:
@@ -92,7 +92,7 @@ def recover(inputs: Sequence[str | Path], output: str | Path, metadata_name: str
                 elif kind == "message":
                     channel: Channel
                     msg: Message
-                    channel, msg = item  # type: ignore[misc]
+                    channel, msg = item  # type: ignore[misc]  # a 'message' item is (Channel, Message)
                     writer.add_message(local_channel[channel.id], log_time=msg.log_time, data=msg.data,
                                        publish_time=msg.publish_time, sequence=msg.sequence)
                     topics[channel.topic] = topics.get(channel.topic, 0) + 1

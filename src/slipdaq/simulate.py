@@ -124,7 +124,7 @@ async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write
     assert task is not None
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, task.cancel)
-    events = generate(cfg, opts.scenario, opts.road, settings, duration_s=opts.duration_s)  # type: ignore[arg-type]
+    events = generate(cfg, opts.scenario, opts.road, settings, duration_s=opts.duration_s)  # type: ignore[arg-type]  # argparse's choices= admits only the Literal's values
     sent = 0
     try:
         sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s,

@@ -554,7 +554,7 @@ def _groups(entries: list[_Message], wheel_index: dict[str, int]) -> list[_Group
         slot_of[idx] = np.arange(len(idx))
         sources = [entries[e].sources[0] for e in idx]
         out.append(_Group(idx, sources, slot_of, np.array([wheel_index[s.wheel] for s in sources], dtype=np.int64),
-                          length, entries[idx[0]].fast.dtype, count_name, seq_name,  # type: ignore[union-attr]
+                          length, entries[idx[0]].fast.dtype, count_name, seq_name,  # type: ignore[union-attr]  # every entry of a group has a fast layout
                           1 << count_bits, 1 << seq_bits, ppr,
                           SAMPLE_HAS_COUNT | (SAMPLE_HAS_SEQ if seq_name else 0)))
     return out

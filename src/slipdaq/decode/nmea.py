@@ -71,7 +71,7 @@ def _field(data: list[str], i: int) -> str:
 def _float(value: object) -> float | None:
     """A finite float, or None (empty, malformed, nan, inf)."""
     try:
-        x = float(value)  # type: ignore[arg-type]
+        x = float(value)  # type: ignore[arg-type]  # any value: float() raising is the check
     except (TypeError, ValueError, OverflowError):
         return None
     return x if math.isfinite(x) else None
@@ -424,7 +424,7 @@ class NmeaDecoder:
             fix_quality=gga.quality if gga else None,
             satellites=gga.satellites if gga else None,
             altitude_m=gga.altitude_m if gga else None,
-            **kw,  # type: ignore[arg-type]
+            **kw,  # type: ignore[arg-type]  # the fields' types are checked where they are parsed
         )
         self.fixes += 1
         if invalid is not None:

@@ -674,7 +674,7 @@ class SlipEstimator:
     ) -> dict[str, float]:
         """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely),
         for the driven wheels that have one."""
-        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]
+        refs = [r0[w][0] * arcs[w] for w in self._reference if arcs[w] is not None]  # type: ignore[operator]  # arcs[w] is checked for None in the same expression
         if not refs or len(refs) < len(self._reference):
             return {}
         d_ref = sum(refs) / len(refs)
@@ -742,7 +742,7 @@ class SlipEstimator:
         arcs = {w: self._arc_m(w, t_c - half, t_c + half) for w in WHEELS}
         wheels = {
             w: WheelEstimate(None, None, r0[w][0], None, None,
-                             r0[w][0] * arcs[w] / p.window_s if arcs[w] is not None else None,  # type: ignore[operator]
+                             r0[w][0] * arcs[w] / p.window_s if arcs[w] is not None else None,  # type: ignore[operator]  # arcs[w] is checked for None in the same expression
                              r0[w][1])
             for w in WHEELS
         }

@@ -111,9 +111,9 @@ def iter_messages(
         return
     for kind, item in scan(path, scan_result):
         if kind == "metadata":
-            on_metadata(item.name, dict(item.metadata))  # type: ignore[attr-defined]
+            on_metadata(item.name, dict(item.metadata))  # type: ignore[attr-defined]  # a 'metadata' item is a Metadata record
         elif kind == "message":
-            channel, message = item  # type: ignore[misc]
+            channel, message = item  # type: ignore[misc]  # a 'message' item is (Channel, Message)
             if channel.topic in topics:
                 yield channel.topic, channel.message_encoding, message.log_time, message.data
 

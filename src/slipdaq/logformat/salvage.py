@@ -105,10 +105,10 @@ def scan(path: str | Path, result: ScanResult | None = None) -> Iterator[Item]:
             for kind, item in items:
                 if kind == "message":
                     res.messages += 1
-                    res.last_log_time_ns = item[1].log_time  # type: ignore[index]
+                    res.last_log_time_ns = item[1].log_time  # type: ignore[index]  # a 'message' item is (Channel, Message)
                 elif kind == "footer":
                     res.finished = True
-                    res.has_summary = item.summary_start != 0  # type: ignore[attr-defined]
+                    res.has_summary = item.summary_start != 0  # type: ignore[attr-defined]  # a Footer, by its opcode
                     res.read_bytes = size if f.read(len(MAGIC)) == MAGIC else pos
                     return
                 if kind != "footer":
@@ -161,7 +161,7 @@ def scan_messages(
         if kind == "message":
             channel: Channel
             message: Message
-            channel, message = item  # type: ignore[misc]
+            channel, message = item  # type: ignore[misc]  # a 'message' item is (Channel, Message)
             if topics is None or channel.topic in topics:
                 yield channel, message
 
@@ -174,4 +174,4 @@ def scan_metadata(path: str | Path) -> list[Metadata]:
             out.append(item)
         elif kind == "message":
             break
-    return out  # type: ignore[return-value]
+    return out  # type: ignore[return-value]  # only 'metadata' items are kept

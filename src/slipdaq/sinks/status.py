@@ -118,11 +118,12 @@ def _fmt(v: float | None, spec: str, scale: float = 1.0) -> str:
     return "—" if v is None else format(v * scale, spec)
 
 
-def _size(n: int) -> str:
+def _size(n_bytes: int) -> str:
+    n = float(n_bytes)
     for unit in ("B", "kB", "MB", "GB"):
         if n < 1000 or unit == "GB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000  # type: ignore[assignment]
+        n /= 1000
     return ""
 
 

@@ -57,7 +57,7 @@ def frame_reader(bus: can.BusABC) -> Callable[[], RawFrame | None]:
     """The cheapest way to read `bus` without blocking: RawSocketCanReader for python-can's SocketCAN bus (and for
     buses that declare `raw_socketcan_frames`), else bus.recv(timeout=0). Returns None when nothing is queued."""
     if is_socketcan(bus):
-        return RawSocketCanReader(bus.socket, getattr(bus, "channel", None)).recv  # type: ignore[attr-defined]
+        return RawSocketCanReader(bus.socket, getattr(bus, "channel", None)).recv  # type: ignore[attr-defined]  # is_socketcan() checked that the bus has its socket
 
     def recv() -> RawFrame | None:
         m = bus.recv(timeout=0)
