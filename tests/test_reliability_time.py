@@ -20,7 +20,7 @@ from slipdaq.records import CanFrame, NmeaLine, RawRecord
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sources.can_bus import CanBusSource
-from slipdaq.sources.clock import SteadyClock
+from slipdaq.sources.clock import SteadyClock, watch_steps
 from slipdaq.sources.serial_gps import SerialGpsSource
 
 
@@ -121,9 +121,11 @@ def test_a_host_clock_step_is_recorded_in_the_log(tmp_path: Path) -> None:
 
     async def run() -> None:
         sink = McapLogSink(path, load_config(CONFIG), "live", flush_every_s=0.05, clock=clock)
+        watch = asyncio.create_task(watch_steps(clock, sink.on_source_event, period_s=0.05))  # as the daemon runs it
         await asyncio.sleep(0.12)
         h.offset += 1.5  # NTP steps the host clock 1.5 s forward
         await asyncio.sleep(0.12)
+        watch.cancel()
         sink.close()
 
     asyncio.run(run())

@@ -25,7 +25,7 @@ from slipdaq.sinks import EventFanout
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.status import SourceStatus, StatusSink, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
-from slipdaq.sources.clock import SteadyClock
+from slipdaq.sources.clock import SteadyClock, watch_steps
 from slipdaq.sources.serial_gps import SerialGpsSource
 
 
@@ -180,6 +180,7 @@ async def run_daemon(
             tg.create_task(gps_source.run(process_gps), name="gps")
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")
+            tg.create_task(watch_steps(clock, events), name="clock")
     except* _Stop:
         pass
     finally:

@@ -173,11 +173,10 @@ class McapLogSink(Sink):
         monotonic: Callable[[], float] = time.monotonic,
         can_channels: Sequence[str | None] = (),
     ) -> None:
-        """clock: the log's clock (the sources' SteadyClock in live runs), for the times of the sink's own events;
-        a SteadyClock's host-clock steps are logged too. on_event: gets the sink's own events (write failed, resumed,
-        rotated, clock stepped), e.g. the live view. fsync: default on for live runs (flush_every_s set).
-        can_channels: the CAN channel names known before the first frame (a live run's bus); the frames' other
-        channels are added as they come."""
+        """clock: the log's clock (the sources' SteadyClock in live runs), for the times of the sink's own events.
+        on_event: gets the sink's own events (write failed, resumed, rotated), e.g. the live view. fsync: default on
+        for live runs (flush_every_s set). can_channels: the CAN channel names known before the first frame (a live
+        run's bus); the frames' other channels are added as they come."""
         first_path = Path(path)
         first_path.parent.mkdir(parents=True, exist_ok=True)
         self._flush_every_s = flush_every_s
@@ -325,22 +324,10 @@ class McapLogSink(Sink):
         self._timer = self._loop.call_later(min(delay, self._flush_every_s), self._tick)
 
     def _tick(self) -> None:
-        """On the event loop: close the chunk when it is due even if no record came, rotate, retry, clock steps."""
+        """On the event loop: close the chunk when it is due even if no record came, rotate, retry."""
         self._timer = None
         if self.closed or self._flush_every_s is None:
             return
-        step = getattr(self._clock, "check_step", None)
-        if step is not None:
-            s = step()
-            if s is not None:
-                offset = getattr(self._clock, "offset_s", lambda: 0.0)()
-                ev = SourceEvent(self._clock(), "clock", "stepped",
-                                 f"host clock stepped by {s:+.3f} s; log times go on from the run's start "
-                                 f"(host clock - log clock = {offset:+.3f} s)",
-                                 None, {"steps": getattr(self._clock, "steps", 0)})
-                self.on_source_event(ev)
-                if self._on_event is not None:
-                    self._on_event(ev)
         now = self._mono()
         if not self.log.writing:
             self.log.try_resume()

@@ -14,9 +14,12 @@ with from_wall().
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable, Iterable
+
+from slipdaq.records import EventHandler, SourceEvent
 
 STEP_THRESHOLD_S = 0.010
 """A change of the host-clock offset larger than this is reported as a step."""
@@ -98,3 +101,15 @@ class SteadyClock:
         self._last_offset_s = off
         self.steps += 1
         return step
+
+
+async def watch_steps(clock: SteadyClock, on_event: EventHandler, period_s: float = 1.0) -> None:
+    """Until cancelled: every period_s, a step of the host clock (check_step) becomes a 'clock stepped' event."""
+    while True:
+        await asyncio.sleep(period_s)
+        step_s = clock.check_step()
+        if step_s is not None:
+            on_event(SourceEvent(
+                clock(), "clock", "stepped", f"host clock stepped by {step_s:+.3f} s; log times go on from the run's "
+                f"start (host clock - log clock = {clock.offset_s():+.3f} s)", None, {"steps": clock.steps}))
+
