@@ -1,4 +1,6 @@
-"""The batched wheel decoder and Pipeline.process_can_batch against the one-by-one path, on random streams."""
+"""The wheel decoder (numpy layouts, cantools, the unwrap kernel interpreted and compiled) against the rule written
+frame by frame (tests/reference_wheels.py), and Pipeline.process_can_batch against the one-by-one path, on random
+streams."""
 
 from __future__ import annotations
 
@@ -11,6 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import CONFIG, ROOT, write_config
+from reference_wheels import ReferenceWheelDecoder
+from slipdaq import compiled
 from slipdaq.config import Config, load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.pipeline import Pipeline
@@ -109,24 +113,29 @@ def test_fast_layout_only_for_simple_signals() -> None:
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31), cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([1, 7, 64, 600]),
-       config=st.sampled_from(["wpt", "mixed"]))
-def test_decode_batch_equals_decode(seed: int, cut_seed: int, max_len: int, config: str) -> None:
+       config=st.sampled_from(["wpt", "mixed"]), jit_min=st.sampled_from([1, 10**9]))
+def test_decode_batch_equals_reference(seed: int, cut_seed: int, max_len: int, config: str, jit_min: int) -> None:
+    """Any cut into batches, the kernel compiled (jit_min 1) or interpreted: the reference's samples and counters."""
     cfg = _configs()[config]
     frames = _random_frames(seed)
-    one, many = WheelDecoder(cfg), WheelDecoder(cfg)
+    one, many = ReferenceWheelDecoder(cfg), WheelDecoder(cfg)
     ref = [s for f in frames for s in one.decode(f)]
     got = []
-    for i, j in _cuts(random.Random(cut_seed), len(frames), max_len):
-        b = many.decode_batch(CanFrameBatch.from_frames(frames[i:j]))
-        assert all(0 <= k < j - i for k in b.frame.tolist())
-        got += list(b.samples(("FL", "FR", "RL", "RR")))
+    saved, compiled.JIT_MIN_SAMPLES = compiled.JIT_MIN_SAMPLES, jit_min
+    try:
+        for i, j in _cuts(random.Random(cut_seed), len(frames), max_len):
+            b = many.decode_batch(CanFrameBatch.from_frames(frames[i:j]))
+            assert all(0 <= k < j - i for k in b.frame.tolist())
+            got += list(b.samples(("FL", "FR", "RL", "RR")))
+    finally:
+        compiled.JIT_MIN_SAMPLES = saved
     assert repr(got) == repr(ref)
     assert _counters(many) == _counters(one)
 
 
 def test_random_frames_have_every_oddity() -> None:
     for config in ("wpt", "mixed"):
-        dec = WheelDecoder(_configs()[config])
+        dec = ReferenceWheelDecoder(_configs()[config])
         for f in _random_frames(0):
             dec.decode(f)
         for counter in (dec.counter_resets, dec.count_wraps, dec.lost_frames):

@@ -1,15 +1,18 @@
-"""Batched ingest gives what one-by-one processing gives, bit for bit, wherever the batches are cut."""
+"""Batched ingest gives what one-by-one processing (tests/reference_readiness.py) gives, bit for bit, wherever the
+batches are cut, with the readiness kernel compiled or interpreted."""
 
 from __future__ import annotations
 
 import functools
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import CONFIG
-from slipdaq import WHEELS
+from reference_readiness import ReferenceEstimator
+from slipdaq import WHEELS, compiled
 from slipdaq.config import load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
@@ -66,7 +69,7 @@ def _stream() -> tuple[object, list[tuple]]:
 
 def _one_by_one(params, items) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
     """(index of the releasing item, estimate) for every estimate."""
-    est = SlipEstimator(params)
+    est = ReferenceEstimator(params)
     out: list = []
     for i, it in enumerate(items):
         out += [(i, e) for e in (est.add_wheel_at(it[1], it[2], it[3]) if it[0] == "w" else est.add_gps(it[1]))]
@@ -80,9 +83,16 @@ def _reference() -> tuple[SlipEstimator, str]:
     return est, repr(out)
 
 
-def _batched(params, items, cuts: set[int], bulk_min: int) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
+def _batched(params, items, cuts: set[int], jit_min: int) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
+    saved, compiled.JIT_MIN_SAMPLES = compiled.JIT_MIN_SAMPLES, jit_min
+    try:
+        return _batched_now(params, items, cuts)
+    finally:
+        compiled.JIT_MIN_SAMPLES = saved
+
+
+def _batched_now(params, items, cuts: set[int]) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
     est = SlipEstimator(params)
-    est.bulk_min_samples = bulk_min
     out: list = []
     run: list[tuple] = []
     first = 0  # item index of run[0]
@@ -127,9 +137,9 @@ def test_reference_stream_has_estimates_on_both_clocks() -> None:
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     cut_every=st.lists(st.integers(min_value=1, max_value=700), min_size=1, max_size=40),
-    bulk_min=st.sampled_from([0, 1, 8, 64, 10**9]),
+    jit_min=st.sampled_from([1, 64, 10**9]),
 )
-def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], bulk_min: int) -> None:
+def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], jit_min: int) -> None:
     params, items = _stream()
     cuts, pos = set(), 0
     while pos < len(items):
@@ -137,15 +147,16 @@ def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], 
             pos += step
             cuts.add(pos)
     ref_est, ref = _reference()
-    est, out = _batched(params, items, cuts, bulk_min)
+    est, out = _batched(params, items, cuts, jit_min)
     assert repr(out) == ref  # the same releasing items, every field bit for bit (repr of a float is exact)
     for w in WHEELS:
         assert _rings_equal(est._wheels[w], ref_est._wheels[w])
 
 
-def test_one_batch_per_gps_interval_equals_one_by_one() -> None:
+@pytest.mark.parametrize("jit_min", [1, 10**9])
+def test_one_batch_per_gps_interval_equals_one_by_one(jit_min: int) -> None:
     params, items = _stream()
-    _, out = _batched(params, items, set(), 0)
+    _, out = _batched(params, items, set(), jit_min)
     assert repr(out) == _reference()[1]
 
 

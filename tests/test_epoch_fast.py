@@ -1,4 +1,5 @@
-"""The estimator's fast paths give what the code they replaced gives, bit for bit (random inputs)."""
+"""The estimator's readiness constants and arcs give what the code they replaced gives, bit for bit (random
+inputs)."""
 
 from __future__ import annotations
 
@@ -13,42 +14,6 @@ from slipdaq import WHEELS
 from slipdaq.estimator import SlipEstimator
 from slipdaq.estimator.slip import TIME_TOL_S
 from slipdaq.records import GpsFix
-
-
-def _split_reference(est: SlipEstimator, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray):  # type: ignore[no-untyped-def]
-    """add_wheels' split as before _split_in_order: np.flatnonzero per wheel, fancy indexing, the order test."""
-    sel = [np.flatnonzero(wheel == w) for w in range(len(WHEELS))]
-    in_order = len(np.flatnonzero((wheel < 0) | (wheel >= len(WHEELS)))) == 0
-    for w, s in enumerate(sel):
-        tw = time_s[s]
-        if len(s) and not (tw[0] >= est._rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all()))):
-            in_order = False
-    return in_order, sel, [time_s[s] for s in sel], [revolutions[s] for s in sel]
-
-
-@settings(max_examples=300, deadline=None)
-@given(
-    wheels=st.lists(st.integers(0, 3) | st.sampled_from([4, 9]), min_size=1, max_size=120),
-    steps=st.data(),
-    last_t=st.lists(st.sampled_from([-math.inf, 0.0, 0.5, 2.0]), min_size=4, max_size=4),
-    dtype=st.sampled_from([np.uint8, np.int64, np.int16]),
-)
-def test_split_in_order(wheels: list[int], steps: st.DataObject, last_t: list[float], dtype: type) -> None:
-    n = len(wheels)
-    dt = steps.draw(st.lists(st.sampled_from([0.0, 0.001, 0.002, 0.01, -0.003]), min_size=n, max_size=n))
-    time_s = 0.5 + np.cumsum(np.array(dt, dtype=np.float64))
-    revolutions = np.arange(n, dtype=np.float64) * 0.25
-    wheel = np.array(wheels, dtype=dtype)
-    est = SlipEstimator(params())
-    for ring, t in zip(est._rings, last_t):
-        ring.last_t = t
-    in_order, sel, t_ref, r_ref = _split_reference(est, wheel, time_s, revolutions)
-    got = est._split_in_order(wheel, time_s, revolutions)
-    assert (got is not None) == in_order
-    if got is not None:
-        for a, b in zip(got, (sel, t_ref, r_ref)):
-            for x, y in zip(a, b):
-                assert x.tobytes() == y.tobytes()
 
 
 def _head_reference(est: SlipEstimator) -> tuple[int, float, float]:

@@ -1,26 +1,22 @@
 """CAN frames -> WheelSample per wheel, by DBC message and signal names (cantools). Two kinds of wheel source:
 
 - count: a cumulative pulse counter (WPT default: WPT_<W>.PulseCount, wrapping at 2^bits of the signal), unwrapped;
-  an optional rolling sequence counter (WPT: Seq) whose gaps are lost frames. A jump the wheel cannot have made
-  since the last frame (forwards faster than MAX_REV_PER_S, backwards faster than MAX_REVERSE_REV_PER_S, plus a
-  tenth of a revolution) is a counter node reset: a new segment, continued at the wheel's last rate instead of a
-  huge slip, and counted.
+  an optional rolling sequence counter (WPT: Seq) whose gaps are lost frames; a jump the wheel cannot have made is a
+  counter node reset (decode/wheel_unwrap.py: the rule, one kernel for every batch).
 - speed: a wheel-speed signal (km/h, kph, m/s, mph, rpm, rad/s, deg/s; from the DBC's unit or the config), integrated
   over time (trapezoids) into revolutions. Linear speeds are turned into revolutions with the tire's radius, so a
   calibrated r0 for such a wheel is that radius times the signal's scale error.
 Several wheels may share one message (one WHEEL_SPEEDS frame for all four).
 
-Fast path: a message whose wheel sources are all counts with byte-aligned, unsigned, little-endian signals of
-8/16/32 bits, scale 1 and offset 0 (WPT's PulseCount and Seq) gets a precompiled struct and numpy layout at start-up,
-checked against cantools' decode on edge and random payloads (any difference: it stays on cantools). decode_batch
-decodes, unwraps and counts Seq gaps of such frames with numpy over a CanFrameBatch; everything else goes through the
-same scalar code as decode. Both give the same samples and counters, whatever the batches.
+A message whose wheel sources are all counts with byte-aligned, unsigned, little-endian signals of 8/16/32 bits,
+scale 1 and offset 0 (WPT's PulseCount and Seq) is read by a numpy layout built at start-up, checked against
+cantools' decode on edge and random payloads (any difference: it stays on cantools); every other message goes through
+cantools frame by frame. Either way the signals go through the same unwrap kernel.
 """
 
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass, field
 
 import cantools
@@ -28,6 +24,19 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, WheelSourceConfig
+from slipdaq.decode.wheel_unwrap import (
+    C_FRAMES,
+    C_LOST,
+    C_RESETS,
+    C_WRAPS,
+    KIND_COUNT,
+    KIND_SPEED,
+    MAX_COUNT_BITS,
+    P_KIND,
+    P_SEQ_MODULUS,
+    new_state,
+    unwrap,
+)
 from slipdaq.records import (
     FLAG_ERROR,
     FLAG_EXTENDED,
@@ -42,12 +51,6 @@ from slipdaq.records import (
 
 NOT_WHEEL_DATA = FLAG_EXTENDED | FLAG_ERROR | FLAG_REMOTE
 """Frames that carry no wheel data whatever their ID."""
-MAX_REV_PER_S = 100.0
-"""No road wheel turns faster (100 rev/s at r = 0.3 m is 680 km/h)."""
-MAX_REVERSE_REV_PER_S = 5.0
-"""Nor reverses faster (5 rev/s at r = 0.3 m is 34 km/h)."""
-MAX_INTEGRATION_GAP_S = 1.0
-"""A speed signal silent for longer than this is not integrated over the gap."""
 
 _REV_PER_S_PER_UNIT = {"rpm": 1.0 / 60.0, "rad/s": 1.0 / (2 * math.pi), "deg/s": 1.0 / 360.0}
 _MPS_PER_UNIT = {"km/h": 1.0 / 3.6, "kph": 1.0 / 3.6, "kmh": 1.0 / 3.6, "m/s": 1.0, "mph": 0.44704}
@@ -70,35 +73,20 @@ def load_dbc(text: str) -> cantools.database.Database:
 @dataclass(slots=True)
 class _Source:
     wheel: str
+    index: int
+    """in WHEELS."""
     kind: str
     signal: cantools.database.Signal
     seq_signal: cantools.database.Signal | None
-    pulses_per_rev: int
-    rev_per_s_per_unit: float
-    last_raw: int | None = None
-    last_seq: int | None = None
-    last_t: float | None = None
-    last_rate: float = 0.0
-    """count: pulses per second over the last interval; speed: revolutions per second."""
-    count: int = 0
-    revolutions: float = 0.0
-
-    @property
-    def count_modulus(self) -> int:
-        return 1 << self.signal.length
 
 
 @dataclass(slots=True)
 class _FastLayout:
-    """A message's count (and Seq) signals as one struct and one numpy dtype (see the module docstring)."""
+    """A message's count (and Seq) signals as one numpy dtype (see the module docstring)."""
 
     length: int
-    struct: struct.Struct
-    """unpack_from(payload) -> the fields in `names` order."""
     names: list[str]
     dtype: np.dtype
-    plan: list[tuple[_Source, int, int]] = field(default_factory=list)
-    """Per source: its count's and Seq's positions in the unpacked fields (-1: no Seq)."""
 
 
 @dataclass(slots=True)
@@ -108,9 +96,7 @@ class _Message:
     fast: _FastLayout | None = None
 
 
-_UINT_CODES = {8: "B", 16: "H", 32: "I"}
-MAX_FAST_COUNT_BITS = 32
-"""Fast-path counters fit int64 arithmetic with room to spare."""
+_FAST_BITS = (8, 16, 32)
 
 
 def _fast_layout(entry: _Message) -> _FastLayout | None:
@@ -128,23 +114,20 @@ def _fast_layout(entry: _Message) -> _FastLayout | None:
     fields = []
     for sig in sigs.values():
         if (sig.byte_order != "little_endian" or sig.is_signed or sig.is_float or sig.start % 8
-                or sig.length not in _UINT_CODES or sig.length > MAX_FAST_COUNT_BITS or sig.scale != 1
+                or sig.length not in _FAST_BITS or sig.scale != 1
                 or sig.offset != 0 or sig.multiplexer_ids or sig.start // 8 + sig.length // 8 > msg.length):
             return None
-        fields.append((sig.start // 8, sig.length // 8, sig.name, _UINT_CODES[sig.length]))
+        fields.append((sig.start // 8, sig.length // 8, sig.name))
     fields.sort()
-    fmt, pos = "<", 0
-    for off, size, _name, code in fields:
+    pos = 0
+    for off, size, _name in fields:
         if off < pos:
             return None  # overlapping fields
-        fmt += (f"{off - pos}x" if off > pos else "") + code
         pos = off + size
     names = [f[2] for f in fields]
     dtype = np.dtype({"names": names, "formats": [f"<u{f[1]}" for f in fields], "offsets": [f[0] for f in fields],
                       "itemsize": msg.length})
-    plan = [(src, names.index(src.signal.name), names.index(src.seq_signal.name) if src.seq_signal else -1)
-            for src in entry.sources]
-    layout = _FastLayout(msg.length, struct.Struct(fmt), names, dtype, plan)
+    layout = _FastLayout(msg.length, names, dtype)
     rng = np.random.default_rng(7)
     n = msg.length
     payloads = [bytes(n), b"\xff" * n] + [bytes([1 << (k % 8)]) * n for k in range(8)] + \
@@ -154,9 +137,8 @@ def _fast_layout(entry: _Message) -> _FastLayout | None:
             ref = msg.decode_simple(p, decode_choices=False, scaling=False)
         except Exception:
             return None
-        got = dict(zip(names, layout.struct.unpack_from(p)))
         arr = np.frombuffer(p[:n], dtype=dtype)[0]
-        if any(type(ref[k]) is not int or ref[k] != got[k] or int(arr[k]) != got[k] for k in names):
+        if any(type(ref[k]) is not int or ref[k] != int(arr[k]) for k in names):
             return None
     return layout
 
@@ -181,12 +163,15 @@ def _signal(msg: cantools.database.Message, name: str, wheel: str, key: str) -> 
 
 
 class WheelDecoder:
-    """Stateful, pure: decode wheel frames in arrival order into cumulative revolutions per wheel."""
+    """Stateful, pure: decode wheel frames in arrival order into cumulative revolutions per wheel
+    (decode/wheel_unwrap.py: the unwrap, reset, Seq and integration rule)."""
 
     def __init__(self, config: Config, dbc_text: str | None = None) -> None:
         db = load_dbc(dbc_text if dbc_text is not None else config.load_dbc_text())
         self._by_id: dict[int, _Message] = {}
-        for w in WHEELS:
+        self._params = np.zeros((len(WHEELS), 4), dtype=np.int64)
+        self._params_f = np.zeros((len(WHEELS), 3), dtype=np.float64)
+        for i, w in enumerate(WHEELS):
             src = config.wheel_source(w)
             try:
                 msg = db.get_message_by_name(src.message)
@@ -194,28 +179,55 @@ class WheelDecoder:
                 raise DbcError(f"wheels.{w}.message: message {src.message} not found in DBC") from None
             sig = _signal(msg, src.signal, w, "signal")
             seq = _signal(msg, src.seq_signal, w, "seq_signal") if src.seq_signal else None
-            rate = _rev_per_s_per_unit(w, src, sig, config.tire.radius_m) if src.kind == "speed" else 0.0
+            ppr = src.pulses_per_rev or config.wpt.pulses_per_rev
+            if src.kind == "count":
+                for s, key in ((sig, "signal"), (seq, "seq_signal")):
+                    if s is not None and s.length > MAX_COUNT_BITS:
+                        raise DbcError(f"wheels.{w}.{key}: {msg.name}.{s.name} has {s.length} bits; a counter may "
+                                       f"have at most {MAX_COUNT_BITS}")
+                self._params[i] = (KIND_COUNT, 1 << sig.length, ppr, (1 << seq.length) if seq is not None else 0)
+            else:
+                self._params[i] = (KIND_SPEED, 0, ppr, 0)
+                self._params_f[i] = (float(sig.scale), float(sig.offset),
+                                     _rev_per_s_per_unit(w, src, sig, config.tire.radius_m))
             entry = self._by_id.setdefault(msg.frame_id, _Message(msg))
-            entry.sources.append(_Source(w, src.kind, sig, seq, src.pulses_per_rev or config.wpt.pulses_per_rev, rate))
-        self.lost_frames: dict[str, int] = {w: 0 for w in WHEELS}
-        self.count_wraps: dict[str, int] = {w: 0 for w in WHEELS}
-        self.counter_resets: dict[str, int] = {w: 0 for w in WHEELS}
-        self.frames: dict[str, int] = {w: 0 for w in WHEELS}
+            entry.sources.append(_Source(w, i, src.kind, sig, seq))
+        self._state, self._state_f, self._counters = new_state(len(WHEELS))
         self.bad_frames = 0
         for entry in self._by_id.values():
             entry.fast = _fast_layout(entry)
-        self._wheel_index = {w: i for i, w in enumerate(WHEELS)}
         self._entries = list(self._by_id.values())
         self._lut = np.full(2048, -1, dtype=np.int16)  # standard ID -> index in _entries
         for i, entry in enumerate(self._entries):
             if entry.message.frame_id < 2048:
                 self._lut[entry.message.frame_id] = i
         self._ids_beyond_lut = any(fid >= 2048 for fid in self._by_id)
-        self._groups = _groups(self._entries, self._wheel_index)
+
+    # ---- counters, per wheel ------------------------------------------------------------------------
+    def _per_wheel(self, column: int) -> dict[str, int]:
+        return dict(zip(WHEELS, self._counters[:, column].tolist()))
+
+    @property
+    def frames(self) -> dict[str, int]:
+        """Samples decoded."""
+        return self._per_wheel(C_FRAMES)
+
+    @property
+    def lost_frames(self) -> dict[str, int]:
+        """Frames missing by the Seq counter."""
+        return self._per_wheel(C_LOST)
+
+    @property
+    def count_wraps(self) -> dict[str, int]:
+        return self._per_wheel(C_WRAPS)
+
+    @property
+    def counter_resets(self) -> dict[str, int]:
+        return self._per_wheel(C_RESETS)
 
     @property
     def fast_messages(self) -> list[str]:
-        """Names of the messages on the precompiled fast path."""
+        """Names of the messages decoded by their numpy layout instead of cantools."""
         return [e.message.name for e in self._entries if e.fast is not None]
 
     def is_wheel_frame(self, frame: CanFrame) -> bool:
@@ -235,333 +247,90 @@ class WheelDecoder:
         return np.where((batch.flags & NOT_WHEEL_DATA) == 0, idx, -1).astype(np.int64)
 
     def decode(self, frame: CanFrame) -> list[WheelSample]:
-        """The frame's WheelSamples (one per wheel it carries); none for a frame of another ID or a bad one."""
-        if frame.is_error_frame or frame.is_extended_id or frame.is_remote_frame:
-            return []
-        entry = self._by_id.get(frame.arbitration_id)
-        if entry is None:
-            return []
-        return self._decode(entry, frame.data, frame.timestamp_s)
+        """The frame's WheelSamples (one per wheel it carries; none for a frame of another ID or a bad one): a batch
+        of one."""
+        return list(self.decode_batch(CanFrameBatch.from_frames([frame])).samples(WHEELS))
 
-    def _decode(self, entry: _Message, data: bytes, t: float) -> list[WheelSample]:
-        fast = entry.fast
-        if fast is not None:
-            if len(data) < fast.length:  # cantools: wrong data size
-                self.bad_frames += 1
-                return []
-            fields = fast.struct.unpack_from(data)
-            out = []
-            for src, ci, qi in fast.plan:
-                raw = fields[ci]
-                seq = fields[qi] if qi >= 0 else None
-                count, lost = self._count_step(src, raw, seq, t)
-                self.frames[src.wheel] += 1
-                out.append(WheelSample(t, src.wheel, count / src.pulses_per_rev, count, float(raw), seq, lost))
-            return out
-        else:
-            try:
-                values = entry.message.decode_simple(data, decode_choices=False, scaling=False)
-            except Exception:  # wrong DLC or bytes cantools cannot decode
-                self.bad_frames += 1
-                return []
-        out = []
-        for src in entry.sources:
-            raw = values.get(src.signal.name)
-            if not isinstance(raw, int | float):  # absent (multiplexed out); numbers only without choices
-                continue
-            sample = self._count(src, int(raw), values, t) if src.kind == "count" else self._speed(src, raw, t)
-            self.frames[src.wheel] += 1
-            out.append(sample)
-        return out
-
-    def _count(self, src: _Source, raw: int, values: dict, t: float) -> WheelSample:
-        seq = int(values[src.seq_signal.name]) if src.seq_signal is not None else None
-        count, lost = self._count_step(src, raw, seq, t)
-        return WheelSample(t, src.wheel, count / src.pulses_per_rev, count, float(raw), seq, lost)
-
-    def _count_step(self, src: _Source, raw: int, seq: int | None, t: float) -> tuple[int, int]:
-        """One count frame: unwrap, reset and Seq-gap logic; returns (cumulative count, frames lost before it)."""
-        w = src.wheel
-        lost = 0
-        if src.last_raw is not None and src.last_t is not None:
-            modulus = src.count_modulus
-            delta = (raw - src.last_raw) % modulus
-            if delta >= modulus // 2:  # rolling backwards
-                delta -= modulus
-            dt = t - src.last_t
-            limit = MAX_REV_PER_S if delta >= 0 else MAX_REVERSE_REV_PER_S
-            reset = abs(delta) > src.pulses_per_rev * (limit * max(dt, 0.0) + 0.1)
-            if reset:
-                self.counter_resets[w] += 1  # a new segment: continue at the last rate
-                delta = round(src.last_rate * max(dt, 0.0))
-            else:
-                if raw < src.last_raw and delta > 0:
-                    self.count_wraps[w] += 1
-                if dt > 0:
-                    src.last_rate = delta / dt
-            src.count += delta
-            # a node reset restarts its Seq too: the reset frame starts a new Seq sequence, not a gap
-            if seq is not None and src.last_seq is not None and src.seq_signal is not None and not reset:
-                lost = (seq - src.last_seq - 1) % (1 << src.seq_signal.length)
-                self.lost_frames[w] += lost
-        src.last_raw, src.last_seq, src.last_t = raw, seq, t
-        return src.count, lost
-
-    def _speed(self, src: _Source, raw: float, t: float) -> WheelSample:
-        sig = src.signal
-        rate = (raw * sig.scale + sig.offset) * src.rev_per_s_per_unit
-        if src.last_t is not None:
-            dt = t - src.last_t
-            if 0 < dt <= MAX_INTEGRATION_GAP_S:
-                src.revolutions += 0.5 * (src.last_rate + rate) * dt
-        src.last_rate, src.last_t = rate, t
-        return WheelSample(t, src.wheel, src.revolutions, None, float(raw * sig.scale + sig.offset), None, 0)
-
-    # ---- batches ------------------------------------------------------------------------------------
     def decode_batch(self, batch: CanFrameBatch, which: np.ndarray | None = None) -> WheelSampleBatch:
-        """decode() of every frame of the batch in order, as columns: the same samples and counters.
+        """The batch's wheel samples in frame order (a frame's samples in its message's source order); the decoder's
+        state and counters move on past them.
 
         which: wheel_frames(batch), when the caller has it already."""
         if which is None:
             which = self.wheel_frames(batch)
-        cols: list[tuple[np.ndarray, ...]] = []  # (frame, source order, wheel, t, rev, count, raw, seq, lost, flags)
-        ts = batch.timestamp_s
-        done: set[int] = set()
-        for g in self._groups:
-            c = self._group_columns(g, batch, which)
-            if c is not None:
-                done.update(g.entries)
-                if len(c[0]):
-                    cols.append(c)
-        for e, entry in enumerate(self._entries):
-            if e in done:
-                continue
-            sel = np.flatnonzero(which == e)
-            if len(sel) == 0:
-                continue
-            fast = entry.fast
-            if fast is not None:
-                good = batch.payload_lengths()[sel] >= fast.length
-                if not good.all():
-                    self.bad_frames += int(np.count_nonzero(~good))
-                    sel = sel[good]
-                    if len(sel) == 0:
-                        continue
-                fields = batch.data[sel, : fast.length].copy().view(fast.dtype).reshape(-1)
-                for order, src in enumerate(entry.sources):
-                    seq = fields[src.seq_signal.name].astype(np.int64) if src.seq_signal is not None else None
-                    cols.append(self._count_columns(src, order, sel, ts[sel], fields[src.signal.name].astype(np.int64),
-                                                    seq))
-            else:
-                cols.append(self._scalar_columns(entry, batch, sel))
-        if not cols:
+        parts: list[tuple[np.ndarray, ...]] = []  # (frame, source order, wheel, raw int, raw float, seq)
+        wheel_rows = np.flatnonzero(which >= 0)
+        if len(wheel_rows) == 0:
             return _empty_samples()
-        if len(cols) > 1:  # each part is in frame order already; merge them (ties in source order)
-            cat = [np.concatenate(c) for c in zip(*cols)]
-            o = np.lexsort((cat[1], cat[0]))
-            cat = [c[o] for c in cat]
+        entry_of = which[wheel_rows]
+        for e in np.unique(entry_of).tolist():
+            sel = wheel_rows[entry_of == e] if len(self._entries) > 1 else wheel_rows
+            entry = self._entries[e]
+            if entry.fast is not None:
+                parts += self._fast_columns(entry, entry.fast, batch, sel)
+            else:
+                parts += self._cantools_columns(entry, batch, sel)
+        if not parts:
+            return _empty_samples()
+        if len(parts) > 1:  # each part is in frame order already; merge them (a frame's samples in source order)
+            cols = [np.concatenate(c) for c in zip(*parts)]
+            o = np.lexsort((cols[1], cols[0]))
+            frame, _order, wheel, raw_int, raw_float, seq = (c[o] for c in cols)
         else:
-            cat = list(cols[0])
-        frame, _order, wheel, t, rev, count, raw, seq, lost, flags = cat
-        return WheelSampleBatch(frame, wheel.astype(np.uint8), t, rev, count, raw, seq, lost, flags.astype(np.uint8))
+            frame, _order, wheel, raw_int, raw_float, seq = parts[0]
+        n = len(frame)
+        count = np.empty(n, dtype=np.int64)
+        revolutions = np.empty(n, dtype=np.float64)
+        lost = np.empty(n, dtype=np.int64)
+        raw = np.empty(n, dtype=np.float64)
+        unwrap(n)(wheel, batch.timestamp_s[frame], raw_int, raw_float, seq, self._params, self._params_f, self._state,
+                  self._state_f, self._counters, count, revolutions, lost, raw)
+        params = self._params[wheel]
+        flags = np.where(params[:, P_KIND] == KIND_COUNT, SAMPLE_HAS_COUNT, 0) | \
+            np.where(params[:, P_SEQ_MODULUS] > 0, SAMPLE_HAS_SEQ, 0)
+        return WheelSampleBatch(frame, wheel.astype(np.uint8), batch.timestamp_s[frame], revolutions, count, raw, seq,
+                                lost, flags.astype(np.uint8))
 
-    def _group_columns(self, g: _Group, batch: CanFrameBatch, which: np.ndarray) -> tuple[np.ndarray, ...] | None:
-        """_count_step over the frames of every message of a group at once (sorted by source, vectorised); None
-        (nothing changed) when a counter reset needs the frame-by-frame path."""
-        slot = g.slot_of[which]
-        sel = np.flatnonzero(slot >= 0)
-        if len(sel) == 0:
-            return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
-        good = batch.payload_lengths()[sel] >= g.length
-        if not good.all():
+    def _fast_columns(self, entry: _Message, fast: _FastLayout, batch: CanFrameBatch,
+                      sel: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        good = batch.payload_lengths()[sel] >= fast.length
+        if not good.all():  # cantools: wrong data size
+            self.bad_frames += int(np.count_nonzero(~good))
             sel = sel[good]
             if len(sel) == 0:
-                self.bad_frames += len(good)
-                return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
-        s0 = slot[sel]
-        fields = batch.data[sel, : g.length].copy().view(g.dtype).reshape(-1)
-        r0 = fields[g.count_name].astype(np.int64)
-        q0 = fields[g.seq_name].astype(np.int64) if g.seq_name is not None else None
-        t0 = batch.timestamp_s[sel]
-        order = np.argsort(s0, kind="stable")  # by source, each source's frames in order
-        s, r, t = s0[order], r0[order], t0[order]
-        q = q0[order] if q0 is not None else None
-        n = len(sel)
-        brk = np.flatnonzero(s[1:] != s[:-1]) + 1
-        starts = [0, *brk.tolist()]
-        ends = [*brk.tolist(), n]
-        srcs = [g.sources[k] for k in s[starts].tolist()]
-        prev_r = np.empty_like(r)
-        prev_r[1:] = r[:-1]
-        prev_t = np.empty_like(t)
-        prev_t[1:] = t[:-1]
-        firsts = []
-        for k, src in zip(starts, srcs):
-            if src.last_raw is None or src.last_t is None:
-                prev_r[k], prev_t[k] = r[k], t[k]
-                firsts.append(k)
-            else:
-                prev_r[k], prev_t[k] = src.last_raw, src.last_t
-        modulus = g.count_modulus
-        delta = (r - prev_r) % modulus
-        delta[delta >= modulus // 2] -= modulus
-        dt = t - prev_t
-        # A reset needs |delta| > ppr * (limit * max(dt, 0) + 0.1) >= ppr * 0.1: check in full only above that.
-        if np.abs(delta).max() > g.pulses_per_rev * 0.1:
-            limit = np.where(delta >= 0, MAX_REV_PER_S, MAX_REVERSE_REV_PER_S)
-            if bool((np.abs(delta) > g.pulses_per_rev * (limit * np.maximum(dt, 0.0) + 0.1)).any()):
-                return None  # a counter reset: the per-source path (the reset continues at the last rate)
-        self.bad_frames += int(np.count_nonzero(~good))
-        if firsts:
-            delta[firsts] = 0
-        wraps = np.add.reduceat(((r < prev_r) & (delta > 0)).astype(np.int64), starts).tolist()
-        cs = np.cumsum(delta)
-        bases = np.array([src.count for src in srcs], dtype=np.int64) - (cs[starts] - delta[starts])
-        count_s = cs + np.repeat(bases, np.subtract(ends, starts))
-        count = np.empty(n, dtype=np.int64)
-        count[order] = count_s  # back to frame order
-        lost = np.zeros(n, dtype=np.int64)
-        lost_sums: list[int] = [0] * len(srcs)
-        if q is not None:
-            prev_q = np.empty_like(q)
-            prev_q[1:] = q[:-1]
-            for k, src in zip(starts, srcs):
-                prev_q[k] = q[k] - 1 if (k in firsts or src.last_seq is None) else src.last_seq
-            lost_s = (q - prev_q - 1) % g.seq_modulus
-            lost_sums = np.add.reduceat(lost_s, starts).tolist()
-            lost[order] = lost_s
-        dt_last = dt[np.subtract(ends, 1)].tolist()
-        for j, (k0, k1, src) in enumerate(zip(starts, ends, srcs)):
-            w = src.wheel
-            self.frames[w] += k1 - k0
-            self.count_wraps[w] += wraps[j]
-            self.lost_frames[w] += lost_sums[j]
-            last = k1 - 1
-            if dt_last[j] > 0:
-                m = last
-            else:  # the last frame with dt > 0 sets the rate
-                moving = np.flatnonzero(dt[k0:k1] > 0)
-                m = k0 + int(moving[-1]) if len(moving) else -1
-            if m >= 0:
-                src.last_rate = int(delta[m]) / float(dt[m])
-            src.count = int(count_s[last])
-            src.last_raw, src.last_t = int(r[last]), float(t[last])
-            src.last_seq = int(q[last]) if q is not None else None
-        zeros = np.zeros(n, dtype=np.int64)
-        return (sel.astype(np.int64), zeros, g.wheel_of[s0], t0, count / g.pulses_per_rev, count,
-                r0.astype(np.float64), q0 if q0 is not None else zeros, lost, np.full(n, g.flags, dtype=np.int64))
+                return []
+        fields = batch.data[sel, : fast.length].copy().view(fast.dtype).reshape(-1)
+        out: list[tuple[np.ndarray, ...]] = []
+        for order, src in enumerate(entry.sources):
+            raw = fields[src.signal.name].astype(np.int64)
+            seq = fields[src.seq_signal.name].astype(np.int64) if src.seq_signal is not None else np.zeros_like(raw)
+            out.append((sel, np.full(len(sel), order), np.full(len(sel), src.index), raw, raw.astype(np.float64), seq))
+        return out
 
-    def _scalar_columns(self, entry: _Message, batch: CanFrameBatch, sel: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _cantools_columns(self, entry: _Message, batch: CanFrameBatch,
+                          sel: np.ndarray) -> list[tuple[np.ndarray, ...]]:
         rows = []
-        order = {id(src): k for k, src in enumerate(entry.sources)}
-        by_wheel = {src.wheel: src for src in entry.sources}
         for i in sel.tolist():
-            for s in self._decode(entry, batch.payload(i), float(batch.timestamp_s[i])):
-                fl = (SAMPLE_HAS_COUNT if s.count is not None else 0) | (SAMPLE_HAS_SEQ if s.seq is not None else 0)
-                rows.append((i, order[id(by_wheel[s.wheel])], self._wheel_index[s.wheel], s.timestamp_s,
-                             s.revolutions, s.count or 0, s.raw, s.seq or 0, s.lost_frames, fl))
-        if not rows:
-            return tuple(np.empty(0, dtype=d) for d in _COLUMN_DTYPES)
-        return tuple(np.array(c, dtype=d) for c, d in zip(zip(*rows), _COLUMN_DTYPES))
-
-    def _count_columns(self, src: _Source, order: int, frame: np.ndarray, t: np.ndarray, raw: np.ndarray,
-                       seq: np.ndarray | None) -> tuple[np.ndarray, ...]:
-        """_count_step over one source's frames of a batch, vectorised; a batch with a counter reset goes frame by
-        frame (the reset continues at the last rate, which depends on every frame before it)."""
-        n = len(raw)
-        w = src.wheel
-        count = np.empty(n, dtype=np.int64)
-        lost = np.zeros(n, dtype=np.int64)
-        last_raw, last_t = src.last_raw, src.last_t
-        first = last_raw is None or last_t is None
-        if last_raw is None or last_t is None:  # the source's first frame: count and lost stay as they are
-            prev_raw = np.concatenate((raw[:1], raw[:-1]))
-            prev_t = np.concatenate((t[:1], t[:-1]))
-        else:
-            prev_raw = np.concatenate(([last_raw], raw[:-1]))
-            prev_t = np.concatenate(([last_t], t[:-1]))
-        modulus = src.count_modulus
-        delta = (raw - prev_raw) % modulus
-        delta[delta >= modulus // 2] -= modulus
-        dt = t - prev_t
-        limit = np.where(delta >= 0, MAX_REV_PER_S, MAX_REVERSE_REV_PER_S)
-        reset = np.abs(delta) > src.pulses_per_rev * (limit * np.maximum(dt, 0.0) + 0.1)
-        if bool(reset.any()):
-            for k, (r, q, tk) in enumerate(zip(raw.tolist(), seq.tolist() if seq is not None else [None] * n,
-                                                t.tolist())):
-                count[k], lost[k] = self._count_step(src, r, q, tk)
-        else:
-            if first:
-                delta[0] = 0
-            self.count_wraps[w] += int(np.count_nonzero((raw < prev_raw) & (delta > 0)))
-            np.cumsum(delta, out=count)
-            count += src.count
-            moving = np.flatnonzero(dt > 0)
-            if len(moving):
-                k = int(moving[-1])
-                src.last_rate = int(delta[k]) / float(dt[k])
-            if seq is not None and src.seq_signal is not None:
-                if first:
-                    prev_seq = np.concatenate((seq[:1] - 1, seq[:-1]))
+            try:
+                values = entry.message.decode_simple(batch.payload(i), decode_choices=False, scaling=False)
+            except Exception:  # wrong DLC or bytes cantools cannot decode
+                self.bad_frames += 1
+                continue
+            for order, src in enumerate(entry.sources):
+                raw = values.get(src.signal.name)
+                if not isinstance(raw, int | float):  # absent (multiplexed out); numbers only without choices
+                    continue
+                if src.kind == "count":
+                    q = values[src.seq_signal.name] if src.seq_signal is not None else 0
+                    rows.append((i, order, src.index, int(raw), float(raw), int(q) if isinstance(q, int | float) else 0))
                 else:
-                    prev_seq = np.concatenate(([src.last_seq if src.last_seq is not None else 0], seq[:-1]))
-                lost = (seq - prev_seq - 1) % (1 << src.seq_signal.length)
-                if first or src.last_seq is None:
-                    lost[0] = 0
-                self.lost_frames[w] += int(lost.sum())
-            src.count = int(count[-1])
-            src.last_raw, src.last_t = int(raw[-1]), float(t[-1])
-            src.last_seq = int(seq[-1]) if seq is not None else None
-        self.frames[w] += n
-        flags = SAMPLE_HAS_COUNT | (SAMPLE_HAS_SEQ if seq is not None else 0)
-        return (frame.astype(np.int64), np.full(n, order, dtype=np.int64), np.full(n, self._wheel_index[w], np.int64),
-                t.astype(np.float64), count / src.pulses_per_rev, count, raw.astype(np.float64),
-                seq if seq is not None else np.zeros(n, dtype=np.int64), lost, np.full(n, flags, dtype=np.int64))
+                    rows.append((i, order, src.index, 0, float(raw), 0))
+        if not rows:
+            return []
+        return [tuple(np.array(c, dtype=d) for c, d in zip(zip(*rows), _COLUMN_DTYPES))]
 
 
-@dataclass(slots=True)
-class _Group:
-    """Fast messages of one source each that share a layout (WPT_FL..RR): decoded and unwrapped together."""
-
-    entries: list[int]
-    sources: list[_Source]
-    slot_of: np.ndarray
-    """entry index (which) -> slot in `sources`, -1 for others; index -1 (no wheel message) gives -1."""
-    wheel_of: np.ndarray
-    length: int
-    dtype: np.dtype
-    count_name: str
-    seq_name: str | None
-    count_modulus: int
-    seq_modulus: int
-    pulses_per_rev: int
-    flags: int
-
-
-def _groups(entries: list[_Message], wheel_index: dict[str, int]) -> list[_Group]:
-    by_key: dict[tuple, list[int]] = {}
-    for e, entry in enumerate(entries):
-        if entry.fast is None or len(entry.sources) != 1:
-            continue
-        src = entry.sources[0]
-        seq = src.seq_signal
-        key = (entry.fast.length, str(entry.fast.dtype.descr), src.signal.name, seq.name if seq else None,
-               src.signal.length, seq.length if seq else 0, src.pulses_per_rev)
-        by_key.setdefault(key, []).append(e)
-    out = []
-    for (length, _descr, count_name, seq_name, count_bits, seq_bits, ppr), idx in by_key.items():
-        slot_of = np.full(len(entries) + 1, -1, dtype=np.int64)
-        slot_of[idx] = np.arange(len(idx))
-        sources = [entries[e].sources[0] for e in idx]
-        out.append(_Group(idx, sources, slot_of, np.array([wheel_index[s.wheel] for s in sources], dtype=np.int64),
-                          length, entries[idx[0]].fast.dtype, count_name, seq_name,  # type: ignore[union-attr]  # every entry of a group has a fast layout
-                          1 << count_bits, 1 << seq_bits, ppr,
-                          SAMPLE_HAS_COUNT | (SAMPLE_HAS_SEQ if seq_name else 0)))
-    return out
-
-
-_COLUMN_DTYPES = (np.int64, np.int64, np.int64, np.float64, np.float64, np.int64, np.float64, np.int64, np.int64,
-                  np.int64)
+_COLUMN_DTYPES = (np.int64, np.int64, np.int64, np.int64, np.float64, np.int64)
 
 
 def _empty_samples() -> WheelSampleBatch:

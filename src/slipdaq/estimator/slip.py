@@ -29,6 +29,15 @@ from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.radius import RadiusCalibration
+from slipdaq.estimator.readiness import (
+    MODE_READY,
+    MODE_WAIT,
+    MODE_WHEELS,
+    SCAN_GPS_LOST,
+    SCAN_READY,
+    head_ready,
+    scan,
+)
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
@@ -39,8 +48,6 @@ WHEEL_ONLY_STEP_S = 0.1
 REFERENCE_SPEED_ACCURACY_MPS = 0.05
 """A window whose fixes state this speed accuracy (1 sigma) has weight 1 in the r0 and Cx fits; weight ~ 1/sigma^2."""
 WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
-BULK_MIN_SAMPLES = 64
-"""add_wheels goes one by one below this many samples (numpy's fixed cost per call would dominate)."""
 LAG_GUARD_ROWS = 5
 """A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
 TIME_TOL_S = 1e-5
@@ -55,8 +62,6 @@ STANDSTILL_SPEED_MPS = 0.5
 """Below this GPS speed the car stands still."""
 MAX_GPS_GAP_S = 1.0
 """GPS fixes further apart than this do not make a window or a central difference."""
-GPS_LOST_AFTER_S = 1.0
-"""With no GPS fix for this long, estimates continue on the wheels' clock (slip against non-driven wheels)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,8 +190,6 @@ class SlipEstimator:
         self.rejected_fixes = 0
         self._rings = [self._wheels[w] for w in WHEELS]  # by wheel index (WHEELS order)
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
-        self.bulk_min_samples = BULK_MIN_SAMPLES
-        self._wheel_bounds = np.arange(len(WHEELS) + 1)
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
@@ -215,174 +218,49 @@ class SlipEstimator:
         return self.add_wheel_at(WHEEL_INDEX[sample.wheel], sample.timestamp_s, sample.revolutions)
 
     def add_wheel_at(self, wheel: int, time_s: float, revolutions: float) -> list[Estimate]:
-        """One wheel sample (wheel: index in WHEELS); what add_wheel does, without the WheelSample."""
-        ring = self._rings[wheel]
-        if time_s < ring.last_t:
-            return []  # out of order: keep the ring monotonic
-        ring.append(time_s, revolutions)
-        if time_s - self._gps.last_t > GPS_LOST_AFTER_S:
-            return self._gps_lost()
-        if not self._pending:
-            return []
-        mode, need, since = self._head or self._head_consts()
-        if mode == 0:
-            return []
-        if mode == 2:
-            for r in self._rings:
-                if since <= r.last_t < need:
-                    return []  # a reporting wheel has not reached the window's end yet
-        return self._drain()
+        """One wheel sample (wheel: index in WHEELS): a batch of one."""
+        return [e for _, e in self.add_wheels(np.array([wheel]), np.array([time_s], dtype=np.float64),
+                                              np.array([revolutions], dtype=np.float64))]
 
     def add_wheels(
         self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray
     ) -> list[tuple[int, Estimate]]:
-        """Many wheel samples in record order (wheel: indices in WHEELS; times and revolutions float64); returns
-        (index of the sample whose arrival released it, estimate) in order.
-
-        The same estimates, released by the same samples, with the same rings and state as add_wheel_at for each
-        sample in turn, whatever the batch: samples are appended in bulk and _drain runs exactly after the samples
-        where one-by-one processing would emit. Small batches (below bulk_min_samples) and samples once GPS is
-        lost go one by one."""
+        """Wheel samples in record order (wheel: indices in WHEELS; times and revolutions float64); returns (index of
+        the sample whose arrival released it, estimate) in order. The estimates and the state afterwards do not
+        depend on how the samples are cut into batches (estimator/readiness.py scans them one by one)."""
         n = len(time_s)
+        out: list[tuple[int, Estimate]] = []
         if n == 0:
-            return []
-        t_max = float(np.maximum.reduce(time_s)) if n >= self.bulk_min_samples else math.nan  # NaN with a NaN
-        if t_max != t_max:
-            out: list[tuple[int, Estimate]] = []
-            add = self.add_wheel_at
-            for i, (w, t, r) in enumerate(zip(wheel.tolist(), time_s.tolist(), revolutions.tolist())):
-                e = add(w, t, r)
-                if e:
-                    out += [(i, x) for x in e]
             return out
-        rings = self._rings
-        wheel = np.asarray(wheel)
-        index: np.ndarray | None = None  # kept position -> input index
-        split = self._split_in_order(wheel, time_s, revolutions)
-        if split is not None:
-            sel_w, t_w, r_w = split
-        else:
-            keep: np.ndarray | None = None
-            sel_w = []
-            for w in range(len(rings)):
-                s = np.flatnonzero(wheel == w)
-                sel_w.append(s)
-                if len(s) == 0:
-                    continue
-                tw = time_s[s]
-                if tw[0] >= rings[w].last_t and (len(tw) < 2 or bool((tw[1:] >= tw[:-1]).all())):
-                    continue
-                run = np.maximum.accumulate(np.concatenate(([rings[w].last_t], tw)))[:-1]
-                ok = tw >= run  # out of order (before the wheel's newest sample so far): skipped, as add_wheel does
-                if not ok.all():
-                    if keep is None:
-                        keep = np.ones(n, dtype=bool)
-                    keep[s] = ok
-            if keep is not None:
-                index = np.flatnonzero(keep)
-                wheel, time_s, revolutions = wheel[keep], time_s[keep], revolutions[keep]
-                sel_w = [np.flatnonzero(wheel == w) for w in range(len(rings))]
-            t_w = [time_s[s] for s in sel_w]
-            r_w = [revolutions[s] for s in sel_w]
-        m = len(time_s)
-        ptr = [0] * len(rings)  # per wheel: samples of this batch already appended
-
-        def append_upto(k: int) -> None:  # the samples at positions < k
-            for w, s in enumerate(sel_w):
-                j = ptr[w]
-                e = len(s) if k >= m else int(s.searchsorted(k))
-                if e > j:
-                    rings[w].extend(t_w[w][j:e], r_w[w][j:e])
-                    ptr[w] = e
-
-        stop = m
-        if t_max - self._gps.last_t > GPS_LOST_AFTER_S:  # the latest sample's test decides for all
-            lost_at = np.flatnonzero(time_s - self._gps.last_t > GPS_LOST_AFTER_S)
-            stop = int(lost_at[0]) if len(lost_at) else m
-        out = []
+        wheel = np.asarray(wheel, dtype=np.int64)
+        last_t = np.array([r.last_t for r in self._rings], dtype=np.float64)
+        keep = np.empty(n, dtype=np.bool_)
+        run = scan(n)
         pos = 0
-        while pos < stop and self._pending:
-            k = self._ready_index(pos, stop, t_w, sel_w, ptr)
-            if k is None:
-                break
-            append_upto(k + 1)
-            i = k if index is None else int(index[k])
-            out += [(i, e) for e in self._drain()]
-            pos = k + 1
-        append_upto(stop)
-        if stop < m:
-            for k, (w, t, r) in enumerate(zip(wheel[stop:].tolist(), time_s[stop:].tolist(),
-                                              revolutions[stop:].tolist()), stop):
-                e = self.add_wheel_at(w, t, r)  # GPS lost: one by one
-                if e:
-                    i = k if index is None else int(index[k])
-                    out += [(i, x) for x in e]
+        while pos < n:
+            mode, need, since = (self._head or self._head_consts()) if self._pending else (MODE_WAIT, 0.0, 0.0)
+            k, why = run(wheel, time_s, pos, last_t, keep, self._gps.last_t, mode, need, since)
+            stop = min(k + 1, n)
+            self._append(wheel, time_s, revolutions, keep, pos, stop)
+            if why == SCAN_READY:
+                out += [(k, e) for e in self._drain()]
+            elif why == SCAN_GPS_LOST:
+                out += [(k, e) for e in self._gps_lost()]
+            pos = stop
         return out
 
-    def _split_in_order(
-        self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray,
-    ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]] | None:
-        """add_wheels: per wheel, the positions (np.flatnonzero(wheel == w)), times and revolutions of its samples,
-        by one stable sort; None unless every sample is a wheel's and no sample is out of order (times not NaN)."""
-        if wheel.dtype.kind not in "iu":
-            return None
-        order = wheel.argsort(kind="stable")
-        bounds = wheel[order].searchsorted(self._wheel_bounds).tolist()
-        if bounds[0] != 0 or bounds[-1] != len(wheel):
-            return None
-        t_sorted = time_s[order]
-        starts = bounds[1:-1]
-        for p in (t_sorted[1:] < t_sorted[:-1]).nonzero()[0].tolist():
-            if p + 1 not in starts:
-                return None  # a wheel's samples go back in time
-        r_sorted = revolutions[order]
-        sel_w, t_w, r_w = [], [], []
-        for w, ring in enumerate(self._rings):
-            lo, hi = bounds[w], bounds[w + 1]
-            if lo < hi and not t_sorted[lo] >= ring.last_t:
-                return None  # before the wheel's newest sample so far
-            sel_w.append(order[lo:hi])
-            t_w.append(t_sorted[lo:hi])
-            r_w.append(r_sorted[lo:hi])
-        return sel_w, t_w, r_w
-
-    def _ready_index(
-        self, pos: int, stop: int, t_w: list[np.ndarray], sel_w: list[np.ndarray], ptr: list[int],
-    ) -> int | None:
-        """add_wheels: the first position k in [pos, stop) after whose sample the head epoch is ready, else None.
-        The samples before pos are in the rings; each wheel's samples from ptr on (times t_w) are at positions
-        >= pos."""
-        mode, need, since = self._head or self._head_consts()
-        if mode == 0:
-            return None
-        if mode == 1:
-            return pos
-        never = 1 << 62
-        blocks: list[tuple[int, int]] = []  # [enter, reach): positions where the wheel is reporting but short
-        for w, ring in enumerate(self._rings):
-            lt = ring.last_t
-            if lt >= need:
-                continue
-            s = sel_w[w][ptr[w]:]
-            ts = t_w[w][ptr[w]:]
-            j = int(ts.searchsorted(need))
-            reach = int(s[j]) if j < len(ts) else never
-            if lt >= since:
-                enter = -1
-            else:
-                j = int(ts.searchsorted(since))
-                enter = int(s[j]) if j < len(ts) else never
-            if enter < reach:
-                blocks.append((enter, reach))
-        k = pos
-        moved = True
-        while moved:
-            moved = False
-            for enter, reach in blocks:
-                if enter <= k < reach:
-                    k = reach
-                    moved = True
-        return k if k < stop else None
+    def _append(self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray, keep: np.ndarray,
+                start: int, stop: int) -> None:
+        """The kept samples start..stop into their wheels' rings."""
+        if stop - start == 1:
+            if keep[start]:
+                self._rings[wheel[start]].append(time_s[start], revolutions[start])
+            return
+        w, kept = wheel[start:stop], keep[start:stop]
+        for i, ring in enumerate(self._rings):
+            mine = kept & (w == i)
+            if mine.any():
+                ring.extend(time_s[start:stop][mine], revolutions[start:stop][mine])
 
     def add_gps(self, fix: GpsFix) -> list[Estimate]:
         if not fix.valid or not math.isfinite(fix.speed_mps):
@@ -414,9 +292,8 @@ class SlipEstimator:
         return [r for r in self._wheels.values() if len(r) and r.last_time >= since_s]
 
     def _head_consts(self) -> tuple[int, float, float]:
-        """The head epoch's readiness as (mode, need, since), cached until a fix, an estimate or GPS loss:
-        mode 0: not before a later fix; 1: ready; 2: ready once every reporting wheel (newest sample at or after
-        `since`) has a sample at or after `need`."""
+        """The head epoch's readiness as (mode, need, since) (estimator/readiness.py), cached until a fix, an
+        estimate or GPS loss."""
         lat = self.latency.latency_s
         arrival_s, utc_s = self._pending[0]
         half = 0.5 * self.p.window_s
@@ -424,24 +301,21 @@ class SlipEstimator:
         t1 = _smooth_arrival(arrival_s, utc_s, offset) - lat + half
         gps_last = _smooth_arrival(self._gps.last_t, self._last_utc_s, offset) - lat  # on t1's time line
         if gps_last < t1 - TIME_TOL_S:
-            head = (0, 0.0, 0.0)
+            head = (MODE_WAIT, 0.0, 0.0)
         elif gps_last >= t1 + max(self.p.window_s, 0.5):
-            head = (1, 0.0, 0.0)
+            head = (MODE_READY, 0.0, 0.0)
         else:
-            head = (2, max(t1, arrival_s) if self.p.gps_latency_s is None else t1, t1 - 3 * half)
+            head = (MODE_WHEELS, max(t1, arrival_s) if self.p.gps_latency_s is None else t1, t1 - 3 * half)
         self._head = head
         return head
 
     def waiting_for_wheels(self) -> bool:
         """The oldest pending estimate has its GPS and waits only for wheel samples past its window's end."""
-        return bool(self._pending) and (self._head or self._head_consts())[0] == 2
+        return bool(self._pending) and (self._head or self._head_consts())[0] == MODE_WHEELS
 
     def _ready(self) -> bool:
         """The head epoch (self._pending[0]) can be estimated now."""
-        mode, need, since = self._head or self._head_consts()
-        if mode != 2:
-            return mode == 1
-        return all(r.last_t >= need for r in self._rings if r.last_t >= since)
+        return head_ready([r.last_t for r in self._rings], *(self._head or self._head_consts()))
 
     def _drain(self) -> list[Estimate]:
         out: list[Estimate] = []
