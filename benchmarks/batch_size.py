@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""What a batch of one costs: CAN frames through Pipeline.process_can_batch in batches of 1, 4, 16, 64 frames, by
-the per-frame path (below scalar_max_frames, today's default) and forced through the batch path (numpy decode,
-unwrap and estimator readiness). The figure that decides whether the per-frame twin can go: docs/architecture.md.
+"""What a small batch costs: CAN frames through Pipeline.process_can_batch (the one path) in batches of 1, 4, 16,
+64 and 256 frames (GPS lines between them one by one), with the per-sample kernels compiled by numba and run as
+plain Python (SLIPDAQ_JIT=0). Figures for docs/architecture.md.
 
     python benchmarks/batch_size.py [--seconds 10] [--rounds 3]
 """
@@ -9,18 +9,20 @@ unwrap and estimator readiness). The figure that decides whether the per-frame t
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
+from slipdaq import compiled
 from slipdaq.config import load_config, packaged_config_path
-from slipdaq.pipeline import SCALAR_MAX_FRAMES, Pipeline
+from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame
 from slipdaq.sim.emit import SimSettings, generate
 
 
-def frames_per_s(cfg, records, scalar_max: int, batch: int) -> float:  # type: ignore[no-untyped-def]
+def frames_per_s(cfg, records, batch: int) -> float:  # type: ignore[no-untyped-def]
     p = Pipeline(cfg, [])
-    p.scalar_max_frames = scalar_max
+    compiled.prepare()
     run: list[CanFrame] = []
     t0 = time.perf_counter()
     for r in records:
@@ -39,6 +41,12 @@ def frames_per_s(cfg, records, scalar_max: int, batch: int) -> float:  # type: i
     return sum(isinstance(r, CanFrame) for r in records) / (time.perf_counter() - t0)
 
 
+def measure(cfg, records, batch: int, jit: bool, rounds: int) -> float:  # type: ignore[no-untyped-def]
+    os.environ["SLIPDAQ_JIT"] = "1" if jit else "0"
+    compiled.reset()
+    return statistics.median(frames_per_s(cfg, records, batch) for _ in range(rounds))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=10.0, help="seconds of 4 x 500 Hz + 20 Hz GPS (default 10)")
@@ -47,12 +55,12 @@ def main() -> int:
     cfg = load_config(packaged_config_path())
     records = [ev.record for ev in generate(cfg, "cycle", "paved", SimSettings(wpt_rate_hz=500.0, gps_rate_hz=20.0),
                                             duration_s=a.seconds) if ev.record is not None]
-    print("| frames per call | per-frame path, frames/s | batch path, frames/s | batch / per-frame |")
+    print("| frames per call | kernels compiled, frames/s | kernels as Python, frames/s | compiled / Python |")
     print("|---:|---:|---:|---:|")
-    for batch in (1, 4, 16, 64):
-        per_frame = statistics.median(frames_per_s(cfg, records, SCALAR_MAX_FRAMES, batch) for _ in range(a.rounds))
-        batched = statistics.median(frames_per_s(cfg, records, 0, batch) for _ in range(a.rounds))
-        print(f"| {batch} | {per_frame:,.0f} | {batched:,.0f} | {batched / per_frame:.2f} |")
+    for batch in (1, 4, 16, 64, 256):
+        jit = measure(cfg, records, batch, True, a.rounds)
+        py = measure(cfg, records, batch, False, a.rounds)
+        print(f"| {batch} | {jit:,.0f} | {py:,.0f} | {jit / py:.2f} |", flush=True)
     return 0
 
 

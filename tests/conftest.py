@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,3 +25,21 @@ def write_config(tmp_path: Path, text: str, dbc: str | None = None) -> Path:
     p = tmp_path / "slipdaq.toml"
     p.write_text(text)
     return p
+
+
+@contextlib.contextmanager
+def kernels(compiled_: bool) -> Iterator[None]:
+    """The numba kernels compiled (True) or run as plain Python (False) inside the block."""
+    from slipdaq import compiled
+
+    saved = os.environ.get("SLIPDAQ_JIT")
+    os.environ["SLIPDAQ_JIT"] = "1" if compiled_ else "0"
+    compiled.reset()
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("SLIPDAQ_JIT", None)
+        else:
+            os.environ["SLIPDAQ_JIT"] = saved
+        compiled.reset()

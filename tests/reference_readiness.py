@@ -10,11 +10,11 @@ from slipdaq.records import Estimate
 
 class ReferenceEstimator(SlipEstimator):
     def add_wheel_at(self, wheel: int, time_s: float, revolutions: float) -> list[Estimate]:
-        ring = self._rings[wheel]
+        ring = self._windows.rings[wheel]
         if time_s < ring.last_t:
             return []  # out of order: keep the ring monotonic
         ring.append(time_s, revolutions)
-        if time_s - self._gps.last_t > GPS_LOST_AFTER_S:
+        if time_s - self._track.last_t > GPS_LOST_AFTER_S:
             return self._gps_lost()
         if not self._pending:
             return []
@@ -22,7 +22,7 @@ class ReferenceEstimator(SlipEstimator):
         if mode == 0:
             return []
         if mode == 2:
-            for r in self._rings:
+            for r in self._windows.rings:
                 if since <= r.last_t < need:
                     return []  # a reporting wheel has not reached the window's end yet
         return self._drain()

@@ -12,9 +12,8 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import CONFIG, ROOT, write_config
+from conftest import CONFIG, ROOT, kernels, write_config
 from reference_wheels import ReferenceWheelDecoder
-from slipdaq import compiled
 from slipdaq.config import Config, load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.pipeline import Pipeline
@@ -113,22 +112,19 @@ def test_fast_layout_only_for_simple_signals() -> None:
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31), cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([1, 7, 64, 600]),
-       config=st.sampled_from(["wpt", "mixed"]), jit_min=st.sampled_from([1, 10**9]))
-def test_decode_batch_equals_reference(seed: int, cut_seed: int, max_len: int, config: str, jit_min: int) -> None:
-    """Any cut into batches, the kernel compiled (jit_min 1) or interpreted: the reference's samples and counters."""
+       config=st.sampled_from(["wpt", "mixed"]), jit=st.booleans())
+def test_decode_batch_equals_reference(seed: int, cut_seed: int, max_len: int, config: str, jit: bool) -> None:
+    """Any cut into batches, the kernel compiled or interpreted: the reference's samples and counters."""
     cfg = _configs()[config]
     frames = _random_frames(seed)
     one, many = ReferenceWheelDecoder(cfg), WheelDecoder(cfg)
     ref = [s for f in frames for s in one.decode(f)]
     got = []
-    saved, compiled.JIT_MIN_SAMPLES = compiled.JIT_MIN_SAMPLES, jit_min
-    try:
+    with kernels(jit):
         for i, j in _cuts(random.Random(cut_seed), len(frames), max_len):
             b = many.decode_batch(CanFrameBatch.from_frames(frames[i:j]))
             assert all(0 <= k < j - i for k in b.frame.tolist())
             got += list(b.samples(("FL", "FR", "RL", "RR")))
-    finally:
-        compiled.JIT_MIN_SAMPLES = saved
     assert repr(got) == repr(ref)
     assert _counters(many) == _counters(one)
 
@@ -172,10 +168,9 @@ def _drive() -> list:
                                          duration_s=12.0) if ev.record is not None]
 
 
-def _run(records: list, cuts: list[tuple[int, int]] | None, scalar_max: int) -> tuple[list, Pipeline]:
+def _run(records: list, cuts: list[tuple[int, int]] | None) -> tuple[list, Pipeline]:
     sink = _Recorder()
     p = Pipeline(_configs()["wpt"], [sink])
-    p.scalar_max_frames = scalar_max
     if cuts is None:
         for r in records:
             p.process(r)
@@ -187,9 +182,8 @@ def _run(records: list, cuts: list[tuple[int, int]] | None, scalar_max: int) -> 
 
 
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([3, 50, 400, 5000]),
-       scalar_max=st.sampled_from([0, 48]))
-def test_pipeline_batches_equal_records(cut_seed: int, max_len: int, scalar_max: int) -> None:
+@given(cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([3, 50, 400, 5000]))
+def test_pipeline_batches_equal_records(cut_seed: int, max_len: int) -> None:
     records = _drive()
     rng = random.Random(cut_seed)
     cuts: list[tuple[int, int]] = []  # runs of CAN frames, cut at random; NMEA lines one by one
@@ -204,8 +198,8 @@ def test_pipeline_batches_equal_records(cut_seed: int, max_len: int, scalar_max:
             j += 1
         cuts.append((i, j))
         i = j
-    ref, p_ref = _run(records, None, 0)
-    got, p = _run(records, cuts, scalar_max)
+    ref, p_ref = _run(records, None)
+    got, p = _run(records, cuts)
     for kind in ("raw", "wheel", "fix", "estimate", "diagnostics"):  # a batch's records come before its samples
         assert repr([c for c in got if c[0] == kind]) == repr([c for c in ref if c[0] == kind])
     assert p.diagnostics() == p_ref.diagnostics()
@@ -251,12 +245,12 @@ def _items(records: list, rng: random.Random, max_len: int, as_batches: bool) ->
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cut_seed=st.integers(0, 2**31), max_len=st.sampled_from([20, 120, 700]),
-       config=st.sampled_from(["wpt", "mixed"]), odd=st.booleans(), ahead=st.sampled_from([40, 8192]),
+       config=st.sampled_from(["wpt", "mixed"]), odd=st.booleans(), merge=st.sampled_from([40, 8192]),
        as_batches=st.booleans(), run_len=st.sampled_from([1, 7, 300]))
 def test_process_all_makes_the_same_calls_in_the_same_order(cut_seed: int, max_len: int, config: str, odd: bool,
-                                                            ahead: int, as_batches: bool, run_len: int) -> None:
-    """Pipeline.process_all (wheel frames decoded ahead, up to each diagnostics snapshot) against feeding the same
-    items one by one: every sink call in the same order, and the same counters."""
+                                                            merge: int, as_batches: bool, run_len: int) -> None:
+    """Pipeline.process_all (consecutive batches decoded and estimated as one) against feeding the same items one
+    by one: every sink call in the same order, and the same counters."""
     import slipdaq.pipeline as pipeline_module
 
     records = _odd_drive() if odd else _drive()
@@ -268,13 +262,12 @@ def test_process_all_makes_the_same_calls_in_the_same_order(cut_seed: int, max_l
     for it in items:
         ref.process_can_batch(it) if isinstance(it, (list, CanFrameBatch)) else ref.process(it)
     ref.finish()
-    saved = pipeline_module.AHEAD_MAX_FRAMES
-    pipeline_module.AHEAD_MAX_FRAMES = ahead
+    saved, pipeline_module.MERGE_MAX_FRAMES = pipeline_module.MERGE_MAX_FRAMES, merge
     try:
         for k in range(0, len(items), run_len):
             got.process_all(items[k : k + run_len])
     finally:
-        pipeline_module.AHEAD_MAX_FRAMES = saved
+        pipeline_module.MERGE_MAX_FRAMES = saved
     got.finish()
     assert repr(got_sink.calls) == repr(ref_sink.calls)
     assert got.diagnostics() == ref.diagnostics()

@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import CONFIG
+from conftest import CONFIG, kernels
 from reference_readiness import ReferenceEstimator
-from slipdaq import WHEELS, compiled
+from slipdaq import WHEELS
 from slipdaq.config import load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
@@ -83,12 +83,9 @@ def _reference() -> tuple[SlipEstimator, str]:
     return est, repr(out)
 
 
-def _batched(params, items, cuts: set[int], jit_min: int) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
-    saved, compiled.JIT_MIN_SAMPLES = compiled.JIT_MIN_SAMPLES, jit_min
-    try:
+def _batched(params, items, cuts: set[int], jit: bool) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
+    with kernels(jit):
         return _batched_now(params, items, cuts)
-    finally:
-        compiled.JIT_MIN_SAMPLES = saved
 
 
 def _batched_now(params, items, cuts: set[int]) -> tuple[SlipEstimator, list]:  # type: ignore[no-untyped-def]
@@ -137,9 +134,9 @@ def test_reference_stream_has_estimates_on_both_clocks() -> None:
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     cut_every=st.lists(st.integers(min_value=1, max_value=700), min_size=1, max_size=40),
-    jit_min=st.sampled_from([1, 64, 10**9]),
+    jit=st.booleans(),
 )
-def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], jit_min: int) -> None:
+def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], jit: bool) -> None:
     params, items = _stream()
     cuts, pos = set(), 0
     while pos < len(items):
@@ -147,16 +144,16 @@ def test_estimates_do_not_depend_on_where_batches_are_cut(cut_every: list[int], 
             pos += step
             cuts.add(pos)
     ref_est, ref = _reference()
-    est, out = _batched(params, items, cuts, jit_min)
+    est, out = _batched(params, items, cuts, jit)
     assert repr(out) == ref  # the same releasing items, every field bit for bit (repr of a float is exact)
     for w in WHEELS:
-        assert _rings_equal(est._wheels[w], ref_est._wheels[w])
+        assert _rings_equal(est._windows.by_wheel[w], ref_est._windows.by_wheel[w])
 
 
-@pytest.mark.parametrize("jit_min", [1, 10**9])
-def test_one_batch_per_gps_interval_equals_one_by_one(jit_min: int) -> None:
+@pytest.mark.parametrize("jit", [True, False])
+def test_one_batch_per_gps_interval_equals_one_by_one(jit: bool) -> None:
     params, items = _stream()
-    _, out = _batched(params, items, set(), jit_min)
+    _, out = _batched(params, items, set(), jit)
     assert repr(out) == _reference()[1]
 
 

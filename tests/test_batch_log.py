@@ -143,7 +143,6 @@ def test_status_sink_counts_batches_as_records() -> None:
     records = _odd_frames()
     one, many = StatusSink(), StatusSink()
     p1, p2 = Pipeline(load_config(CONFIG), [one]), Pipeline(load_config(CONFIG), [many])
-    p2.scalar_max_frames = 0
     for r in records:
         p1.process(r)
     run: list = []

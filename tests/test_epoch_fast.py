@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from estimator_params import params
 from slipdaq import WHEELS
 from slipdaq.estimator import SlipEstimator
-from slipdaq.estimator.slip import TIME_TOL_S
+from slipdaq.estimator.gps_track import TIME_TOL_S
 from slipdaq.records import GpsFix
 
 
@@ -22,14 +22,14 @@ def _head_reference(est: SlipEstimator) -> tuple[int, float, float]:
     def smooth(arrival_s: float) -> float:
         if est._utc_offset_s is None:
             return arrival_s
-        utc = est._gps_utc.values[int(np.searchsorted(est._gps_utc.times, arrival_s))]
+        utc = est._track.utc.values[int(np.searchsorted(est._track.utc.times, arrival_s))]
         return arrival_s if math.isnan(utc) else float(utc) + est._utc_offset_s
 
     lat = est.latency.latency_s
     arrival_s = est._pending[0][0]
     half = 0.5 * est.p.window_s
     t1 = smooth(arrival_s) - lat + half
-    gps_last = smooth(est._gps.last_time) - lat
+    gps_last = smooth(est._track.last_t) - lat
     if gps_last < t1 - TIME_TOL_S:
         return (0, 0.0, 0.0)
     if gps_last >= t1 + max(est.p.window_s, 0.5):
@@ -76,8 +76,8 @@ def test_arcs_m(samples: list[tuple[int, float, float]], window: tuple[float, fl
     for w, dt, drev in samples:
         t[w] += dt
         rev[w] += drev
-        est._rings[w].append(t[w], rev[w])
+        est._windows.rings[w].append(t[w], rev[w])
     t0, width = window
-    got = est._arcs_m(t0, t0 + width)
-    want = {w: est._arc_m(w, t0, t0 + width) for w in WHEELS}
+    got = est._windows.arcs_m(t0, t0 + width)
+    want = {w: est._windows.arc_m(w, t0, t0 + width) for w in WHEELS}
     assert repr(got) == repr(want)

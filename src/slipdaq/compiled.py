@@ -1,11 +1,13 @@
-"""Per-sample loops (kernels) compiled with numba when a batch is large enough to pay for it.
+"""Per-sample loops (kernels) compiled with numba.
 
-A kernel is one plain Python function over numpy arrays and numbers, written in the subset numba compiles. The same
-function runs interpreted for small batches (a live read of a few frames; no compile, no import of numba) and
-compiled for large ones (replay, import): one rule, one source, and the tests check both give the same results
-bit for bit. numba compiles a kernel once per machine (`cache=True`, next to the module) on its first large batch.
+A kernel is one plain Python function over numpy arrays and numbers, written in the subset numba compiles: the rule
+lives once, whatever the batch (one frame is a batch of one). `kernel()` returns the compiled function (numba
+compiles it once per machine, `cache=True`, and loads it from the cache after that); SLIPDAQ_JIT=0 in the
+environment, or numba missing, runs the same function interpreted (about 3 us a sample against 1.8 us a call
+compiled: benchmarks/batch_size.py). The tests run both and check they agree bit for bit.
 
-SLIPDAQ_JIT=0 in the environment keeps every kernel interpreted (numba absent works the same way).
+numba is imported on the first kernel call (about 0.2-0.5 s): a run calls `prepare()` before its sources start, so
+that the first frames do not wait for it.
 """
 
 from __future__ import annotations
@@ -17,11 +19,8 @@ from typing import Any, Generic, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-JIT_MIN_SAMPLES = 256
-"""Below this many samples a kernel runs interpreted: numba's call overhead and the first call's compile cost more
-than the loop (benchmarks/batch_size.py)."""
-
 _lock = threading.Lock()
+_kernels: list[Kernel[Any]] = []
 
 
 def jit_enabled() -> bool:
@@ -29,34 +28,32 @@ def jit_enabled() -> bool:
 
 
 class Kernel(Generic[F]):
-    """`kernel(n)` is the function to run over a batch of n samples: compiled when n >= JIT_MIN_SAMPLES and numba is
-    there, else the Python function itself."""
+    """`kernel()` is the function to run: compiled, or the Python function itself where numba is off or missing."""
 
     def __init__(self, fn: F, uses: tuple[Callable[..., Any], ...] = ()) -> None:
         self.py_func = fn
         self.uses = uses
-        self._compiled: F | None = None
-        self._failed = False
+        self._run: F | None = None
+        _kernels.append(self)
 
-    def __call__(self, n: int) -> F:
-        if n < JIT_MIN_SAMPLES or self._failed or not jit_enabled():
-            return self.py_func
-        if self._compiled is None:
+    def __call__(self) -> F:
+        run = self._run
+        if run is None:
             with _lock:
-                if self._compiled is None:
-                    self._compiled = self._compile()
-        return self._compiled
+                if self._run is None:
+                    self._run = self._compile() if jit_enabled() else self.py_func
+                run = self._run
+        return run
 
-    def compiled(self) -> F:
-        """The compiled function (compiling it now); the Python one where numba is missing."""
-        return self(JIT_MIN_SAMPLES) if jit_enabled() else self.py_func
+    def reset(self) -> None:
+        """Decide again on the next call (after SLIPDAQ_JIT changed)."""
+        self._run = None
 
     def _compile(self) -> F:
         try:
-            import numba  # lazily: 0.5 s to import, needed only by large batches
+            import numba
             from numba.extending import register_jitable
         except ImportError:
-            self._failed = True
             return self.py_func
         for fn in self.uses:  # plain functions the kernel calls: compiled where it is
             register_jitable(fn)
@@ -64,5 +61,17 @@ class Kernel(Generic[F]):
 
 
 def kernel(fn: F, uses: tuple[Callable[..., Any], ...] = ()) -> Kernel[F]:
-    """fn as a Kernel; `uses`: the plain functions (kernels' rules shared with Python code) it calls."""
+    """fn as a Kernel; `uses`: the plain functions (rules shared with Python code) it calls."""
     return Kernel(fn, uses)
+
+
+def prepare() -> None:
+    """Import numba and load (or compile) every kernel of the modules imported so far; their first call then runs
+    at once."""
+    for k in list(_kernels):
+        k()
+
+
+def reset() -> None:
+    for k in list(_kernels):
+        k.reset()

@@ -17,6 +17,7 @@ from typing import TextIO
 
 import can
 
+from slipdaq import compiled
 from slipdaq.config import Config, ConfigError
 from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.pipeline import Pipeline
@@ -154,6 +155,7 @@ async def run_daemon(
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events)
     sink.extra += [can_source.status, gps_source.status]
     pipeline = Pipeline(config, [sink, status])
+    compiled.prepare()  # now, not on the loop with the first frames
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):

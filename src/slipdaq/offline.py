@@ -8,6 +8,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TextIO
 
+from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord
@@ -16,7 +17,7 @@ from slipdaq.sinks.mcap_log import McapLogSink
 BATCH_FRAMES = 512
 """Consecutive CAN frames of an input go through the pipeline in batches of up to this many."""
 READ_AHEAD_FRAMES = 4096
-"""The pipeline gets the input in runs of about this many CAN frames (Pipeline.process_all decodes them at once)."""
+"""The pipeline gets the input in runs of about this many CAN frames (Pipeline.process_all joins consecutive ones)."""
 READ_AHEAD_ITEMS = 1024
 
 
@@ -54,13 +55,6 @@ def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
         yield run
 
 
-def feed(pipeline: Pipeline, item: RawRecord | CanFrameBatch | list[CanFrame]) -> None:
-    if isinstance(item, (list, CanFrameBatch)):
-        pipeline.process_can_batch(item)
-    else:
-        pipeline.process(item)
-
-
 def process_to_log(
     config: Config,
     records: Iterable[RawRecord | CanFrameBatch],
@@ -79,6 +73,7 @@ def process_to_log(
     stream = stream or sys.stderr
     sink = McapLogSink(out_path, config, mode=mode, metadata=metadata)
     pipeline = Pipeline(config, [sink])
+    compiled.prepare()
     try:
         if stream.isatty():
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn

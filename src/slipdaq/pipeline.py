@@ -1,5 +1,5 @@
-"""Raw records in -> decoded -> estimator -> sinks. Live, replay and import all call Pipeline.process, or
-Pipeline.process_can_batch for consecutive CAN frames.
+"""Raw records in -> decoded -> estimator -> sinks. Live, replay and import all call Pipeline.process for a GPS
+record and Pipeline.process_can_batch for consecutive CAN frames (a CAN frame alone is a batch of one).
 
 Records are processed in the order given; the estimates depend on nothing else, so a log replayed in
 the order it was recorded gives the same estimates, bit for bit. How CAN frames are grouped into batches does not
@@ -9,7 +9,8 @@ times), counters and diagnostics snapshots as its frames one by one.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from bisect import bisect_right
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -33,30 +34,59 @@ from slipdaq.records import (
 from slipdaq.sinks import Sink
 
 DIAGNOSTICS_PERIOD_S = 1.0
-SCALAR_MAX_FRAMES = 48
-"""process_can_batch takes frames one by one below this batch size (numpy's fixed cost per call dominates)."""
-AHEAD_MAX_FRAMES = 8192
-"""process_all decodes at most this many frames ahead at once."""
+MERGE_MAX_FRAMES = 8192
+"""process_all decodes and estimates at most this many frames of consecutive batches at once."""
 
 
-class _Ahead:
-    """Wheel frames decoded ahead (Pipeline.process_all): frames [first, stop) of the run, counted as can_frames."""
+class _Decoded:
+    """Wheel frames decoded ahead (Pipeline.process_all): the frames from `first` (counted as can_frames) on."""
 
-    __slots__ = ("first", "stop", "which", "samples", "sample_frame")
+    __slots__ = ("first", "stop", "which", "samples")
+    NONE: _Decoded
 
     def __init__(self, first: int, which: np.ndarray, samples: WheelSampleBatch) -> None:
         self.first = first
         self.stop = first + len(which)
         self.which = which
         self.samples = samples
-        self.sample_frame = samples.frame  # index in the decoded run; in frame order
+
+    def contains(self, i: int) -> bool:
+        return self.first <= i < self.stop
+
+    def covers(self, first: int, n: int) -> bool:
+        return self.first <= first and first + n <= self.stop
 
     def take(self, first: int, n: int) -> tuple[np.ndarray, WheelSampleBatch]:
         """wheel_frames and decode_batch of the n frames from `first` on, as if decoded alone."""
         k = first - self.first
-        sf = self.sample_frame
-        i0, i1 = int(sf.searchsorted(k)), int(sf.searchsorted(k + n))
+        frame = self.samples.frame
+        i0, i1 = int(frame.searchsorted(k)), int(frame.searchsorted(k + n))
         return self.which[k : k + n], self.samples.slice(i0, i1, frame_offset=-k)
+
+
+_Decoded.NONE = _Decoded(0, np.empty(0, dtype=np.int64), WheelSampleBatch.empty())
+
+
+class _Parts:
+    """The batches a run of frames came in: the sinks get the frames in those batches."""
+
+    __slots__ = ("parts", "starts")
+
+    def __init__(self, parts: list[CanFrameBatch]) -> None:
+        self.parts = parts
+        self.starts = [0]
+        for p in parts:
+            self.starts.append(self.starts[-1] + len(p))
+
+    def pieces(self, start: int, stop: int) -> Iterator[tuple[int, int, CanFrameBatch]]:
+        """(a, b, frames a..b of the run) covering start..stop, cut where the batches end."""
+        k = bisect_right(self.starts, start) - 1
+        while start < stop:
+            p, p0, p1 = self.parts[k], self.starts[k], self.starts[k + 1]
+            b = min(stop, p1)
+            yield start, b, p if (start, b) == (p0, p1) else p.slice(start - p0, b - p0)
+            start = b
+            k += 1
 
 
 class Pipeline:
@@ -74,68 +104,100 @@ class Pipeline:
         self.estimates = 0
         self.last_time_s: float | None = None
         self._next_diag_s: float | None = None
-        self.scalar_max_frames = SCALAR_MAX_FRAMES
-        self._queue: list[RawRecord | CanFrameBatch | Sequence[CanFrame]] | None = None  # process_all's items
-        self._queue_pos = 0
-        self._item_first = 0  # can_frames before the item being processed
-        self._ahead: _Ahead | None = None
+        self._ahead = _Decoded.NONE
 
     def waiting_for_wheels(self) -> bool:
         """An estimate waits only for wheel frames (a live CAN reader that pauses between reads should read now)."""
         return self.estimator.waiting_for_wheels()
 
     def process(self, record: RawRecord) -> None:
-        """One raw record through decode and estimator to every sink."""
-        sinks = self.sinks
-        for s in sinks:
-            s.on_raw(record)
-        t = record.timestamp_s
+        """One raw record through decode and estimator to every sink (a CAN frame is a batch of one)."""
         if isinstance(record, CanFrame):
-            self.can_frames += 1
-            if record.is_error_frame:
-                self.error_frames += 1
-                estimates: list[Estimate] = []
-            else:
-                samples = self.wheels.decode(record)
-                if not samples and not self.wheels.is_wheel_frame(record):
-                    self.unknown_frames += 1
-                estimates = []
-                for sample in samples:
-                    for s in sinks:
-                        s.on_wheel(sample)
-                    estimates += self.estimator.add_wheel(sample)
-        else:
-            fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
-            if fix is None or not isinstance(record, self._velocity_from):
-                estimates = []  # gps.velocity names the other protocol: decoded and counted only
-            else:
-                for s in sinks:
-                    s.on_fix(fix)
-                estimates = self.estimator.add_gps(fix)
-        for e in estimates:
-            self.estimates += 1
-            for s in sinks:
-                s.on_estimate(e, t)
-        self.last_time_s = t
-        if self._next_diag_s is None:
-            self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
-        elif t >= self._next_diag_s:
-            self.emit_diagnostics()
-            self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
+            self.process_can_batch(CanFrameBatch.from_frames([record]))
+            return
+        for s in self.sinks:
+            s.on_raw(record)
+        fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
+        if fix is not None and isinstance(record, self._velocity_from):  # else gps.velocity names the other protocol
+            for s in self.sinks:
+                s.on_fix(fix)
+            for e in self.estimator.add_gps(fix):
+                self._estimate(e, record.timestamp_s)
+        self._tick(record.timestamp_s)
 
     def process_can_batch(self, frames: CanFrameBatch | Sequence[CanFrame]) -> None:
-        """Consecutive CAN frames (a reader's wake-up, a block of a log): the same as process() for each in turn.
-
-        Small batches go one by one; large ones through numpy (decode, unwrap, estimator in bulk), cut only where a
-        diagnostics snapshot falls due."""
-        n = len(frames)
-        if n == 0:
-            return
-        if n < self.scalar_max_frames:
-            for f in frames if not isinstance(frames, CanFrameBatch) else frames.frames():
-                self.process(f)
-            return
+        """Consecutive CAN frames (a reader's wake-up, a block of a log): the same sink calls, estimates and counters
+        however the frames are cut into batches."""
         batch = frames if isinstance(frames, CanFrameBatch) else CanFrameBatch.from_frames(frames)
+        self._process_run(batch, _Parts([batch]))
+
+    def process_all(self, items: Sequence[RawRecord | CanFrameBatch | Sequence[CanFrame]]) -> None:
+        """process_can_batch for each batch of CAN frames (a CanFrameBatch or a list of CanFrames) and process for
+        each other record, in turn. Consecutive batches are estimated as one (up to MERGE_MAX_FRAMES) and the wheel
+        frames are decoded ahead, past GPS records, up to where the next diagnostics snapshot falls due (the decoder
+        does not depend on GPS): numpy's fixed cost is paid once for many. The sinks get the batches as they came."""
+        queue: list[CanFrameBatch | NmeaLine | UbxFrame] = [
+            x if isinstance(x, CanFrameBatch | NmeaLine | UbxFrame)
+            else CanFrameBatch.from_frames([x] if isinstance(x, CanFrame) else x) for x in items]
+        run: list[CanFrameBatch] = []
+        frames = 0
+
+        def flush() -> None:
+            nonlocal frames
+            if run:
+                self._process_run(run[0] if len(run) == 1 else CanFrameBatch.concat(run), _Parts(list(run)))
+                run.clear()
+                frames = 0
+
+        try:
+            for k, item in enumerate(queue):
+                if isinstance(item, CanFrameBatch):
+                    if len(item) == 0:
+                        continue
+                    ahead = self._ahead
+                    if frames + len(item) > MERGE_MAX_FRAMES or (
+                            run and ahead.contains(self.can_frames) and not ahead.contains(self.can_frames + frames)):
+                        flush()  # no segment of a run begins in the frames decoded ahead and ends past them
+                    if not run and not self._ahead.contains(self.can_frames):
+                        self._ahead = self._decode_ahead(queue, k)
+                    run.append(item)
+                    frames += len(item)
+                else:
+                    flush()
+                    self.process(item)
+            flush()
+        finally:
+            self._ahead = _Decoded.NONE
+
+    def _decode_ahead(self, queue: list[CanFrameBatch | NmeaLine | UbxFrame], k: int) -> _Decoded:
+        """The wheel frames of queue[k:] decoded at once, up to the record that makes the next diagnostics snapshot
+        due (its counters are the decoder's as of that record) or MERGE_MAX_FRAMES."""
+        due = self._next_diag_s
+        if due is None:
+            return _Decoded.NONE
+        parts: list[CanFrameBatch] = []
+        n = 0
+        for it in queue[k:]:
+            if isinstance(it, CanFrameBatch):
+                hit = np.flatnonzero(it.timestamp_s >= due)
+                if len(hit):
+                    parts.append(it.slice(0, int(hit[0]) + 1))
+                    break
+                parts.append(it)
+                n += len(it)
+                if n >= MERGE_MAX_FRAMES:
+                    break
+            elif it.timestamp_s >= due:
+                break
+        if not parts:
+            return _Decoded.NONE
+        batch = parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
+        which = self.wheels.wheel_frames(batch)
+        return _Decoded(self.can_frames, which, self.wheels.decode_batch(batch, which))
+
+    def _process_run(self, batch: CanFrameBatch, parts: _Parts) -> None:
+        """The run's frames in segments that end where a diagnostics snapshot falls due."""
+        n = len(batch)
         ts = batch.timestamp_s
         start = 0
         while start < n:
@@ -144,70 +206,16 @@ class Pipeline:
             else:
                 due = np.flatnonzero(ts[start:] >= self._next_diag_s)
                 stop = start + int(due[0]) + 1 if len(due) else n
-            self._can_segment(batch if (start, stop) == (0, n) else batch.slice(start, stop))
+            self._can_segment(batch if (start, stop) == (0, n) else batch.slice(start, stop), parts, start)
             start = stop
 
-    def process_all(self, items: Sequence[RawRecord | CanFrameBatch | Sequence[CanFrame]]) -> None:
-        """process_can_batch for each batch of CAN frames (a CanFrameBatch or a list of CanFrames) and process for
-        each other record, in turn: the same calls to every sink, in the same order, and the same counters at every
-        diagnostics snapshot. Offline runs read ahead: the wheel frames of consecutive batches (of at least
-        scalar_max_frames) up to where the next snapshot falls due are decoded at once (WheelDecoder.decode_batch
-        gives the same samples and counters whatever the batches), so numpy's fixed cost is paid once for many."""
-        queue = [CanFrameBatch.from_frames(x) if isinstance(x, list) and len(x) >= self.scalar_max_frames else x
-                 for x in items]
-        self._queue = queue
-        try:
-            for k, item in enumerate(queue):
-                if isinstance(item, (CanFrameBatch, list)):
-                    self._queue_pos, self._item_first = k, self.can_frames
-                    self.process_can_batch(item)
-                else:
-                    self.process(item)  # type: ignore[arg-type]  # a queue item that is not a batch is one raw record
-        finally:
-            self._queue = self._ahead = None
-
-    def _decode_ahead(self, first: int) -> _Ahead | None:
-        """Decode the queued frames from `first` (in the item being processed) up to the frame that makes the next
-        diagnostics snapshot due, a batch below scalar_max_frames, or a GPS record that makes the snapshot due."""
-        due = self._next_diag_s
-        queue = self._queue
-        if due is None or queue is None:
-            return None
-        parts: list[CanFrameBatch] = []
-        n = 0
-        off = first - self._item_first
-        for it in queue[self._queue_pos:]:
-            if isinstance(it, CanFrameBatch):
-                if len(it) < self.scalar_max_frames:
-                    break
-                b = it.slice(off, len(it)) if off else it
-                off = 0
-                hit = np.flatnonzero(b.timestamp_s >= due)
-                if len(hit):
-                    parts.append(b.slice(0, int(hit[0]) + 1))
-                    break
-                parts.append(b)
-                n += len(b)
-                if n >= AHEAD_MAX_FRAMES:
-                    break
-            elif isinstance(it, list) or it.timestamp_s >= due:  # type: ignore[union-attr]  # not a batch or a list: a raw record, which has timestamp_s
-                break
-        if not parts:
-            return None
-        run = parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
-        which = self.wheels.wheel_frames(run)
-        return _Ahead(first, which, self.wheels.decode_batch(run, which))
-
-    def _can_segment(self, batch: CanFrameBatch) -> None:
-        """Frames of which at most the last may make a diagnostics snapshot due."""
+    def _can_segment(self, batch: CanFrameBatch, parts: _Parts, offset: int) -> None:
+        """Frames of which at most the last may make a diagnostics snapshot due (frame k of batch is frame
+        offset + k of the run that `parts` cut)."""
         n = len(batch)
-        first = self.can_frames
-        ahead = self._ahead
-        if self._queue is not None and (ahead is None or not ahead.first <= first < ahead.stop):
-            ahead = self._ahead = self._decode_ahead(first)
-        if ahead is not None and ahead.first <= first < ahead.stop:
-            assert first + n <= ahead.stop, "a segment beyond the frames decoded ahead"  # they end where segments do
-            which, samples = ahead.take(first, n)
+        if self._ahead.contains(self.can_frames):
+            assert self._ahead.covers(self.can_frames, n), "a segment beyond the frames decoded ahead"
+            which, samples = self._ahead.take(self.can_frames, n)
         else:
             which = self.wheels.wheel_frames(batch)
             samples = self.wheels.decode_batch(batch, which)
@@ -218,20 +226,26 @@ class Pipeline:
         released = self.estimator.add_wheels(samples.wheel, samples.timestamp_s, samples.revolutions) \
             if len(samples) else []
         # the sinks get the frames and samples up to the frame that released an estimate, then the estimate: the
-        # order of process() frame by frame
+        # order of frames one by one
         start = 0
         ts = batch.timestamp_s
         for i, e in released:
             stop = int(samples.frame[i]) + 1
             if stop > start:
-                self._deliver(batch, samples, start, stop)
+                self._deliver(parts, samples, offset, start, stop)
                 start = stop
-            self.estimates += 1
-            for s in self.sinks:
-                s.on_estimate(e, float(ts[stop - 1]))
+            self._estimate(e, float(ts[stop - 1]))
         if start < n:
-            self._deliver(batch, samples, start, n)
-        t = float(batch.timestamp_s[-1])
+            self._deliver(parts, samples, offset, start, n)
+        self._tick(float(ts[-1]))
+
+    def _estimate(self, e: Estimate, log_time_s: float) -> None:
+        self.estimates += 1
+        for s in self.sinks:
+            s.on_estimate(e, log_time_s)
+
+    def _tick(self, t: float) -> None:
+        """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""
         self.last_time_s = t
         if self._next_diag_s is None:
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
@@ -239,20 +253,22 @@ class Pipeline:
             self.emit_diagnostics()
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
 
-    def _deliver(self, batch: CanFrameBatch, samples: WheelSampleBatch, start: int, stop: int) -> None:
-        """Frames start..stop of batch and their samples to the sinks."""
-        piece = batch if (start, stop) == (0, len(batch)) else batch.slice(start, stop)
-        for s in self.sinks:
-            s.on_can_batch(piece)
-        if not len(samples):
-            return
-        frame = samples.frame
-        i0, i1 = int(frame.searchsorted(start)), int(frame.searchsorted(stop))
-        if i1 <= i0:
-            return
-        mine = samples if (i0, i1) == (0, len(samples)) and start == 0 else samples.slice(i0, i1, frame_offset=-start)
-        for s in self.sinks:
-            s.on_wheel_batch(mine)
+    def _deliver(self, parts: _Parts, samples: WheelSampleBatch, offset: int, start: int, stop: int) -> None:
+        """Frames start..stop of the segment (at offset in the run) and their samples to the sinks, in the batches
+        the frames came in."""
+        for a, b, piece in parts.pieces(offset + start, offset + stop):
+            for s in self.sinks:
+                s.on_can_batch(piece)
+            if not len(samples):
+                continue
+            frame = samples.frame
+            i0, i1 = int(frame.searchsorted(a - offset)), int(frame.searchsorted(b - offset))
+            if i1 <= i0:
+                continue
+            mine = samples if (i0, i1) == (0, len(samples)) and a == offset else \
+                samples.slice(i0, i1, frame_offset=offset - a)
+            for s in self.sinks:
+                s.on_wheel_batch(mine)
 
     def run(self, records: Iterable[RawRecord]) -> None:
         for r in records:

@@ -265,6 +265,12 @@ class WheelSampleBatch:
     def __len__(self) -> int:
         return len(self.timestamp_s)
 
+    @classmethod
+    def empty(cls) -> WheelSampleBatch:
+        e = np.empty(0, dtype=np.int64)
+        f = np.empty(0, dtype=np.float64)
+        return cls(e, e.astype(np.uint8), f, f, e, f, e, e, e.astype(np.uint8))
+
     def slice(self, start: int, stop: int, frame_offset: int = 0) -> WheelSampleBatch:
         """Samples start..stop, their frame indices moved by frame_offset."""
         return WheelSampleBatch(self.frame[start:stop] + frame_offset, self.wheel[start:stop],

@@ -193,6 +193,9 @@ class WheelDecoder:
             entry = self._by_id.setdefault(msg.frame_id, _Message(msg))
             entry.sources.append(_Source(w, i, src.kind, sig, seq))
         self._state, self._state_f, self._counters = new_state(len(WHEELS))
+        self._sample_flags = np.where(self._params[:, P_KIND] == KIND_COUNT, SAMPLE_HAS_COUNT, 0).astype(np.uint8) | \
+            np.where(self._params[:, P_SEQ_MODULUS] > 0, SAMPLE_HAS_SEQ, 0).astype(np.uint8)
+        """per wheel: the flags of its samples."""
         self.bad_frames = 0
         for entry in self._by_id.values():
             entry.fast = _fast_layout(entry)
@@ -202,6 +205,9 @@ class WheelDecoder:
             if entry.message.frame_id < 2048:
                 self._lut[entry.message.frame_id] = i
         self._ids_beyond_lut = any(fid >= 2048 for fid in self._by_id)
+        self._groups = _groups(self._entries)
+        self._on_cantools = np.array([e.fast is None for e in self._entries] + [False], dtype=bool)
+        """by entry index (index -1, no wheel message: False)."""
 
     # ---- counters, per wheel ------------------------------------------------------------------------
     def _per_wheel(self, column: int) -> dict[str, int]:
@@ -259,19 +265,15 @@ class WheelDecoder:
         if which is None:
             which = self.wheel_frames(batch)
         parts: list[tuple[np.ndarray, ...]] = []  # (frame, source order, wheel, raw int, raw float, seq)
-        wheel_rows = np.flatnonzero(which >= 0)
-        if len(wheel_rows) == 0:
-            return _empty_samples()
-        entry_of = which[wheel_rows]
-        for e in np.unique(entry_of).tolist():
-            sel = wheel_rows[entry_of == e] if len(self._entries) > 1 else wheel_rows
-            entry = self._entries[e]
-            if entry.fast is not None:
-                parts += self._fast_columns(entry, entry.fast, batch, sel)
-            else:
-                parts += self._cantools_columns(entry, batch, sel)
+        for g in self._groups:
+            parts += self._layout_columns(g, batch, which)
+        rest = np.flatnonzero(self._on_cantools[which])
+        if len(rest):
+            entry_of = which[rest]
+            for e in np.unique(entry_of).tolist():
+                parts += self._cantools_columns(self._entries[e], batch, rest[entry_of == e])
         if not parts:
-            return _empty_samples()
+            return WheelSampleBatch.empty()
         if len(parts) > 1:  # each part is in frame order already; merge them (a frame's samples in source order)
             cols = [np.concatenate(c) for c in zip(*parts)]
             o = np.lexsort((cols[1], cols[0]))
@@ -283,28 +285,29 @@ class WheelDecoder:
         revolutions = np.empty(n, dtype=np.float64)
         lost = np.empty(n, dtype=np.int64)
         raw = np.empty(n, dtype=np.float64)
-        unwrap(n)(wheel, batch.timestamp_s[frame], raw_int, raw_float, seq, self._params, self._params_f, self._state,
+        unwrap()(wheel, batch.timestamp_s[frame], raw_int, raw_float, seq, self._params, self._params_f, self._state,
                   self._state_f, self._counters, count, revolutions, lost, raw)
-        params = self._params[wheel]
-        flags = np.where(params[:, P_KIND] == KIND_COUNT, SAMPLE_HAS_COUNT, 0) | \
-            np.where(params[:, P_SEQ_MODULUS] > 0, SAMPLE_HAS_SEQ, 0)
         return WheelSampleBatch(frame, wheel.astype(np.uint8), batch.timestamp_s[frame], revolutions, count, raw, seq,
-                                lost, flags.astype(np.uint8))
+                                lost, self._sample_flags[wheel])
 
-    def _fast_columns(self, entry: _Message, fast: _FastLayout, batch: CanFrameBatch,
-                      sel: np.ndarray) -> list[tuple[np.ndarray, ...]]:
-        good = batch.payload_lengths()[sel] >= fast.length
+    def _layout_columns(self, g: _LayoutGroup, batch: CanFrameBatch, which: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        """The signals of the group's frames, read through its numpy layout."""
+        sel = np.flatnonzero(g.member[which])
+        if len(sel) == 0:
+            return []
+        good = batch.payload_lengths()[sel] >= g.layout.length
         if not good.all():  # cantools: wrong data size
             self.bad_frames += int(np.count_nonzero(~good))
             sel = sel[good]
             if len(sel) == 0:
                 return []
-        fields = batch.data[sel, : fast.length].copy().view(fast.dtype).reshape(-1)
+        fields = batch.data[sel, : g.layout.length].copy().view(g.layout.dtype).reshape(-1)
+        entry_of = which[sel]
         out: list[tuple[np.ndarray, ...]] = []
-        for order, src in enumerate(entry.sources):
-            raw = fields[src.signal.name].astype(np.int64)
-            seq = fields[src.seq_signal.name].astype(np.int64) if src.seq_signal is not None else np.zeros_like(raw)
-            out.append((sel, np.full(len(sel), order), np.full(len(sel), src.index), raw, raw.astype(np.float64), seq))
+        for order, (count_name, seq_name) in enumerate(g.signals):
+            raw = fields[count_name].astype(np.int64)
+            seq = fields[seq_name].astype(np.int64) if seq_name is not None else np.zeros_like(raw)
+            out.append((sel, np.full(len(sel), order), g.wheel_of[entry_of, order], raw, raw.astype(np.float64), seq))
         return out
 
     def _cantools_columns(self, entry: _Message, batch: CanFrameBatch,
@@ -330,10 +333,34 @@ class WheelDecoder:
         return [tuple(np.array(c, dtype=d) for c, d in zip(zip(*rows), _COLUMN_DTYPES))]
 
 
+@dataclass(slots=True)
+class _LayoutGroup:
+    """Messages read through the same numpy layout (WPT_FL..RR): their frames are read at once."""
+
+    layout: _FastLayout
+    signals: list[tuple[str, str | None]]
+    """Per source, in order: its count's and its Seq's field names."""
+    member: np.ndarray
+    """bool, by entry index (wheel_frames' values; index -1, no wheel message, is False)."""
+    wheel_of: np.ndarray
+    """int64 [entry index, source order] -> wheel index."""
+
+
+def _groups(entries: list[_Message]) -> list[_LayoutGroup]:
+    by_key: dict[tuple, list[int]] = {}
+    for e, entry in enumerate(entries):
+        if entry.fast is not None:
+            signals = tuple((s.signal.name, s.seq_signal.name if s.seq_signal else None) for s in entry.sources)
+            by_key.setdefault((entry.fast.length, str(entry.fast.dtype.descr), signals), []).append(e)
+    out = []
+    for (_length, _descr, signals), members in by_key.items():
+        member = np.zeros(len(entries) + 1, dtype=bool)
+        member[members] = True
+        wheel_of = np.full((len(entries) + 1, len(signals)), -1, dtype=np.int64)
+        for e in members:
+            wheel_of[e] = [s.index for s in entries[e].sources]
+        out.append(_LayoutGroup(entries[members[0]].fast, list(signals), member, wheel_of))  # type: ignore[arg-type]  # members have a layout
+    return out
+
+
 _COLUMN_DTYPES = (np.int64, np.int64, np.int64, np.int64, np.float64, np.int64)
-
-
-def _empty_samples() -> WheelSampleBatch:
-    e = np.empty(0, dtype=np.int64)
-    f = np.empty(0, dtype=np.float64)
-    return WheelSampleBatch(e, e.astype(np.uint8), f, f, e, f, e, e, e.astype(np.uint8))

@@ -97,4 +97,4 @@ def _unwrap(wheel: np.ndarray, time_s: np.ndarray, raw_int: np.ndarray, raw_floa
 
 
 unwrap = kernel(_unwrap)
-"""unwrap(n)(...): the kernel for n samples; writes the four outputs and updates state and counters in place."""
+"""unwrap()(...) writes the four outputs and updates state and counters in place."""

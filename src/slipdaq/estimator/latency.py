@@ -21,6 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
+from slipdaq.estimator.ring import SeriesRing
+
+TWO_PI = 2.0 * math.pi
+
 
 @dataclass(frozen=True, slots=True)
 class LatencyEstimate:
@@ -178,3 +183,60 @@ class WheelLatency:
             self.informative_rows >= MIN_INFORMATIVE_ROWS
             and self.latency_s is not None and self.sigma_s is not None and self.sigma_s <= sigma_max_s
         )
+
+
+LAG_GUARD_ROWS = 5
+"""A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
+MAX_ROW_INTERVAL_S = 0.3
+
+
+class WheelLatencyRows:
+    """The rows of the wheel-based latency fit: each fix interval against the free-rolling (reference) wheels, taken
+    while they roll freely and not just before or after braking."""
+
+    def __init__(self, fit: WheelLatency, every_wheel_driven: bool, min_speed_mps: float, max_latency_s: float,
+                 window_s: float) -> None:
+        self.fit = fit
+        self.every_wheel_driven = every_wheel_driven
+        self.min_speed_mps = min_speed_mps
+        self.max_latency_s = max_latency_s
+        self.window_s = window_s
+        """After braking, rows are skipped for max latency + window."""
+        self._prev: tuple[float, float, np.ndarray] | None = None
+        self._queue: deque[tuple[float, np.ndarray, bool]] = deque()
+        self._blocked_until_s = -math.inf
+
+    def observe(self, arrival_s: float, speed_mps: float, accel: float | None, rings: list[SeriesRing]) -> None:
+        """One fix (its smoothed arrival time, speed and acceleration); rings: the reference wheels'."""
+        fit = self.fit
+        times = arrival_s - fit.taus_s
+        first_needed_s = (arrival_s - fit.max_tau_s) - 0.5  # = times[-1] - 0.5
+        arcs: np.ndarray | None = None
+        for ring in rings:
+            if len(ring) < 2 or ring.first_time > first_needed_s:
+                self._prev = None
+                return
+            revs = np.interp(times, ring.times, ring.values)
+            if arcs is None:
+                arcs = revs + 0.0  # as zeros + revs
+            else:
+                arcs += revs
+        assert arcs is not None
+        arcs *= TWO_PI / len(rings)
+        prev, self._prev = self._prev, (arrival_s, speed_mps, arcs)
+        if prev is None or accel is None:
+            return
+        a_prev, v_prev, arcs_prev = prev
+        thr = PHASE_ACCEL_MPS2  # the reference wheels roll freely unless the car brakes (all driven: or drives)
+        free = abs(accel) <= thr if self.every_wheel_driven else accel >= -thr
+        if not free:  # the reference wheels are braked: drop the rows just before, skip the rows just after
+            self._queue.clear()
+            self._blocked_until_s = arrival_s + self.max_latency_s + self.window_s
+            return
+        if arrival_s < self._blocked_until_s:
+            return
+        if min(v_prev, speed_mps) >= self.min_speed_mps and arrival_s - a_prev <= MAX_ROW_INTERVAL_S:
+            row = (0.5 * (v_prev + speed_mps) * (arrival_s - a_prev), arcs - arcs_prev, accel >= 0.5)
+            self._queue.append(row)
+        while len(self._queue) > LAG_GUARD_ROWS:  # a row counts once the next rows show no braking
+            fit.add(*self._queue.popleft())

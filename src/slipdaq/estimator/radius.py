@@ -67,3 +67,23 @@ class RadiusCalibration:
         var = max(self.sum_w_re2 / self.gps_m - mean * mean, 0.0)
         n = max(self.windows * self.independent_per_window, 1.0)
         return math.sqrt(var / n)
+
+
+def r0_per_wheel(calibrations: dict[str, RadiusCalibration], r_ref_m: float, r_ref_configured: bool,
+                 calibrate: bool) -> dict[str, tuple[float, str]]:
+    """(r0, source) per wheel: its calibration when usable, else the usable ones' mean, else the reference radius
+    (tire.free_radius_m, 'configured', or the tire size, 'tire_size')."""
+    base = "configured" if r_ref_configured else "tire_size"
+    if not calibrate:
+        return {w: (r_ref_m, base) for w in calibrations}
+    usable = {}  # wheel -> (radius, converged) of the usable calibrations, in wheel order
+    for w, cal in calibrations.items():
+        radius = cal.radius_m
+        if radius is not None and cal.usable:
+            usable[w] = (radius, cal.converged)
+    others = [r for r, _ in usable.values()]
+    fallback = (sum(others) / len(others), "other_wheels") if others else (r_ref_m, base)
+    return {
+        w: ((u[0], "calibrated" if u[1] else "calibrating") if (u := usable.get(w)) is not None else fallback)
+        for w in calibrations
+    }

@@ -50,5 +50,5 @@ def _scan(wheel: np.ndarray, time_s: np.ndarray, start: int, last_t: np.ndarray,
     return len(wheel), SCAN_END
 
 
-scan = kernel(_scan, uses=(head_ready,))
-"""scan(n)(...): the kernel for a batch of n samples."""
+scan_samples = kernel(_scan, uses=(head_ready,))
+"""scan_samples()(...): see _scan."""

@@ -43,11 +43,6 @@ SO_RCVBUFFORCE: int | None = getattr(socket, "SO_RCVBUFFORCE", None) or (
 net.core.rmem_max); 33 is its value in Linux's asm-generic/socket.h, used by every architecture but these three."""
 
 
-BATCH_COLUMNS_FROM = 48
-"""A wake-up with at least this many frames goes to the pipeline as one CanFrameBatch (numpy columns, no CanFrame
-per frame); fewer go as CanFrames (numpy's fixed cost would dominate). Pipeline.SCALAR_MAX_FRAMES is the same."""
-
-
 def to_frame(msg: can.Message, timestamp_s: float | None = None) -> CanFrame:
     """python-can's Message as a CanFrame, every field kept; timestamp_s replaces its own stamp (the log's clock)."""
     remote = msg.is_remote_frame
@@ -70,20 +65,14 @@ def to_message(frame: CanFrame, timestamp_s: float = 0.0) -> can.Message:
                        error_state_indicator=frame.error_state_indicator)
 
 
-def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch | list[CanFrame]:
+def to_frames(msgs: list[can.Message], timestamps_s: list[float] | None = None) -> CanFrameBatch:
     """One reader wake-up's messages as the pipeline takes them (Pipeline.process_can_batch); timestamps_s replaces
     their own stamps (the log's clock)."""
-    ts = [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s
-    if len(msgs) < BATCH_COLUMNS_FROM:
-        return [to_frame(m, t) for t, m in zip(ts, msgs)]
-    return CanFrameBatch.from_frames(msgs, ts)
+    return CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs] if timestamps_s is None else timestamps_s)
 
 
-def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch | list[CanFrame]:
+def raw_to_frames(raws: list[RawFrame], timestamps_s: list[float]) -> CanFrameBatch:
     """to_frames for frames read as RawFrame tuples (socketcan_raw.frame_reader), stamped timestamps_s."""
-    if len(raws) < BATCH_COLUMNS_FROM:
-        return [CanFrame.from_flags(t, aid, data, flags, dlc, channel)
-                for t, (_, aid, flags, data, dlc, channel) in zip(timestamps_s, raws)]
     _, ids, flags, payloads, dlc, channels = zip(*raws)
     return CanFrameBatch.from_columns(timestamps_s, ids, flags, payloads, dlc, channels)
 
@@ -184,12 +173,12 @@ class CanBusSource:
 
     async def run(
         self, emit: Callable[[CanFrame], None],
-        emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None] | None = None,
+        emit_batch: Callable[[CanFrameBatch], None] | None = None,
     ) -> None:
         """emit_batch (e.g. Pipeline.process_can_batch), when given, gets each wake-up's frames at once (to_frames)."""
         if emit_batch is None:
-            def emit_batch(frames: CanFrameBatch | list[CanFrame]) -> None:
-                for f in frames if isinstance(frames, list) else frames.frames():
+            def emit_batch(frames: CanFrameBatch) -> None:
+                for f in frames.frames():
                     emit(f)
         fd = self._fileno()
         if fd is not None:
@@ -243,13 +232,13 @@ class CanBusSource:
                          f"(outage {self.outages}; first frame stamped {timestamp_s:.6f})")
         self._source_event("up", f"receiving again (outage {self.outages})", self.last_outage_s)
 
-    def _deliver(self, raws: list[RawFrame], emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
+    def _deliver(self, raws: list[RawFrame], emit_batch: Callable[[CanFrameBatch], None]) -> None:
         if not raws:
             return
         self.frames += len(raws)
         emit_batch(raw_to_frames(raws, self._stamps([r[0] for r in raws])))
 
-    async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
+    async def _run_on_loop(self, fd: int, emit_batch: Callable[[CanFrameBatch], None]) -> None:
         loop = asyncio.get_running_loop()
         interval_s = self.read_interval_s
         keep_reading = self.keep_reading
@@ -299,7 +288,7 @@ class CanBusSource:
                 resume.cancel()
             loop.remove_reader(fd)
 
-    async def _run_in_thread(self, emit_batch: Callable[[CanFrameBatch | list[CanFrame]], None]) -> None:
+    async def _run_in_thread(self, emit_batch: Callable[[CanFrameBatch], None]) -> None:
         loop = asyncio.get_running_loop()
         stop = threading.Event()
 

@@ -1,0 +1,110 @@
+"""The reference speed from GPS: the fixes in arrival order (speed, UTC time, stated speed accuracy), and what a
+window takes from them: the distance driven (integral of the piecewise-linear speed), the acceleration at the
+window's centre (central difference of GPS speed) and the weight of the window's fixes.
+
+Fix times: a fix with a UTC time arrives at UTC + median(arrival - UTC) of recent fixes (the receiver's clock, free
+of the jitter with which sentences are read), minus the GPS latency.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left, bisect_right
+
+import numpy as np
+
+from slipdaq.estimator.ring import SeriesRing
+
+MAX_GPS_GAP_S = 1.0
+"""GPS fixes further apart than this do not make a window or a central difference."""
+TIME_TOL_S = 1e-5
+"""GPS times this close count as equal when a window's ends are compared with fixes: the fix that ends a window
+(UTC + offset - latency) and the window's end (centre + W/2) are the same instant computed two ways, and float
+rounding (a few ulps: 2.4e-7 s at today's epoch seconds) must not decide whether an estimate waits for one more fix."""
+REFERENCE_SPEED_ACCURACY_MPS = 0.05
+"""A window whose fixes state this speed accuracy (1 sigma) has weight 1 in the r0 and Cx fits; weight ~ 1/sigma^2."""
+
+
+def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1: float) -> float:
+    """Integral of the piecewise-linear speed over [t0, t1] (trapezoids on the fixes plus both ends)."""
+    i0 = int(np.searchsorted(times_s, t0, side="right"))
+    i1 = int(np.searchsorted(times_s, t1, side="left"))
+    t = np.concatenate(([t0], times_s[i0:i1], [t1]))
+    v = np.interp(t, times_s, speeds_mps)
+    return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
+
+
+def _div(a: float, b: float) -> float:
+    """a / b with numpy's float64 result for b == 0 (inf or nan) instead of ZeroDivisionError."""
+    if b != 0.0:
+        return a / b
+    if a == 0.0 or a != a:
+        return math.nan
+    return math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def smooth_arrival(arrival_s: float, utc_s: float, offset_s: float | None) -> float:
+    """One fix's arrival time without read jitter: UTC + offset where it has a UTC time (NaN: none);
+    GpsTrack.smooth_arrivals for all fixes at once."""
+    return arrival_s if offset_s is None or utc_s != utc_s else utc_s + offset_s
+
+
+class GpsTrack:
+    def __init__(self) -> None:
+        self.speed = SeriesRing(256)  # arrival time -> speed
+        self.utc = SeriesRing(256)  # arrival time -> the fix's UTC time (NaN without one)
+        self.accuracy = SeriesRing(256)  # arrival time -> the receiver's speed accuracy (NaN without one)
+        self.last_utc_s = math.nan
+        """The newest fix's UTC time (NaN without one)."""
+
+    @property
+    def last_t(self) -> float:
+        """The newest fix's arrival time (-inf before the first)."""
+        return self.speed.last_t
+
+    def add(self, arrival_s: float, speed_mps: float, utc_s: float, accuracy_mps: float) -> None:
+        """One fix (utc_s, accuracy_mps: NaN when the fix has none)."""
+        self.speed.append(arrival_s, speed_mps)
+        self.utc.append(arrival_s, utc_s)
+        self.last_utc_s = utc_s
+        self.accuracy.append(arrival_s, accuracy_mps)
+
+    def drop_before(self, t: float) -> None:
+        self.speed.drop_before = self.utc.drop_before = self.accuracy.drop_before = t
+
+    def smooth_arrivals(self, offset_s: float | None) -> np.ndarray:
+        """Arrival times with the read jitter taken out: UTC + offset where the fix has a UTC time."""
+        arrivals = self.speed.times
+        if offset_s is None:
+            return arrivals
+        utc = self.utc.values
+        return np.where(np.isnan(utc), arrivals, utc + offset_s)
+
+    @staticmethod
+    def covers(fix_times: list[float], t0: float, t1: float) -> bool:
+        """Fixes span [t0, t1] with no gap over MAX_GPS_GAP_S."""
+        if len(fix_times) < 2 or fix_times[0] > t0 + TIME_TOL_S or fix_times[-1] < t1 - TIME_TOL_S:
+            return False
+        i0 = max(bisect_right(fix_times, t0) - 1, 0)
+        i1 = bisect_left(fix_times, t1)
+        seg = fix_times[i0 : i1 + 1]
+        return max([b - a for a, b in zip(seg, seg[1:])]) <= MAX_GPS_GAP_S
+
+    @staticmethod
+    def accel(fix_times: list[float], speeds: list[float], t_c: float) -> float | None:
+        """a(c) = (v(c+1) - v(c-1)) / (t(c+1) - t(c-1)), or None at the ends or across a gap."""
+        i = bisect_left(fix_times, t_c)
+        if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * MAX_GPS_GAP_S:
+            return None
+        return _div(speeds[i + 1] - speeds[i - 1], fix_times[i + 1] - fix_times[i - 1])
+
+    def weight(self, fix_times: list[float], t0: float, t1: float) -> float:
+        """(reference / stated speed accuracy)^2 over the window's fixes, within 0.1..10; 1 without a stated one."""
+        i0 = bisect_left(fix_times, t0)
+        # as np.searchsorted(fix_times, (t0, t1)): the second key's search starts where the first one ended
+        i1 = bisect_left(fix_times, t1, i0) if t0 < t1 else bisect_left(fix_times, t1, 0, min(i0 + 1, len(fix_times)))
+        acc = [x for x in self.accuracy.values[i0 : i1 + 1].tolist() if x == x]
+        if not acc:
+            return 1.0
+        sigma = max(float(np.sum(acc)) / len(acc), 1e-3)
+        return min(max((REFERENCE_SPEED_ACCURACY_MPS / sigma) ** 2, 0.1), 10.0)

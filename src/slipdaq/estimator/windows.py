@@ -1,0 +1,79 @@
+"""The wheels' revolutions over time (one ring per wheel, in time order) and what a window takes from them: the arc
+2*pi*N rolled over [t0, t1] (revolutions interpolated linearly at both ends), and the driven wheels' slip against
+the non-driven ones (slip_nd)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slipdaq import WHEELS
+from slipdaq.estimator.ring import SeriesRing
+
+TWO_PI = 2.0 * math.pi
+
+
+def slip_from_distances(d_wpt_m: float, d_gps_m: float) -> float:
+    """s = (d_wpt - d_gps) / d_gps."""
+    return (d_wpt_m - d_gps_m) / d_gps_m
+
+
+class WheelWindows:
+    def __init__(self) -> None:
+        self.rings = [SeriesRing(4096) for _ in WHEELS]
+        """By wheel index (WHEELS order)."""
+        self.by_wheel = dict(zip(WHEELS, self.rings))
+
+    def last_times(self) -> list[float]:
+        return [r.last_t for r in self.rings]
+
+    def append(self, wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray, keep: np.ndarray,
+               start: int, stop: int) -> None:
+        """The kept samples start..stop into their wheels' rings."""
+        if stop - start == 1:
+            if keep[start]:
+                self.rings[wheel[start]].append(time_s[start], revolutions[start])
+            return
+        w, kept = wheel[start:stop], keep[start:stop]
+        for i, ring in enumerate(self.rings):
+            mine = kept & (w == i)
+            if mine.any():
+                ring.extend(time_s[start:stop][mine], revolutions[start:stop][mine])
+
+    def drop_before(self, t: float) -> None:
+        for r in self.rings:
+            r.drop_before = t
+
+    def reporting(self, since_s: float) -> list[SeriesRing]:
+        return [r for r in self.rings if len(r) and r.last_time >= since_s]
+
+    def arc_m(self, w: str, t0: float, t1: float) -> float | None:
+        """2*pi*revolutions of wheel w over [t0, t1], or None without samples around both ends."""
+        ring = self.by_wheel[w]
+        if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
+            return None
+        rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
+        return TWO_PI * (rev1 - rev0)
+
+    def arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
+        """arc_m of every wheel over the same window."""
+        ends = np.array((t0, t1))
+        out: dict[str, float | None] = {}
+        for w, ring in self.by_wheel.items():
+            revs = ring.at(ends, t0, t1)
+            out[w] = None if revs is None else TWO_PI * (revs[1] - revs[0])
+        return out
+
+
+def reference_slip(arcs: dict[str, float | None], r0: dict[str, tuple[float, str]], reference: tuple[str, ...],
+                   driven: tuple[str, ...], min_distance_m: float) -> dict[str, float]:
+    """Driven wheels' slip against the mean distance of the non-driven wheels (valid while those roll freely), for
+    the driven wheels that have one."""
+    refs = [r0[w][0] * arc for w in reference if (arc := arcs[w]) is not None]
+    if not refs or len(refs) < len(reference):
+        return {}
+    d_ref = sum(refs) / len(refs)
+    if d_ref < min_distance_m:
+        return {}
+    return {w: slip_from_distances(r0[w][0] * arc, d_ref) for w in driven if (arc := arcs[w]) is not None}
