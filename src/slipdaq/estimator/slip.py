@@ -30,6 +30,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, longitudinal_force_n, tire_forces
+from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2, STANDSTILL_SPEED_MPS, phase_of
@@ -50,7 +51,6 @@ from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
 __all__ = ["EstimatorParams", "SlipEstimator", "PHASE_ACCEL_MPS2", "STANDSTILL_SPEED_MPS", "phase_of",
            "integrate_speed_m", "slip_from_distances", "tire_forces"]
 
-WHEEL_ONLY_STEP_S = 0.1
 WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
 
 
@@ -117,7 +117,8 @@ class SlipEstimator:
                                           params.max_latency_s, params.window_s)
         self._radius = {w: RadiusCalibration() for w in WHEELS}
         self._stiffness = {w: StiffnessFit() for w in WHEELS}
-        self._next_wheel_only_s: float | None = None
+        self._wheel_clock = WheelClockEstimates(params.window_s, self._reference, self._driven,
+                                                params.min_speed_mps * params.window_s)
         self._last_center_s = -math.inf
         self._latency: LatencyEstimate | None = None
         self._utc_offset_s: float | None = None
@@ -207,7 +208,7 @@ class SlipEstimator:
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._grade.add(a, fix.altitude_m)
         self._pending.append((a, utc_s))
-        self._next_wheel_only_s = None
+        self._wheel_clock.next_s = None
         return self._drain()
 
     # ---- readiness ----------------------------------------------------------------------------------
@@ -316,54 +317,11 @@ class SlipEstimator:
         while self._pending:
             out.append(self._estimate(self._pending.popleft()[0], lat))
         self._head = None
-        return out + self._wheel_only()
-
-    def _wheel_only(self) -> list[Estimate]:
-        """Every WHEEL_ONLY_STEP_S while GPS is lost: wheel speeds, accel from the reference wheels, slip_nd."""
-        p = self.p
-        half = 0.5 * p.window_s
-        rings = self._windows.reporting(-math.inf)
-        if not rings:
-            return []
-        covered = min(r.last_time for r in rings)
-        if self._next_wheel_only_s is None:
-            start = max(self._last_center_s, self._track.last_t) + WHEEL_ONLY_STEP_S
-            self._next_wheel_only_s = max(start, max(r.first_time for r in rings) + half)
-        out: list[Estimate] = []
-        lat = self.latency
-        while self._next_wheel_only_s + half <= covered:
-            t_c = self._next_wheel_only_s
-            self._next_wheel_only_s = t_c + WHEEL_ONLY_STEP_S
-            out.append(self._wheel_only_estimate(t_c, lat))
-        return out
-
-    def _wheel_only_estimate(self, t_c: float, lat: LatencyEstimate) -> Estimate:
-        p = self.p
-        half = 0.5 * p.window_s
-        refs = self._reference or WHEELS
-        r0 = self._r0_all()
-        arc_m = self._windows.arc_m
-
-        def ref_distance(a: float, b: float) -> float | None:
-            ds = [r0[w][0] * arc for w in refs if (arc := arc_m(w, a, b)) is not None]
-            return sum(ds) / len(ds) if ds else None
-
-        d = ref_distance(t_c - half, t_c + half)
-        first, second = ref_distance(t_c - half, t_c), ref_distance(t_c, t_c + half)
-        speed = d / p.window_s if d is not None else 0.0
-        accel = (second - first) / (half * half) if first is not None and second is not None else None
-        arcs = {w: arc_m(w, t_c - half, t_c + half) for w in WHEELS}
-        slip_nd = self._reference_slip(arcs, r0)
-        wheels = {
-            w: WheelEstimate(None, None, r0[w][0], None, None,
-                             r0[w][0] * arc / p.window_s if (arc := arcs[w]) is not None else None,
-                             r0[w][1], slip_nd.get(w))
-            for w in WHEELS
-        }
-        self._last_center_s = t_c
-        return Estimate(t_c, speed, accel, None, p.window_s, wheels,
-                        phase=phase_of(speed, accel),
-                        source="wheels", gps_latency_s=lat.latency_s, latency_source=lat.source)
+        clock = self._wheel_clock.due(self._windows, self._r0_all(), self.latency, self._last_center_s,
+                                      self._track.last_t)
+        if clock:
+            self._last_center_s = clock[-1].time_s
+        return out + clock
 
     # ---- state for diagnostics ----------------------------------------------------------------------
     def status(self) -> dict[str, object]:
