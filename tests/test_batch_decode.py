@@ -272,3 +272,15 @@ def test_process_all_makes_the_same_calls_in_the_same_order(cut_seed: int, max_l
     assert repr(got_sink.calls) == repr(ref_sink.calls)
     assert got.diagnostics() == ref.diagnostics()
     assert sum(c[0] == "diagnostics" for c in ref_sink.calls) >= 10
+
+
+def test_kernels_are_compiled_unless_jit_is_off() -> None:
+    """The equality tests above run each kernel both ways: check that 'both ways' are two different functions."""
+    from slipdaq.decode.wheel_unwrap import unwrap
+    from slipdaq.estimator.readiness import scan_samples
+
+    for k in (unwrap, scan_samples):
+        with kernels(True):
+            assert k() is not k.py_func and type(k()).__module__.startswith("numba")
+        with kernels(False):
+            assert k() is k.py_func

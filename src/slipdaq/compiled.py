@@ -57,7 +57,10 @@ class Kernel(Generic[F]):
             return self.py_func
         for fn in self.uses:  # plain functions the kernel calls: compiled where it is
             register_jitable(fn)
-        return cast(F, numba.njit(cache=True, nogil=True)(self.py_func))
+        try:
+            return cast(F, numba.njit(cache=True, nogil=True)(self.py_func))
+        except RuntimeError:  # no writable cache directory (a service user without a home): compile in memory
+            return cast(F, numba.njit(cache=False, nogil=True)(self.py_func))
 
 
 def kernel(fn: F, uses: tuple[Callable[..., Any], ...] = ()) -> Kernel[F]:
