@@ -92,6 +92,7 @@ def main() -> int:
     control = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET, fileno=int(sys.argv[1]))
     for name in PRELOAD:
         importlib.import_module(name)
+    importlib.import_module("slipdaq.compiled").prepare()  # numba's kernels, once: the children inherit them
     gc.freeze()  # the imported modules are permanent: children's collections need not scan them (full ones take
     # hundreds of ms in the emulated VM; a fork server freezes what it preloaded)
     print("zygote: ready", flush=True)
