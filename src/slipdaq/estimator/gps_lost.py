@@ -48,17 +48,16 @@ class WheelClockEstimates:
         window_s = self.window_s
         half = 0.5 * window_s
         refs = self.reference or WHEELS
-        arc_m = windows.arc_m
 
-        def ref_distance(a: float, b: float) -> float | None:
-            ds = [r0[w][0] * arc for w in refs if (arc := arc_m(w, a, b)) is not None]
+        def ref_distance(arcs: dict[str, float | None]) -> float | None:
+            ds = [r0[w][0] * arc for w in refs if (arc := arcs[w]) is not None]
             return sum(ds) / len(ds) if ds else None
 
-        d = ref_distance(t_c - half, t_c + half)
-        first, second = ref_distance(t_c - half, t_c), ref_distance(t_c, t_c + half)
+        arcs = windows.arcs_m(t_c - half, t_c + half)
+        d = ref_distance(arcs)
+        first, second = ref_distance(windows.arcs_m(t_c - half, t_c)), ref_distance(windows.arcs_m(t_c, t_c + half))
         speed = d / window_s if d is not None else 0.0
         accel = (second - first) / (half * half) if first is not None and second is not None else None
-        arcs = {w: arc_m(w, t_c - half, t_c + half) for w in WHEELS}
         slip_nd = reference_slip(arcs, r0, self.reference, self.driven, self.min_distance_m)
         wheels = {
             w: WheelEstimate(None, None, r0[w][0], None, None,

@@ -48,16 +48,8 @@ class WheelWindows:
     def reporting(self, since_s: float) -> list[SeriesRing]:
         return [r for r in self.rings if len(r) and r.last_time >= since_s]
 
-    def arc_m(self, w: str, t0: float, t1: float) -> float | None:
-        """2*pi*revolutions of wheel w over [t0, t1], or None without samples around both ends."""
-        ring = self.by_wheel[w]
-        if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
-            return None
-        rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
-        return TWO_PI * (rev1 - rev0)
-
     def arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
-        """arc_m of every wheel over the same window."""
+        """Per wheel: 2*pi*revolutions over [t0, t1], or None without samples around both ends."""
         ends = np.array((t0, t1))
         out: dict[str, float | None] = {}
         for w, ring in self.by_wheel.items():
