@@ -30,8 +30,9 @@ def jit_enabled() -> bool:
 class Kernel(Generic[F]):
     """`kernel()` is the function to run: compiled, or the Python function itself where numba is off or missing."""
 
-    def __init__(self, fn: F, uses: tuple[Callable[..., Any], ...] = ()) -> None:
+    def __init__(self, fn: F, signature: str, uses: tuple[Callable[..., Any], ...] = ()) -> None:
         self.py_func = fn
+        self.signature = signature
         self.uses = uses
         self._run: F | None = None
         _kernels.append(self)
@@ -57,20 +58,22 @@ class Kernel(Generic[F]):
             return self.py_func
         for fn in self.uses:  # plain functions the kernel calls: compiled where it is
             register_jitable(fn)
+        # the signature makes numba compile (or load from its cache) now, not at the first call
         try:
-            return cast(F, numba.njit(cache=True, nogil=True)(self.py_func))
+            return cast(F, numba.njit(self.signature, cache=True, nogil=True)(self.py_func))
         except RuntimeError:  # no writable cache directory (a service user without a home): compile in memory
-            return cast(F, numba.njit(cache=False, nogil=True)(self.py_func))
+            return cast(F, numba.njit(self.signature, cache=False, nogil=True)(self.py_func))
 
 
-def kernel(fn: F, uses: tuple[Callable[..., Any], ...] = ()) -> Kernel[F]:
-    """fn as a Kernel; `uses`: the plain functions (rules shared with Python code) it calls."""
-    return Kernel(fn, uses)
+def kernel(fn: F, signature: str, uses: tuple[Callable[..., Any], ...] = ()) -> Kernel[F]:
+    """fn as a Kernel; signature: its numba types (arrays of any layout: `int64[:]`); `uses`: the plain functions
+    (rules shared with Python code) it calls."""
+    return Kernel(fn, signature, uses)
 
 
 def prepare() -> None:
-    """Import numba and load (or compile) every kernel of the modules imported so far; their first call then runs
-    at once."""
+    """Import numba and load from its cache (or compile) every kernel of the modules imported so far; their first
+    call then runs at once, and processes forked afterwards have them compiled."""
     for k in list(_kernels):
         k()
 

@@ -96,5 +96,6 @@ def _unwrap(wheel: np.ndarray, time_s: np.ndarray, raw_int: np.ndarray, raw_floa
         raw_out[k] = raw
 
 
-unwrap = kernel(_unwrap)
+unwrap = kernel(_unwrap, "void(int64[:], float64[:], int64[:], float64[:], int64[:], int64[:, :], float64[:, :], "
+                         "int64[:, :], float64[:, :], int64[:, :], int64[:], float64[:], int64[:], float64[:])")
 """unwrap()(...) writes the four outputs and updates state and counters in place."""

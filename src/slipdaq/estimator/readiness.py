@@ -50,5 +50,6 @@ def _scan(wheel: np.ndarray, time_s: np.ndarray, start: int, last_t: np.ndarray,
     return len(wheel), SCAN_END
 
 
-scan_samples = kernel(_scan, uses=(head_ready,))
+scan_samples = kernel(_scan, "UniTuple(int64, 2)(int64[:], float64[:], int64, float64[:], boolean[:], float64, int64, "
+                             "float64, float64)", uses=(head_ready,))
 """scan_samples()(...): see _scan."""
