@@ -153,3 +153,20 @@ def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follo
         return got
 
     assert len(asyncio.run(run())) == 512
+
+
+def test_the_diagnostics_schema_names_every_field() -> None:
+    """The /diagnostics schema is written out by hand (nested per-wheel counters, the estimator's status): a field
+    added to Diagnostics or to SlipEstimator.status() and not to the schema fails here, not only a field missing from
+    a message (which the jsonschema validation above catches)."""
+    import dataclasses
+
+    from estimator_params import params
+    from slipdaq.estimator import SlipEstimator
+    from slipdaq.logformat.schemas import LIVE_DIAGNOSTICS, SCHEMAS
+    from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS
+    from slipdaq.records import Diagnostics
+
+    props = SCHEMAS[TOPIC_DIAGNOSTICS]["properties"]
+    assert set(props) - set(LIVE_DIAGNOSTICS) == {f.name for f in dataclasses.fields(Diagnostics)}
+    assert set(props["estimator"]["properties"]) == set(SlipEstimator(params()).status())
