@@ -599,8 +599,8 @@ def test_case3_load_and_case5_kernel_timestamps(env: Env) -> None:
                     and p[-1].sent - first.sent >= PAUSE_MIN_FRAMES and p[-1].nmea - first.nmea >= 3)
 
         wait_progress(sender, paused_enough, PAUSE_MAX_S - (time.time() - t_stop))
+        t_cont = time.time()  # before the signal: the daemon may read (and stamp) before this process runs again
         daemon.proc.signal(signal.SIGCONT)
-        t_cont = time.time()
         r = sender_result(sender, LOAD_DURATION_S + 600)
         n = daemon.wait_frames(r["sent"], 1200)
         result = daemon.stop()
