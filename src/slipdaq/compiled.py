@@ -3,8 +3,8 @@
 A kernel is one plain Python function over numpy arrays and numbers, written in the subset numba compiles: the rule
 lives once, whatever the batch (one frame is a batch of one). `kernel()` returns the compiled function (numba
 compiles it once per machine, `cache=True`, and loads it from the cache after that); SLIPDAQ_JIT=0 in the
-environment, or numba missing, runs the same function interpreted (about 3 us a sample against 1.8 us a call
-compiled: benchmarks/batch_size.py). The tests run both and check they agree bit for bit.
+environment, or numba missing, runs the same function interpreted (about 3 us a sample, against 1.8 us a call
+compiled: docs/architecture.md). The tests run both and check they agree bit for bit.
 
 numba is imported on the first kernel call (about 0.2-0.5 s): a run calls `prepare()` before its sources start, so
 that the first frames do not wait for it.
