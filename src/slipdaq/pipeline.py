@@ -204,8 +204,8 @@ class Pipeline:
             if self._next_diag_s is None:
                 stop = start + 1
             else:
-                due = np.flatnonzero(ts[start:] >= self._next_diag_s)
-                stop = start + int(due[0]) + 1 if len(due) else n
+                due = ts[start:] >= self._next_diag_s
+                stop = start + int(due.argmax()) + 1 if due.any() else n  # argmax: the first True
             self._can_segment(batch if (start, stop) == (0, n) else batch.slice(start, stop), parts, start)
             start = stop
 

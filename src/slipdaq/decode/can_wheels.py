@@ -200,7 +200,7 @@ class WheelDecoder:
         for entry in self._by_id.values():
             entry.fast = _fast_layout(entry)
         self._entries = list(self._by_id.values())
-        self._lut = np.full(2048, -1, dtype=np.int16)  # standard ID -> index in _entries
+        self._lut = np.full(2048, -1, dtype=np.int64)  # standard ID -> index in _entries
         for i, entry in enumerate(self._entries):
             if entry.message.frame_id < 2048:
                 self._lut[entry.message.frame_id] = i
@@ -208,6 +208,7 @@ class WheelDecoder:
         self._groups = _groups(self._entries)
         self._on_cantools = np.array([e.fast is None for e in self._entries] + [False], dtype=bool)
         """by entry index (index -1, no wheel message: False)."""
+        self._any_on_cantools = bool(self._on_cantools.any())
 
     # ---- counters, per wheel ------------------------------------------------------------------------
     def _per_wheel(self, column: int) -> dict[str, int]:
@@ -245,12 +246,13 @@ class WheelDecoder:
         frame)."""
         ids = batch.arbitration_id
         idx = self._lut[np.minimum(ids, 2047)]
-        idx = np.where(ids < 2048, idx, -1)
         if self._ids_beyond_lut:  # a wheel message with an 11-bit ID above 2047 cannot exist, but a DBC may say so
+            idx = np.where(ids < 2048, idx, -1)
             for i, entry in enumerate(self._entries):
                 if entry.message.frame_id >= 2048:
                     idx = np.where(ids == entry.message.frame_id, i, idx)
-        return np.where((batch.flags & NOT_WHEEL_DATA) == 0, idx, -1).astype(np.int64)
+            return np.where((batch.flags & NOT_WHEEL_DATA) == 0, idx, -1)
+        return np.where((ids < 2048) & ((batch.flags & NOT_WHEEL_DATA) == 0), idx, -1)
 
     def decode(self, frame: CanFrame) -> list[WheelSample]:
         """The frame's WheelSamples (one per wheel it carries; none for a frame of another ID or a bad one): a batch
@@ -267,7 +269,7 @@ class WheelDecoder:
         parts: list[tuple[np.ndarray, ...]] = []  # (frame, source order, wheel, raw int, raw float, seq)
         for g in self._groups:
             parts += self._layout_columns(g, batch, which)
-        rest = np.flatnonzero(self._on_cantools[which])
+        rest = np.flatnonzero(self._on_cantools[which]) if self._any_on_cantools else ()
         if len(rest):
             entry_of = which[rest]
             for e in np.unique(entry_of).tolist():

@@ -95,9 +95,9 @@ class _Pending:
                 self.first_index, self.t0 = first_index + i, float(ts[i])
             k = min(n, i + MAX_BATCH_FRAMES - self.n)
             full = self.n + k - i >= MAX_BATCH_FRAMES
-            late = np.flatnonzero(ts[i:k] - self.t0 >= MAX_BATCH_SPAN_S)
-            if len(late):
-                k, full = i + int(late[0]) + 1, True
+            late = ts[i:k] - self.t0 >= MAX_BATCH_SPAN_S
+            if late.any():
+                k, full = i + int(late.argmax()) + 1, True  # argmax: the first True
             self.parts.append(piece(i, k))
             self.n += k - i
             self.t_last, self.frame_last = float(ts[k - 1]), frame(k - 1)
