@@ -12,7 +12,7 @@ from slipdaq.config import load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.decode.framing import MAX_LINE_BYTES, GpsFramer
 from slipdaq.decode.nmea import KNOT_MPS, NmeaDecoder
-from slipdaq.records import CanFrame, NmeaLine
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine
 
 DBC = (ROOT / "config" / "wpt.dbc").read_text()
 CFG = load_config(ROOT / "config" / "slipdaq.toml")
@@ -62,7 +62,8 @@ def test_seq_gaps_are_lost_frames_including_seq_wrap() -> None:
 
 def test_unknown_id_extended_and_wrong_dlc() -> None:
     d = WptDecoder(DBC)
-    assert d.decode(frame(0.0, 0x123, 1, 0)) == [] and not d.is_wheel_frame(frame(0.0, 0x123, 1, 0))
+    assert d.decode(frame(0.0, 0x123, 1, 0)) == []
+    assert d.wheel_frames(CanFrameBatch.from_frames([frame(0.0, 0x123, 1, 0)])).tolist() == [-1]
     assert d.decode(CanFrame(0.0, 0x310, bytes(8), is_extended_id=True)) == []
     assert d.decode(frame(0.0, 0x312, 1, 0, dlc=3)) == []
     assert d.bad_frames == 1

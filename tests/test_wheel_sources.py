@@ -16,7 +16,7 @@ from slipdaq.config import ConfigError, load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.logformat.reader import iter_estimates, iter_topic
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import CanFrame
+from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sinks import CollectingSink
 
 EXAMPLES = ROOT / "config" / "examples"
@@ -113,7 +113,7 @@ def test_counter_reset_is_a_new_segment_not_a_huge_slip(cfg) -> None:  # type: i
 def test_honda_example_config_loads_its_dbc() -> None:
     cfg = load_config(EXAMPLES / "honda-civic.toml")
     dec = WheelDecoder(cfg)
-    assert dec.is_wheel_frame(CanFrame(0.0, 0x1D0, bytes(8)))
+    assert dec.wheel_frames(CanFrameBatch.from_frames([CanFrame(0.0, 0x1D0, bytes(8))])).tolist()[0] >= 0
     assert cfg.tire.radius_m == pytest.approx((2 * 0.40 * 235 + 18 * 25.4) / 2000)
 
 

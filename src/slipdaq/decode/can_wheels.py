@@ -237,10 +237,6 @@ class WheelDecoder:
         """Names of the messages decoded by their numpy layout instead of cantools."""
         return [e.message.name for e in self._entries if e.fast is not None]
 
-    def is_wheel_frame(self, frame: CanFrame) -> bool:
-        """A data frame with a wheel message's standard ID (not a remote frame asking for one)."""
-        return not (frame.is_extended_id or frame.is_remote_frame) and frame.arbitration_id in self._by_id
-
     def wheel_frames(self, batch: CanFrameBatch) -> np.ndarray:
         """Per frame: the index of its wheel message (in _entries), or -1 (another ID, extended, error or remote
         frame)."""

@@ -23,8 +23,7 @@ import numpy as np
 
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
 from slipdaq.estimator.ring import SeriesRing
-
-TWO_PI = 2.0 * math.pi
+from slipdaq.estimator.windows import TWO_PI
 
 
 @dataclass(frozen=True, slots=True)
