@@ -87,5 +87,11 @@ def _arc_reference(ring, t0: float, t1: float) -> float | None:  # type: ignore[
     """One wheel's arc as the estimator computed it before arcs_m: np.interp on the ring's views."""
     if len(ring) < 2 or ring.first_time > t0 or ring.last_time < t1:
         return None
+    times = ring.times.tolist()  # a gap in the samples around the window: withheld (windows.MIN_GAP_S, GAP_INTERVALS)
+    first = max(i for i, t in enumerate(times) if t <= t0)
+    last = min(i for i, t in enumerate(times) if t >= t1)
+    mean = (times[-1] - times[0]) / (len(times) - 1)
+    if max([b - a for a, b in zip(times[first:last + 1], times[first + 1:last + 1])] or [0.0]) > max(0.05, 4 * mean):
+        return None
     rev0, rev1 = np.interp((t0, t1), ring.times, ring.values).tolist()
     return 2.0 * math.pi * (rev1 - rev0)

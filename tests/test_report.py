@@ -207,7 +207,7 @@ def test_comparison_groups_logs_by_label(report) -> None:  # type: ignore[no-unt
 
 def test_report_progress_lines_and_group_by(report, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     lines = report["progress"]
-    assert lines[0].startswith("report: read ") and lines[0].endswith(" estimates")
+    assert lines[0].startswith("report: read ") and lines[0].endswith(" estimates (two-pass)")
     assert "report: brake-sand: brake 90–0 km/h: 5 plots" in lines
     assert "report: comparison brake: road=paved, road=sand" in lines
     assert lines[-1].startswith("report: wrote ") and "index.html" in lines[-1]

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import slipdaq
+from slipdaq.calibration import RunCalibration
 from slipdaq.config import Config, ConfigError, load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.outputs import OutputError, atomic_output
@@ -38,6 +39,29 @@ def _label(text: str) -> str:
 def _add_label(p: argparse.ArgumentParser) -> None:
     p.add_argument("--label", action="append", type=_label, metavar="KEY=VALUE",
                    help="a free-form label stored in the log's metadata (e.g. road=sand, maneuver=brake); repeatable")
+
+
+def _add_calibration(p: argparse.ArgumentParser, default: str, replay: bool = False) -> None:
+    g = p.add_mutually_exclusive_group()
+    start = ("start from the calibration stored in the log (the one the run started from, so that the estimates are "
+             "the run's), or from PATH with --calibration; save what it learns to PATH, else to calibration.path of "
+             "the config, else calibration.toml in the output's directory") if replay else \
+        (f"start from the calibration in PATH and save what the run learns to it (default: calibration.path of the "
+         f"config, else calibration.toml in {default})")
+    g.add_argument("--calibration", metavar="PATH", help=start + "; a file of another vehicle or tire set "
+                   "(vehicle.name, tire.size, tire.set) is neither used nor written over")
+    g.add_argument("--no-calibration", action="store_true", help="start cold and save nothing")
+
+
+def _run_calibration(args: argparse.Namespace, cfg: Config, log_dir: Path) -> RunCalibration:
+    """--calibration / --no-calibration / the default file; prints what it starts from."""
+    from slipdaq.calibration import default_path, for_run
+
+    path = None if args.no_calibration else Path(args.calibration) if args.calibration else default_path(log_dir, cfg)
+    cal = for_run(path, cfg)
+    if cal.note:
+        print(cal.note)
+    return cal
 
 
 def _add_allow_empty(p: argparse.ArgumentParser, what: str) -> None:
@@ -84,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--log-dir", metavar="D", help="write the MCAP log here (default: log.dir of the config)")
     _add_label(p)
+    _add_calibration(p, "the log directory")
 
     p = sub.add_parser("simulate", help="a vehicle and tire model sending WPT frames and NMEA in real time",
                        description="Send simulated WPT frames on the configured python-can bus and NMEA (RMC, GGA, "
@@ -110,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--log-dir", metavar="D", default="logs", help="where the MCAP log goes (default ./logs)")
     _add_label(p)
+    _add_calibration(p, "the log directory")
 
     p = sub.add_parser("import", help="CAN log + NMEA log -> a slipdaq MCAP log",
                        description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc) and an NMEA "
@@ -121,6 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
     _add_allow_empty(p, "a CAN log without frames, or an NMEA log without lines or without one fix")
     _add_label(p)
+    _add_calibration(p, "the output's directory")
 
     p = sub.add_parser("replay", help="re-run the estimator over a log's raw CAN and NMEA",
                        description="Re-run decode and estimator over the raw CAN and NMEA channels of a slipdaq log, "
@@ -130,6 +157,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
     _add_allow_empty(p, "a log without raw CAN or GPS records")
+    _add_calibration(p, "", replay=True)
+    p.add_argument("--two-pass", action="store_true",
+                   help="post-processing at the limit of the data: a first pass learns the calibration over the whole "
+                   "log (GPS latency, r0, Cx), the second recomputes every estimate with it, and with the GPS speed "
+                   "smoothed over the whole run (non-causal) in place of the speed as it came, so the first "
+                   "acceleration is as good as the last. Without it, replay gives the live run's estimates, bit for bit")
 
     p = sub.add_parser("export", help="estimates of a log -> CSV",
                        description="One CSV row per estimate: time_s, speed_mps, accel_mps2, force_n, then for each "
@@ -149,6 +182,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the report (created)")
     p.add_argument("--group-by", action="append", metavar="KEY",
                    help="compare logs grouped by this label (repeatable; default: every label but maneuver)")
+    p.add_argument("--live", action="store_true",
+                   help="use the estimates as logged (default: each log is post-processed two-pass, as "
+                   "`replay --two-pass` does, from its raw records, in memory; the logs are not changed)")
+
+    p = sub.add_parser("calibration", help="show or reset a calibration file",
+                       description="The calibration file keeps what runs learned about one vehicle and tire set (r0 "
+                       "per wheel, GPS latency, fitted Cx per tire, the host clock's offset from UTC), each with when "
+                       "and from which log; `run`, `import`, `replay` and `demo` start from it and save to it.")
+    csub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    for name, text in (("show", "print what the calibration holds"),
+                       ("reset", "clear the calibration (every value, or those of --wheel W: its tire changed)")):
+        c = csub.add_parser(name, help=text, description=text + ". PATH: default calibration.path of the config, "
+                            "else calibration.toml in log.dir of the config.")
+        c.add_argument("path", nargs="?", metavar="PATH")
+        _add_config(c)
+        if name == "reset":
+            c.add_argument("--wheel", action="append", choices=("FL", "FR", "RL", "RR"),
+                           help="clear only this wheel's r0 and Cx (repeatable)")
 
     p = sub.add_parser("recover", help="a log that was not finished (killed, power loss), or a rotated run's "
                        "segments -> one finished log",
@@ -177,13 +228,17 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg = _config(args.config)
     log_dir = Path(args.log_dir) if args.log_dir else cfg.resolve(cfg.log.dir)
+    cal = _run_calibration(args, cfg, log_dir)
     with open_bus(cfg) as bus:
         import asyncio
 
         result = asyncio.run(run_daemon(cfg, bus, new_log_path(log_dir), duration_s=args.duration,
-                                        metadata=_labels_meta(args) or None))
+                                        metadata=_labels_meta(args) or None, calibration=cal.start))
     print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "
           f"{result.estimates} estimates, {result.lost_frames} lost frames, {result.bad_sentences} bad sentences)")
+    saved = cal.finish(result.learned, cfg, str(result.log_path))
+    if saved:
+        print(saved)
     segments = getattr(result, "log_segments", None) or []
     if len(segments) > 1:
         print(f"log segments: {' '.join(str(p) for p in segments)}")
@@ -206,7 +261,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from slipdaq.report.labels import parse_labels
 
     return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir),
-                    labels=parse_labels(args.label))
+                    labels=parse_labels(args.label),
+                    calibration_path=Path(args.calibration) if args.calibration else None,
+                    no_calibration=args.no_calibration)
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -216,8 +273,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     cfg = _config(args.config)
     records = merge_by_time(iter_can_log(args.can), iter_nmea_log(args.nmea))
     meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)} | _labels_meta(args)
+    cal = _run_calibration(args, cfg, Path(args.output).resolve().parent)
     with atomic_output(args.output, inputs=[args.can, args.nmea, *_config_files(cfg)]) as tmp:
-        p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import")
+        p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import", calibration=cal.start)
         d = p.diagnostics()
         _require(d.can_frames, f"{args.can}: no CAN frames in it", args)
         _require(d.nmea_lines + d.ubx_frames, f"{args.nmea}: no NMEA lines in it", args)
@@ -227,6 +285,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     ubx = f" ({d.ubx_frames} UBX frames)" if d.ubx_frames else ""
     print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines{ubx} -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
+    saved = cal.finish(p.estimator.learned(), cfg, str(args.output))
+    if saved:
+        print(saved)
     return EXIT_OK
 
 
@@ -241,23 +302,58 @@ def _unfinished_note(path: str, scanned: object) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from slipdaq.calibration import default_path
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.offline import process_to_log
+    from slipdaq.offline import first_pass, process_to_log, start_calibration
     from slipdaq.report.labels import LABEL_PREFIX
     from slipdaq.sources.read_errors import guarded
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
     total = raw_record_count(args.log)
-    labels = {k: v for k, v in read_metadata(args.log).items() if k.startswith(LABEL_PREFIX)}  # kept
+    meta = read_metadata(args.log)
+    labels = {k: v for k, v in meta.items() if k.startswith(LABEL_PREFIX)}  # kept
+    out_dir = Path(args.output).resolve().parent
+    if args.no_calibration or args.calibration:
+        cal = _run_calibration(args, cfg, out_dir)
+    else:  # the calibration the run started from, saved to the default file
+        cal = RunCalibration(start_calibration(meta, args.log, cfg), default_path(out_dir, cfg))
     scanned = ScanResult(Path(args.log))
+    first = None
+    if args.two_pass:
+        first = first_pass(cfg, guarded(args.log, iter_raw_batches(args.log)), cal.start, str(args.log), total=total)
     with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp:
         p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
-                           metadata={"replay_of": str(args.log)} | labels, total=total, description="replay")
+                           metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
+                           total=total, description="pass 2 of 2" if first else "replay",
+                           calibration=first.calibration if first else cal.start, frozen=first is not None,
+                           gps_speeds=first.gps_speeds if first else None)
         records = p.can_frames + p.nmea.lines + p.ubx.frames
         _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)
     _unfinished_note(args.log, scanned)
-    print(f"replayed {records} records -> {args.output} ({p.estimates} estimates)")
+    print(f"replayed {records} records -> {args.output} ({p.estimates} estimates{', two-pass' if first else ''})")
+    saved = cal.finish(first.learned if first else p.estimator.learned(), cfg, str(args.log))
+    if saved:
+        print(saved)
+    return EXIT_OK
+
+
+def cmd_calibration(args: argparse.Namespace) -> int:
+    from slipdaq.calibration import CalibrationError, default_path, load_calibration, reset, save_calibration, show
+
+    cfg = load_config(args.config)
+    path = Path(args.path) if args.path else default_path(cfg.resolve(cfg.log.dir), cfg)
+    cal = load_calibration(path)
+    if cal is None:
+        raise CalibrationError(f"{path}: no calibration there (a run saves one at its end)")
+    if args.action == "show":
+        print(show(cal, str(path)))
+        return EXIT_OK
+    new = reset(cal, args.wheel)
+    save_calibration(path, new)
+    what = f"r0 and Cx of {', '.join(args.wheel)}" if args.wheel else "every value"
+    print(f"{path}: cleared {what}")
+    print(show(new, str(path)))
     return EXIT_OK
 
 
@@ -297,13 +393,14 @@ def cmd_recover(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from slipdaq.report.build import make_report
 
-    make_report(args.logs, args.output, group_by=args.group_by, progress=sys.stdout)
+    make_report(args.logs, args.output, group_by=args.group_by, progress=sys.stdout, two_pass=not args.live)
     return EXIT_OK
 
 
 COMMANDS = {
     "run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo, "import": cmd_import,
     "replay": cmd_replay, "export": cmd_export, "report": cmd_report, "recover": cmd_recover,
+    "calibration": cmd_calibration,
 }
 
 

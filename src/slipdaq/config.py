@@ -29,6 +29,7 @@ class _Section(BaseModel):
 
 
 class VehicleConfig(_Section):
+    name: str = Field("", description="the vehicle's name: part of its calibration's identity")
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
     driven_axle: Literal["front", "rear", "all"] = "front"
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
@@ -40,6 +41,7 @@ class VehicleConfig(_Section):
 class TireConfig(_Section):
     size: str | None = "195/60 R15"
     free_radius_m: float | None = Field(None, gt=0, lt=2)
+    set: str = Field("", description="the tire set's name (e.g. 'summer 2026'): part of the calibration's identity")
 
     @field_validator("size")
     @classmethod
@@ -144,6 +146,12 @@ class LogConfig(_Section):
     rotate_duration_s: float | None = Field(None, ge=10, description="start a new log file after this long")
 
 
+class CalibrationConfig(_Section):
+    path: str | None = None
+    """The calibration file a run starts from and saves to (relative to the config file); default calibration.toml
+    in the log directory."""
+
+
 class Config(_Section):
     wheels: dict[Literal["FL", "FR", "RL", "RR"], WheelSourceConfig] = {}
     """Per-wheel sources; a wheel not named here reads the WPT default (WPT_<W>.PulseCount, Seq)."""
@@ -154,6 +162,7 @@ class Config(_Section):
     gps: GpsConfig = GpsConfig()
     estimator: EstimatorConfig = EstimatorConfig()
     log: LogConfig = LogConfig()
+    calibration: CalibrationConfig = CalibrationConfig()
 
     source_path: Path | None = Field(None, exclude=True)
     """The file this config was read from (None for one made in code)."""

@@ -18,6 +18,7 @@ from typing import TextIO
 import can
 
 from slipdaq import compiled
+from slipdaq.calibration import Calibration, Learned, to_toml
 from slipdaq.config import Config, ConfigError
 from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.pipeline import Pipeline
@@ -47,6 +48,8 @@ class RunResult:
     """Every file the log was written to, in order (more than one when it rotated)."""
     log_error: str | None = None
     """Set when the log could not be written to the end (disk full): what failed."""
+    learned: Learned = field(default_factory=Learned)
+    """What the estimator measured in this run (for the calibration file)."""
 
 
 def open_bus(config: Config, **overrides: object) -> can.BusABC:
@@ -119,8 +122,10 @@ async def run_daemon(
     status_every_s: float = 5.0,
     metadata: dict[str, str] | None = None,
     stop: asyncio.Event | None = None,
+    calibration: Calibration | None = None,
 ) -> RunResult:
-    """Acquire until the duration ends, `stop` is set, or SIGINT/SIGTERM; the MCAP log is finished in every case."""
+    """Acquire until the duration ends, `stop` is set, or SIGINT/SIGTERM; the MCAP log is finished in every case.
+    calibration: the stored calibration to start from (kept in the log's metadata, so that replay starts from it)."""
     loop = asyncio.get_running_loop()
     stop = stop or asyncio.Event()
     can_name = f"{config.can.interface}:{config.can.channel}"
@@ -146,7 +151,8 @@ async def run_daemon(
         gps_status=lambda: gps_source.status(),
         log_status=lambda: sink.log_status(),
     ))
-    sink = _LiveLogSink(log_path, config, can_meta | (metadata or {}), clock=clock, on_event=status.on_source_event)
+    meta = can_meta | (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
+    sink = _LiveLogSink(log_path, config, meta, clock=clock, on_event=status.on_source_event)
     events = EventFanout([sink, status])  # source events -> /diagnostics/events and the view
     can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events,
                               read_interval_s=config.can.read_interval_s,
@@ -155,7 +161,7 @@ async def run_daemon(
     import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events)
     sink.extra += [can_source.status, gps_source.status]
-    pipeline = Pipeline(config, [sink, status])
+    pipeline = Pipeline(config, [sink, status], calibration=calibration)
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
@@ -194,4 +200,5 @@ async def run_daemon(
     return RunResult(
         log_path, d.can_frames, d.nmea_lines, d.estimates, sum(d.lost_frames.values()), d.bad_sentences,
         loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
+        learned=pipeline.estimator.learned(),
     )

@@ -12,6 +12,7 @@ from typing import TextIO
 
 import can
 
+from slipdaq.calibration import Calibration, default_path, for_run
 from slipdaq.config import Config, load_config, packaged_config_path
 from slipdaq.daemon import RunResult, new_log_path, open_bus, run_daemon
 from slipdaq.logformat.reader import iter_estimates
@@ -32,8 +33,10 @@ def demo_config(gps_port: str, channel: str) -> Config:
 async def run_demo_async(
     duration_s: float, scenario: str, road: str, log_dir: Path, *, status_stream: TextIO | None = None,
     status_every_s: float = 5.0, settings: SimSettings | None = None, labels: dict[str, str] | None = None,
+    calibration: Calibration | None = None,
 ) -> tuple[RunResult, SlipError, Config]:
-    """labels: free-form {KEY: VALUE} stored in the log's metadata as `label.KEY` (`--label KEY=VALUE`)."""
+    """labels: free-form {KEY: VALUE} stored in the log's metadata as `label.KEY` (`--label KEY=VALUE`);
+    calibration: the stored calibration the daemon starts from."""
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel)
@@ -63,6 +66,7 @@ async def run_demo_async(
                     cfg, daemon_bus, log_path, duration_s=duration_s,
                     status_stream=status_stream, status_every_s=status_every_s,
                     metadata={"demo_scenario": scenario, "demo_road": road} | labels_metadata(labels or {}),
+                    calibration=calibration,
                 )
                 sim.cancel()
     finally:
@@ -73,11 +77,19 @@ async def run_demo_async(
 
 
 def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: TextIO = sys.stdout,
-             labels: dict[str, str] | None = None) -> int:
+             labels: dict[str, str] | None = None, calibration_path: Path | None = None,
+             no_calibration: bool = False) -> int:
+    """calibration_path: the calibration file (default calibration.toml in log_dir); no_calibration: start cold and
+    save nothing."""
     print(f"demo: {scenario} on {road} road for {duration_s:.0f} s — simulator and daemon on a virtual CAN bus "
           f"and a pseudo-terminal GPS; Ctrl-C stops early.", file=out, flush=True)
+    cfg = load_config(packaged_config_path())
+    cal = for_run(None if no_calibration else calibration_path or default_path(log_dir, cfg), cfg)
+    if cal.note:
+        print(cal.note, file=out, flush=True)
     result, err, _ = asyncio.run(run_demo_async(duration_s, scenario, road, log_dir, status_stream=out,
-                                                labels=labels))
+                                                labels=labels, calibration=cal.start))
+    saved = cal.finish(result.learned, cfg, str(result.log_path))
     rate = result.can_frames / result.duration_s if result.duration_s > 0 else 0.0
     print(
         f"\ndemo finished after {result.duration_s:.1f} s\n"
@@ -87,6 +99,7 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  estimates:  {result.estimates}\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
+        + (f"  {saved}\n" if saved else "") +
         f"next:\n"
         f"  slipdaq replay {result.log_path} -o replayed.mcap\n"
         f"  slipdaq export {result.log_path} --csv estimates.csv\n"

@@ -1,17 +1,27 @@
-"""Offline runs (import, replay): a record stream through the pipeline into a new MCAP log, with progress."""
+"""Offline runs (import, replay, report): a record stream through the pipeline into sinks (a new MCAP log), with
+progress; the first pass of a two-pass run."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
-from slipdaq import compiled
+import numpy as np
+
+from slipdaq import WHEELS, compiled
+from slipdaq.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.config import Config
+from slipdaq.estimator.force import driven_wheels
+from slipdaq.estimator.gps_track import MAX_GPS_GAP_S
+from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import CanFrame, CanFrameBatch, RawRecord
+from slipdaq.records import CanFrame, CanFrameBatch, Estimate, GpsFix, RawRecord, WheelSampleBatch
+from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 
 BATCH_FRAMES = 512
@@ -55,6 +65,52 @@ def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
         yield run
 
 
+def process(
+    config: Config,
+    records: Iterable[RawRecord | CanFrameBatch],
+    sinks: list[Sink],
+    *,
+    calibration: Calibration | None = None,
+    frozen: bool = False,
+    gps_speeds: Sequence[float] | None = None,
+    total: int | None = None,
+    stream: TextIO | None = None,
+    description: str = "",
+) -> Pipeline:
+    """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
+    progress on a terminal, a line every 5 s otherwise.
+
+    records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
+    estimates are the same whatever the batches (Pipeline.process_can_batch)."""
+    stream = stream or sys.stderr
+    pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds)
+    compiled.prepare()
+    if stream.isatty():
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        with Progress(
+            TextColumn(description), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), transient=True,
+        ) as bar:
+            task = bar.add_task(description, total=total)
+            i = 0
+            for run in read_ahead(batched(records)):
+                pipeline.process_all(run)
+                i += len(run)
+                bar.update(task, completed=i)
+    else:
+        last = time.monotonic()
+        i = 0
+        for run in read_ahead(batched(records)):
+            pipeline.process_all(run)
+            i += len(run)
+            if time.monotonic() - last > 5:
+                last = time.monotonic()
+                done = f"{i}/{total}" if total else str(i)
+                print(f"{description}: {done} messages", file=stream, flush=True)
+    pipeline.finish()
+    return pipeline
+
+
 def process_to_log(
     config: Config,
     records: Iterable[RawRecord | CanFrameBatch],
@@ -62,43 +118,143 @@ def process_to_log(
     mode: str,
     *,
     metadata: dict[str, str] | None = None,
+    calibration: Calibration | None = None,
+    frozen: bool = False,
+    gps_speeds: Sequence[float] | None = None,
     total: int | None = None,
     stream: TextIO | None = None,
     description: str = "",
 ) -> Pipeline:
-    """Run every record through a fresh pipeline into out_path; shows progress on a terminal.
-
-    records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
-    estimates are the same whatever the batches (Pipeline.process_can_batch)."""
-    stream = stream or sys.stderr
-    sink = McapLogSink(out_path, config, mode=mode, metadata=metadata)
-    pipeline = Pipeline(config, [sink])
-    compiled.prepare()
+    """process() into a new MCAP log at out_path; the calibration it started from is stored in the log's metadata
+    (calibration_toml), so that a replay of the log starts from it too."""
+    meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
+    sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
     try:
-        if stream.isatty():
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-            with Progress(
-                TextColumn(description or mode), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                transient=True,
-            ) as bar:
-                task = bar.add_task(mode, total=total)
-                i = 0
-                for run in read_ahead(batched(records)):
-                    pipeline.process_all(run)
-                    i += len(run)
-                    bar.update(task, completed=i)
-        else:
-            last = time.monotonic()
-            i = 0
-            for run in read_ahead(batched(records)):
-                pipeline.process_all(run)
-                i += len(run)
-                if time.monotonic() - last > 5:
-                    last = time.monotonic()
-                    done = f"{i}/{total}" if total else str(i)
-                    print(f"{description or mode}: {done} messages", file=stream, flush=True)
-        pipeline.finish()
+        return process(config, records, [sink], calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
+                       total=total, stream=stream, description=description or mode)
     finally:
         sink.close()
-    return pipeline
+
+
+class _FirstPassSink(Sink):
+    """The GPS fixes and the wheel samples of the first pass."""
+
+    def __init__(self) -> None:
+        self.fixes: list[GpsFix] = []
+        self._wheel: list[np.ndarray] = []
+        self._time: list[np.ndarray] = []
+        self._revs: list[np.ndarray] = []
+
+    def on_fix(self, fix: GpsFix) -> None:
+        self.fixes.append(fix)
+
+    def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        self._wheel.append(samples.wheel)
+        self._time.append(samples.timestamp_s)
+        self._revs.append(samples.revolutions)
+
+    def wheel_series(self, wheel: str) -> tuple[np.ndarray, np.ndarray]:
+        """One wheel's (sample times, revolutions), in time order."""
+        if not self._wheel:
+            return np.empty(0), np.empty(0)
+        i = WHEELS.index(wheel)
+        mine = np.concatenate(self._wheel) == i
+        t, r = np.concatenate(self._time)[mine], np.concatenate(self._revs)[mine]
+        keep = np.concatenate(([True], np.diff(t) > 0))  # strictly increasing times, as the estimator keeps them
+        return t[keep], r[keep]
+
+
+@dataclass(frozen=True)
+class FirstPass:
+    """What the first pass of a two-pass run learned over the whole log."""
+
+    learned: Learned
+    calibration: Calibration
+    """The calibration the second pass uses: the one the run started from, with what the first pass learned."""
+    gps_speeds: list[float]
+    """Per GPS fix, in order, the speed the second pass takes (estimator/reference_speed.py)."""
+
+
+def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
+               learned_from: str, *, total: int | None = None, stream: TextIO | None = None) -> FirstPass:
+    """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix."""
+    seen = _FirstPassSink()
+    p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2")
+    learned = p.estimator.learned()
+    calibration = merged(start, learned, config, learned_from)
+    return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))
+
+
+def smoothed_gps_speeds(seen: _FirstPassSink, calibration: Calibration, config: Config) -> list[float]:
+    """Each fix's speed smoothed over the run (reference_speed_mps), where the fixes are valid, finite and in time
+    order, on the estimator's time line (UTC + the median host-clock offset, else the arrival time, minus the
+    latency); the others' speeds as they are."""
+    fixes = seen.fixes
+    speeds = [f.speed_mps for f in fixes]
+    arrival = np.array([f.timestamp_s for f in fixes])
+    utc = np.array([math.nan if f.fix_time_utc_s is None else f.fix_time_utc_s for f in fixes])
+    times = utc + float(np.median(arrival - utc)) if len(fixes) and np.isfinite(utc).all() else arrival
+    fixed = config.latency_fixed_s
+    times = times - (fixed if fixed is not None else calibration.latency.latency_s if calibration.latency else 0.0)
+    use: list[int] = []
+    last = -math.inf
+    for i, (t, f) in enumerate(zip(times.tolist(), fixes)):
+        if f.valid and math.isfinite(f.speed_mps) and t > last:
+            use.append(i)
+            last = t
+    if len(use) < 3:
+        return speeds
+    t_use = times[use]
+    acc = np.array([math.nan if (a := fixes[i].speed_accuracy_mps) is None else a for i in use])
+    reference = [w for w in WHEELS if w not in driven_wheels(config.vehicle.driven_axle)]
+    wheel = None
+    if reference:
+        radius = [calibration.r0[w].radius_m if w in calibration.r0 else config.tire.radius_m
+                  for w in reference]
+        wheel = np.mean([wheel_speed_mps(t_use, *seen.wheel_series(w), r) for w, r in zip(reference, radius)], axis=0)
+    smooth = reference_speed_mps(t_use, np.array([speeds[i] for i in use]), wheel,
+                                 acc if np.isfinite(acc).any() else None, max_gap_s=MAX_GPS_GAP_S)
+    for i, v in zip(use, smooth.tolist()):
+        speeds[i] = max(v, 0.0)
+    return speeds
+
+
+def start_calibration(metadata: dict[str, str], log: str | Path, config: Config) -> Calibration | None:
+    """The calibration a logged run started from (its metadata's calibration_toml; none in a log from before it)."""
+    text = metadata.get("calibration_toml", "")
+    return parse_calibration(text, f"{log}: calibration_toml") if text else None
+
+
+class _Rows(Sink):
+    """The estimates as the log's rows, and the last diagnostics."""
+
+    def __init__(self) -> None:
+        self.rows: list[dict[str, Any]] = []
+        self.diagnostics: dict[str, Any] | None = None
+
+    def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
+        self.rows.append(estimate.as_row())
+
+    def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
+        self.diagnostics = diagnostics
+
+
+def two_pass_rows(log: str | Path, *, stream: TextIO | None = None
+                  ) -> tuple[list[dict[str, Any]], dict[str, Any] | None] | None:
+    """A log's estimates post-processed two-pass (as `replay --two-pass`, in memory), as its /estimate rows, and the
+    last diagnostics; None when the log has no raw records to replay."""
+    from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
+    from slipdaq.sources.read_errors import guarded
+
+    config = config_from_log(log)
+    start = start_calibration(read_metadata(log), log, config)
+    total = raw_record_count(log)
+    if total == 0:
+        return None
+    first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
+    rows = _Rows()
+    p = process(config, guarded(log, iter_raw_batches(log)), [rows], calibration=first.calibration, frozen=True,
+                gps_speeds=first.gps_speeds, total=total, stream=stream, description="pass 2 of 2")
+    if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
+        return None
+    return rows.rows, rows.diagnostics

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import replace
 
 import numpy as np
 
+from slipdaq.calibration import Calibration
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
@@ -90,14 +92,21 @@ class _Parts:
 
 
 class Pipeline:
-    def __init__(self, config: Config, sinks: Sequence[Sink]) -> None:
+    def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
+                 frozen: bool = False, gps_speeds: Sequence[float] | None = None) -> None:
+        """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
+        gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
+        pass's smoothed speeds); the sinks get the fixes as decoded."""
         self.config = config
         self.sinks = list(sinks)
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.ubx = UbxDecoder()
         self._velocity_from = NmeaLine if config.gps.velocity == "nmea" else UbxFrame
-        self.estimator = SlipEstimator(EstimatorParams.from_config(config))
+        self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen)
+        self._gps_speeds = gps_speeds
+        self.fixes = 0
+        """GPS fixes of the protocol gps.velocity names, so far."""
         self.can_frames = 0
         self.unknown_frames = 0
         self.error_frames = 0
@@ -121,9 +130,20 @@ class Pipeline:
         if fix is not None and isinstance(record, self._velocity_from):  # else gps.velocity names the other protocol
             for s in self.sinks:
                 s.on_fix(fix)
+            if self._gps_speeds is not None and self.fixes < len(self._gps_speeds):
+                fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
+            self.fixes += 1
             for e in self.estimator.add_gps(fix):
                 self._estimate(e, record.timestamp_s)
+            if self.estimator.events:
+                self._events()
         self._tick(record.timestamp_s)
+
+    def _events(self) -> None:
+        """The estimator's events (a stored calibration value replaced) to every sink."""
+        for ev in self.estimator.take_events():
+            for s in self.sinks:
+                s.on_source_event(ev)
 
     def process_can_batch(self, frames: CanFrameBatch | Sequence[CanFrame]) -> None:
         """Consecutive CAN frames (a reader's wake-up, a block of a log): the same sink calls, estimates and counters
@@ -237,6 +257,8 @@ class Pipeline:
             self._estimate(e, float(ts[stop - 1]))
         if start < n:
             self._deliver(parts, samples, offset, start, n)
+        if self.estimator.events:
+            self._events()
         self._tick(float(ts[-1]))
 
     def _estimate(self, e: Estimate, log_time_s: float) -> None:

@@ -364,6 +364,10 @@ class Estimate:
     """'gps': centred on a GPS epoch; 'wheels': GPS lost, speed from the non-driven wheels."""
     gps_latency_s: float = 0.0
     latency_source: str = "fixed"
+    quality: str = "ok"
+    """'ok'; 'uncalibrated': the GPS latency unknown or a wheel's radius not calibrated (taken from the tire size or
+    the other wheels); 'disturbed': a gap in a wheel's samples (reader stall, frames lost) or in the GPS fixes inside
+    the window, or GPS lost (estimates on the wheels' clock)."""
 
     def as_row(self) -> dict[str, float | str | None]:
         """Flat mapping in the log's and the CSV's column names (ESTIMATE_COLUMNS, wheels in this estimate's order)."""
@@ -406,6 +410,7 @@ class ColumnGroup:
 
 
 PHASES = ("standstill", "accelerate", "cruise", "brake")
+QUALITIES = ("ok", "uncalibrated", "disturbed")
 
 ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((Column("time_s", "time_s", "number"), Column("speed_mps", "speed_mps", "number"),
@@ -420,6 +425,7 @@ ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((Column("r0_source_{w}", "r0_source", "text"), Column("slip_nd_{w}", "slip_nd", "number?"),
                  Column("cx_fit_{w}_n", "cx_fit_n", "number?"), Column("cx_fit_{w}_conf", "cx_fit_conf", "number?")),
                 per_wheel=True, csv="extra"),
+    ColumnGroup((Column("quality", "quality", "enum", QUALITIES),), per_wheel=False, csv="extra"),
     ColumnGroup((Column("window_s", "window_s", "number"),), per_wheel=False, csv=""),
     ColumnGroup((Column("force_{w}_n", "force_n", "number?"), Column("wheel_speed_{w}_mps", "speed_mps", "number?")),
                 per_wheel=True, csv=""),
@@ -475,10 +481,11 @@ class Diagnostics:
 class SourceEvent:
     time_s: float
     """When it happened, in the log's clock."""
-    source: str = field(metadata={"enum": ("gps", "can", "log", "clock")})
+    source: str = field(metadata={"enum": ("gps", "can", "log", "clock", "calibration")})
     event: str
     """gps: connected, disconnected, silent, unreadable, readable, emit_error; can: reader_error, down, up;
-    log: write_failed, resumed, rotated; clock: stepped."""
+    log: write_failed, resumed, rotated; clock: stepped; calibration: replaced (the run contradicted a stored value
+    beyond its uncertainty and uses its own)."""
     detail: str = ""
     gap_s: float | None = None
     """For connected/resumed/up/readable: how long the outage lasted."""

@@ -66,4 +66,5 @@ class WheelClockEstimates:
             for w in WHEELS
         }
         return Estimate(t_c, speed, accel, None, window_s, wheels, phase=phase_of(speed, accel),
-                        source="wheels", gps_latency_s=lat.latency_s, latency_source=lat.source)
+                        source="wheels", gps_latency_s=lat.latency_s, latency_source=lat.source,
+                        quality="disturbed")

@@ -21,6 +21,8 @@ TIME_TOL_S = 1e-5
 """GPS times this close count as equal when a window's ends are compared with fixes: the fix that ends a window
 (UTC + offset - latency) and the window's end (centre + W/2) are the same instant computed two ways, and float
 rounding (a few ulps: 2.4e-7 s at today's epoch seconds) must not decide whether an estimate waits for one more fix."""
+GPS_GAP_INTERVALS = 2.5
+"""A fix interval this many times the mean inside a window makes it disturbed."""
 REFERENCE_SPEED_ACCURACY_MPS = 0.05
 """A window whose fixes state this speed accuracy (1 sigma) has weight 1 in the r0 and Cx fits; weight ~ 1/sigma^2."""
 
@@ -89,6 +91,18 @@ class GpsTrack:
         i1 = bisect_left(fix_times, t1)
         seg = fix_times[i0 : i1 + 1]
         return max([b - a for a, b in zip(seg, seg[1:])]) <= MAX_GPS_GAP_S
+
+    def gap_in(self, fix_times: list[float], t0: float, t1: float) -> bool:
+        """The fixes spanning [t0, t1] have an interval over GPS_GAP_INTERVALS times the mean fix interval (epochs
+        lost inside the window: the speed is interpolated across them)."""
+        n = len(fix_times)
+        if n < 3:
+            return False
+        i0 = max(bisect_right(fix_times, t0) - 1, 0)
+        i1 = min(bisect_left(fix_times, t1) + 1, n)
+        seg = fix_times[i0:i1]
+        mean = (fix_times[-1] - fix_times[0]) / (n - 1)
+        return len(seg) >= 2 and max([b - a for a, b in zip(seg, seg[1:])]) > GPS_GAP_INTERVALS * mean
 
     @staticmethod
     def accel(fix_times: list[float], speeds: list[float], t_c: float) -> float | None:

@@ -23,7 +23,7 @@ import numpy as np
 
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.windows import TWO_PI
+from slipdaq.estimator.windows import TWO_PI, has_gap
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,13 +125,14 @@ def _median_abs_deviation(s: list[float], med: float) -> float:
     return 0.0 + dev if n % 2 else (0.0 + below + dev) / 2.0
 
 
-MIN_INFORMATIVE_ROWS = 20
+MIN_INFORMATIVE_ROWS = 8
+MIN_ROWS = 8
 
 
 class WheelLatency:
     """Grid search of the lag that aligns GPS distance with free-rolling wheel distance (see module docstring)."""
 
-    def __init__(self, max_latency_s: float, step_s: float = 0.005, forgetting: float = 0.998) -> None:
+    def __init__(self, max_latency_s: float, step_s: float = 0.001, forgetting: float = 0.998) -> None:
         self.taus_s = np.arange(0.0, max_latency_s + 0.5 * step_s, step_s)
         self.max_tau_s = float(self.taus_s[-1])
         self.step_s = step_s
@@ -156,7 +157,7 @@ class WheelLatency:
         self._weight = lam * self._weight + 1.0
         self.rows += 1
         self.informative_rows += informative
-        if self.rows >= 20 and self.rows % 5 == 0:
+        if self.rows >= MIN_ROWS:
             self._solve()
 
     def _solve(self) -> None:
@@ -186,6 +187,16 @@ class WheelLatency:
 
 LAG_GUARD_ROWS = 5
 """A latency row is used once this many later rows showed no braking (the central difference lags the onset)."""
+LATENCY_MIN_SPEED_MPS = 0.5
+"""Slowest fix interval used: the rows' information on the lag is a*dt whatever the speed, so the first second of a
+start from standstill counts."""
+NOMINAL_RADIUS_M = 0.3
+"""Turns the wheels' arc into a speed for the braking test until the fit has a radius (+-20 % moves the test's
+threshold by as much)."""
+LOCAL_FIT_HALF_SAMPLES = 5
+"""The wheels' revolutions at the lagged times come from a line through the 11 nearest samples: with linear
+interpolation, the noise of jittered CAN timestamps depends on where a lag falls between samples, which biased the
+lag by several ms (2 ms of jitter: 5 ms)."""
 MAX_ROW_INTERVAL_S = 0.3
 
 
@@ -204,18 +215,26 @@ class WheelLatencyRows:
         self._prev: tuple[float, float, np.ndarray] | None = None
         self._queue: deque[tuple[float, np.ndarray, bool]] = deque()
         self._blocked_until_s = -math.inf
+        self._wheel_speed: float | None = None
+        """The reference wheels' speed over the last fix interval (at lag 0)."""
 
-    def observe(self, arrival_s: float, speed_mps: float, accel: float | None, rings: list[SeriesRing]) -> None:
-        """One fix (its smoothed arrival time, speed and acceleration); rings: the reference wheels'."""
+    def observe(self, arrival_s: float, speed_mps: float, rings: list[SeriesRing]) -> None:
+        """One fix (its smoothed arrival time and speed); rings: the reference wheels'. Whether the car brakes (or
+        accelerates) is taken from the wheels' own acceleration over the last two fix intervals, not from the GPS
+        speed: selecting rows by a noisy GPS acceleration selects their GPS noise too, and biased the lag."""
         fit = self.fit
         times = arrival_s - fit.taus_s
         first_needed_s = (arrival_s - fit.max_tau_s) - 0.5  # = times[-1] - 0.5
         arcs: np.ndarray | None = None
         for ring in rings:
-            if len(ring) < 2 or ring.first_time > first_needed_s:
+            if len(ring) < 2 or ring.first_time > first_needed_s or ring.last_t < arrival_s \
+                    or has_gap(ring, times[-1], times[0]):
                 self._prev = None
                 return
-            revs = np.interp(times, ring.times, ring.values)
+            revs = ring.local_linear(times, LOCAL_FIT_HALF_SAMPLES)
+            if revs is None:
+                self._prev = None
+                return
             if arcs is None:
                 arcs = revs + 0.0  # as zeros + revs
             else:
@@ -223,9 +242,19 @@ class WheelLatencyRows:
         assert arcs is not None
         arcs *= TWO_PI / len(rings)
         prev, self._prev = self._prev, (arrival_s, speed_mps, arcs)
-        if prev is None or accel is None:
+        if prev is None:
+            self._wheel_speed = None
             return
         a_prev, v_prev, arcs_prev = prev
+        dt = arrival_s - a_prev
+        if not dt > 0:
+            self._wheel_speed = None
+            return
+        wheel_speed = (fit.radius_m or NOMINAL_RADIUS_M) * float(arcs[0] - arcs_prev[0]) / dt
+        speed_before, self._wheel_speed = self._wheel_speed, wheel_speed
+        if speed_before is None:
+            return
+        accel = (wheel_speed - speed_before) / dt
         thr = PHASE_ACCEL_MPS2  # the reference wheels roll freely unless the car brakes (all driven: or drives)
         free = abs(accel) <= thr if self.every_wheel_driven else accel >= -thr
         if not free:  # the reference wheels are braked: drop the rows just before, skip the rows just after
@@ -234,8 +263,8 @@ class WheelLatencyRows:
             return
         if arrival_s < self._blocked_until_s:
             return
-        if min(v_prev, speed_mps) >= self.min_speed_mps and arrival_s - a_prev <= MAX_ROW_INTERVAL_S:
-            row = (0.5 * (v_prev + speed_mps) * (arrival_s - a_prev), arcs - arcs_prev, accel >= 0.5)
+        if min(v_prev, speed_mps) >= LATENCY_MIN_SPEED_MPS and dt <= MAX_ROW_INTERVAL_S:
+            row = (0.5 * (v_prev + speed_mps) * dt, arcs - arcs_prev, accel >= 0.5)
             self._queue.append(row)
         while len(self._queue) > LAG_GUARD_ROWS:  # a row counts once the next rows show no braking
             fit.add(*self._queue.popleft())

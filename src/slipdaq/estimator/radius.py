@@ -11,6 +11,7 @@ After convergence old windows fade with distance (`track_distance_m`), so r0 tra
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 
@@ -70,20 +71,24 @@ class RadiusCalibration:
 
 
 def r0_per_wheel(calibrations: dict[str, RadiusCalibration], r_ref_m: float, r_ref_configured: bool,
-                 calibrate: bool) -> dict[str, tuple[float, str]]:
-    """(r0, source) per wheel: its calibration when usable, else the usable ones' mean, else the reference radius
-    (tire.free_radius_m, 'configured', or the tire size, 'tire_size')."""
+                 calibrate: bool, stored: Mapping[str, float] | None = None, own: bool = True
+                 ) -> dict[str, tuple[float, str]]:
+    """(r0, source) per wheel: its stored radius ('stored') until its own calibration converges, else its own when
+    usable, else the mean of the other wheels' ('other_wheels'), else the reference radius (tire.free_radius_m,
+    'configured', or the tire size, 'tire_size'). own=False: the stored radii only (a second pass)."""
     base = "configured" if r_ref_configured else "tire_size"
     if not calibrate:
         return {w: (r_ref_m, base) for w in calibrations}
-    usable = {}  # wheel -> (radius, converged) of the usable calibrations, in wheel order
+    stored = stored or {}
+    chosen: dict[str, tuple[float, str]] = {}  # in wheel order
     for w, cal in calibrations.items():
         radius = cal.radius_m
-        if radius is not None and cal.usable:
-            usable[w] = (radius, cal.converged)
-    others = [r for r, _ in usable.values()]
+        mine = own and radius is not None and cal.usable
+        if w in stored and not (mine and cal.converged):
+            chosen[w] = (stored[w], "stored")
+        elif mine:
+            assert radius is not None
+            chosen[w] = (radius, "calibrated" if cal.converged else "calibrating")
+    others = [r for r, _ in chosen.values()]
     fallback = (sum(others) / len(others), "other_wheels") if others else (r_ref_m, base)
-    return {
-        w: ((u[0], "calibrated" if u[1] else "calibrating") if (u := usable.get(w)) is not None else fallback)
-        for w in calibrations
-    }
+    return {w: chosen.get(w, fallback) for w in calibrations}

@@ -48,6 +48,39 @@ class SeriesRing:
             return None
         return np.interp(times, self._t[s:e], self._v[s:e]).tolist()
 
+    def mean_interval(self) -> float:
+        """(newest - oldest time) / (samples - 1): a stall followed by a burst of its samples does not change it."""
+        n = self._end - self._start
+        return (self.last_t - float(self._t[self._start])) / (n - 1) if n >= 2 else np.inf
+
+    def longest_gap(self, t_first: float, t_last: float) -> float:
+        """The longest interval between consecutive samples from the last one at or before t_first to the first one
+        at or after t_last (the samples an interpolation over [t_first, t_last] uses); 0 when that is one sample."""
+        t = self._t[self._start : self._end]
+        i = max(int(t.searchsorted(t_first, "right")) - 1, 0)
+        j = min(int(t.searchsorted(t_last, "left")) + 1, len(t))
+        return float(np.diff(t[i:j]).max()) if j - i >= 2 else 0.0
+
+    def local_linear(self, times: np.ndarray, half: int) -> np.ndarray | None:
+        """The values at `times` from a least-squares line through the 2*half+1 samples nearest each time (by
+        index), or None with fewer samples. Unlike linear interpolation between the two samples around a time, its
+        noise from jittered sample times hardly depends on where the time falls between samples."""
+        s, e = self._start, self._end
+        k = 2 * half + 1
+        if e - s < k:
+            return None
+        t, v = self._t[s:e], self._v[s:e]
+        i = np.clip(t.searchsorted(times), half, e - s - half - 1)
+        idx = i[:, None] + np.arange(-half, half + 1)[None, :]
+        dt = t[idx] - times[:, None]
+        vv = v[idx]
+        dt_mean, v_mean = dt.mean(axis=1), vv.mean(axis=1)
+        dc = dt - dt_mean[:, None]
+        sxx = (dc * dc).sum(axis=1)
+        sxy = (dc * (vv - v_mean[:, None])).sum(axis=1)
+        slope = np.divide(sxy, sxx, out=np.zeros_like(sxy), where=sxx > 0)  # samples all at one time: their mean
+        return v_mean - slope * dt_mean
+
     def append(self, t: float, v: float) -> None:
         if self._end == len(self._t):
             self._make_room()

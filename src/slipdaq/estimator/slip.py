@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from slipdaq import WHEELS
+from slipdaq.calibration import Calibration, Learned
 from slipdaq.config import Config
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, longitudinal_force_n, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
@@ -46,12 +47,28 @@ from slipdaq.estimator.readiness import (
 )
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.estimator.windows import WheelWindows, reference_slip, slip_from_distances
-from slipdaq.records import Estimate, GpsFix, WheelEstimate, WheelSample
+from slipdaq.records import Estimate, GpsFix, SourceEvent, WheelEstimate, WheelSample
 
 __all__ = ["EstimatorParams", "SlipEstimator", "PHASE_ACCEL_MPS2", "STANDSTILL_SPEED_MPS", "phase_of",
            "integrate_speed_m", "slip_from_distances", "tire_forces"]
 
 WHEEL_INDEX = {w: i for i, w in enumerate(WHEELS)}
+STORED_LATENCY_SIGMA_S = 0.01
+"""A stored latency without its sigma counts as this uncertain."""
+UTC_LATENCY_SIGMA_S = 0.005
+"""The UTC method's latency counts as this uncertain (NMEA times to 0.01 s, the host clock's own jitter)."""
+LATENCY_TOLERANCE_S = 0.005
+R0_TOLERANCE_M = 0.0002
+"""A radius changes by this much with tire temperature and pressure within a day: not a contradiction."""
+CX_CONFIDENT = 0.5
+"""A stiffness fit this confident is stored."""
+CX_CONTRADICTS = 0.8
+CX_TOLERANCE = 0.2
+"""A fit this confident contradicts a stored Cx when they differ by more than 3 sigma and CX_TOLERANCE: the fit's
+confidence understates its spread from run to run (the same car and road: +-15 % within the first half minute), and
+Cx changes with the road and the tire's temperature."""
+UNCALIBRATED_R0 = ("tire_size", "other_wheels")
+"""r0 sources that make a window's quality 'uncalibrated' (its own radius not measured)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,8 +120,19 @@ class SlipEstimator:
     samples past the window's end (or GPS is a further window past it, for a silent wheel).
     """
 
-    def __init__(self, params: EstimatorParams) -> None:
+    def __init__(self, params: EstimatorParams, stored: Calibration | None = None, frozen: bool = False) -> None:
+        """stored: a calibration to start from (used until the run measures better, dropped where the run contradicts
+        it); frozen: use the stored latency and radii throughout and learn none (the second pass of a replay)."""
         self.p = params
+        self.frozen = frozen and stored is not None
+        self._stored_latency = (stored.latency.latency_s, stored.latency.sigma_s or STORED_LATENCY_SIGMA_S) \
+            if stored is not None and stored.latency is not None and params.gps_latency_s is None else None
+        self._stored_r0: dict[str, tuple[float, float]] = {w: (r.radius_m, r.se_m) for w, r in stored.r0.items()} \
+            if stored is not None and params.calibrate_r0 else {}
+        self._stored_cx: dict[str, tuple[float, float]] = \
+            {w: (c.cx_n, c.confidence) for w, c in stored.cx.items()} if stored is not None else {}
+        self.events: list[SourceEvent] = []
+        """Stored values the run replaced, for /diagnostics/events (the pipeline takes them)."""
         self._track = GpsTrack()
         self._grade = AltitudeGrade()
         self._windows = WheelWindows()
@@ -141,12 +169,34 @@ class SlipEstimator:
         wheels = lag.latency_s if lag.converged() else None
         if self.p.gps_latency_s is not None:
             return LatencyEstimate(self.p.gps_latency_s, "fixed", utc, wheels, lag.sigma_s)
+        stored = self._stored_latency
+        if stored is not None and self.frozen:
+            return LatencyEstimate(stored[0], "stored", utc, wheels, lag.sigma_s)
         if wheels is not None and (utc is None or abs(utc - wheels) > 3.0 * (lag.sigma_s or 0.0) + 0.02):
             # measured alignment beats an assumption about the host clock when the two disagree
-            return LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
-        if utc is not None:
-            return LatencyEstimate(utc, "utc", utc, wheels, lag.sigma_s)
-        return LatencyEstimate(0.0, "none", utc, wheels, lag.sigma_s)
+            own = LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
+            own_sigma = lag.sigma_s or 0.0
+        elif utc is not None:
+            own, own_sigma = LatencyEstimate(utc, "utc", utc, wheels, lag.sigma_s), UTC_LATENCY_SIGMA_S
+        elif stored is not None:
+            return LatencyEstimate(stored[0], "stored", utc, wheels, lag.sigma_s)
+        else:
+            return LatencyEstimate(0.0, "none", utc, wheels, lag.sigma_s)
+        if stored is None:
+            return own
+        if abs(own.latency_s - stored[0]) > 3.0 * math.hypot(own_sigma, stored[1]) + LATENCY_TOLERANCE_S:
+            self._replaced(f"GPS latency: stored {stored[0] * 1000:.1f} ms, this run {own.latency_s * 1000:.1f} ms "
+                           f"({own.source})")
+            self._stored_latency = None
+            return own
+        return own if own_sigma < stored[1] else LatencyEstimate(stored[0], "stored", utc, wheels, lag.sigma_s)
+
+    def _replaced(self, detail: str) -> None:
+        self.events.append(SourceEvent(self._track.last_t, "calibration", "replaced", detail))
+
+    def take_events(self) -> list[SourceEvent]:
+        events, self.events = self.events, []
+        return events
 
     def _invalidate(self) -> None:
         """A fix or an estimate changed what the latency and the head epoch's readiness depend on."""
@@ -264,11 +314,14 @@ class SlipEstimator:
         speed_c = speeds[i]
         accel = track.accel(fix_times, speeds, t_c)
         if p.gps_latency_s is None:
-            self._lag_rows.observe(float(smooth[i]), speed_c, accel,
-                                   [self._windows.by_wheel[w] for w in self._reference or WHEELS])
+            self._lag_rows.observe(float(smooth[i]), speed_c, [self._windows.by_wheel[w] for w in self._reference or WHEELS])
         covered = track.covers(fix_times, t0, t1)
         d_gps = integrate_speed_m(fix_arr, track.speed.values, t0, t1) if covered else None
         speed = d_gps / p.window_s if d_gps is not None else speed_c
+        gps_gap = covered and track.gap_in(fix_times, t0, t1)
+        latency_unknown = lat.source == "none"
+        # with the latency unknown, a window whose speed changes measures the latency, not the tire: no slip
+        d_slip = None if latency_unknown and (accel is None or abs(accel) > PHASE_ACCEL_MPS2) else d_gps
         force = None
         if accel is not None:
             sin_grade = self._grade.sin_grade(track, fix_times, fix_arr, t_c, lat.latency_s) \
@@ -276,25 +329,35 @@ class SlipEstimator:
             force = longitudinal_force_n(p.mass_kg, accel, speed, sin_grade, p.rolling_resistance_coeff,
                                          p.drag_area_m2, p.air_density_kgpm3)
         per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
-        arcs = self._windows.arcs_m(t0, t1)
+        arcs, gapped = self._windows.window(t0, t1)
         weight = track.weight(fix_times, t0, t1)
-        if p.calibrate_r0 and accel is not None and d_gps is not None and speed >= p.r0_min_speed_mps:
+        if p.calibrate_r0 and not self.frozen and accel is not None and d_gps is not None \
+                and speed >= p.r0_min_speed_mps:
             # While accelerating, the GPS latency must be known; at steady speed it does not matter.
             steady = abs(accel) <= PHASE_ACCEL_MPS2
             for w in WHEELS:
                 arc = arcs[w]
                 if arc is not None and self._free_rolling(w, accel) and (steady or lat.source != "none"):
                     self._radius[w].add(d_gps, arc, weight)
+        if self._stored_r0 or self._stored_cx:
+            self._check_stored()
         r0 = self._r0_all()
         slip_nd = self._reference_slip(arcs, r0)
-        wheels = {w: wheel_estimate(p, self._stiffness[w], arcs[w], r0[w], d_gps, per_tire.get(w), speed, weight,
-                                    slip_nd.get(w))
+        stored_cx = self._stored_cx
+        wheels = {w: wheel_estimate(p, self._stiffness[w], arcs[w], r0[w], d_slip, per_tire.get(w), speed, weight,
+                                    slip_nd.get(w), stored_cx.get(w))
                   for w in WHEELS}
         self._last_center_s = t_c
+        if gapped or gps_gap:
+            quality = "disturbed"
+        elif latency_unknown or any(we.r0_source in UNCALIBRATED_R0 for we in wheels.values() if we.slip is not None):
+            quality = "uncalibrated"
+        else:
+            quality = "ok"
         return Estimate(
             t_c, speed, accel, force, p.window_s, wheels,
             phase=phase_of(speed, accel),
-            source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source,
+            source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source, quality=quality,
         )
 
     def _free_rolling(self, w: str, accel: float) -> bool:
@@ -304,7 +367,52 @@ class SlipEstimator:
 
     def _r0_all(self) -> dict[str, tuple[float, str]]:
         p = self.p
-        return r0_per_wheel(self._radius, p.r_ref_m, p.r_ref_configured, p.calibrate_r0)
+        stored = {w: r for w, (r, _) in self._stored_r0.items()}
+        return r0_per_wheel(self._radius, p.r_ref_m, p.r_ref_configured, p.calibrate_r0, stored, own=not self.frozen)
+
+    def _check_stored(self) -> None:
+        """Stored radii and stiffnesses that the run's own usable values contradict beyond both uncertainties are
+        dropped (the run's own are used from then on), each with an event."""
+        if self.frozen:
+            return
+        for w, (radius, se) in list(self._stored_r0.items()):
+            cal = self._radius[w]
+            own, own_se = cal.radius_m, cal.standard_error_m
+            if own is not None and own_se is not None and cal.usable \
+                    and abs(own - radius) > 3.0 * math.hypot(own_se, se) + R0_TOLERANCE_M:
+                del self._stored_r0[w]
+                self._replaced(f"r0 {w}: stored {radius * 1000:.2f} mm, this run {own * 1000:.2f} mm "
+                               f"(+- {own_se * 1000:.2f} mm)")
+        for w, (cx, conf) in list(self._stored_cx.items()):
+            fit = self._stiffness[w]
+            if fit.cx_n is not None and fit.confidence >= CX_CONTRADICTS and abs(fit.cx_n / cx - 1.0) > max(
+                    3.0 * math.hypot(cx_relative_se(fit.confidence), cx_relative_se(conf)), CX_TOLERANCE):
+                del self._stored_cx[w]
+                self._replaced(f"Cx {w}: stored {cx / 1000:.1f} kN, this run {fit.cx_n / 1000:.1f} kN")
+
+    def learned(self) -> Learned:
+        """What this run measured itself: the latency by the wheels or UTC, the host clock's offset from UTC, the
+        radii that converged (or replaced a stored one), the stiffness fits with confidence >= CX_CONFIDENT. Nothing
+        for a frozen (second-pass) estimator."""
+        if self.frozen:
+            return Learned()
+        lat = self.latency
+        latency = None
+        if lat.source == "wheels":
+            latency = (lat.latency_s, lat.wheels_sigma_s, "wheels")
+        elif lat.source == "utc":
+            latency = (lat.latency_s, UTC_LATENCY_SIGMA_S, "utc")
+        offset = self._utc_offset_s
+        clock = offset - lat.latency_s if offset is not None and math.isfinite(offset) and lat.source != "none" \
+            else None
+        r0 = {}
+        for w, cal in self._radius.items():
+            radius, se = cal.radius_m, cal.standard_error_m
+            if radius is not None and se is not None and (cal.converged or (cal.usable and w not in self._stored_r0)):
+                r0[w] = (radius, se)
+        cx = {w: (f.cx_n, f.confidence) for w, f in self._stiffness.items()
+              if f.cx_n is not None and f.confidence >= CX_CONFIDENT}
+        return Learned(latency, clock, r0, cx)
 
     def _reference_slip(self, arcs: dict[str, float | None], r0: dict[str, tuple[float, str]]) -> dict[str, float]:
         return reference_slip(arcs, r0, self._reference, self._driven, self.p.min_speed_mps * self.p.window_s)
@@ -342,19 +450,28 @@ class SlipEstimator:
         }
 
 
+def cx_relative_se(confidence: float) -> float:
+    """The relative standard error of a fitted Cx from its confidence (stiffness.py: 1 - 10 * relative SE)."""
+    return (1.0 - confidence) / 10.0
+
+
 def wheel_estimate(
     p: EstimatorParams, fit: StiffnessFit, arc: float | None, r0: tuple[float, str], d_gps: float | None,
     force: float | None, speed: float, weight: float = 1.0, slip_nd: float | None = None,
+    stored_cx: tuple[float, float] | None = None,
 ) -> WheelEstimate:
-    """One wheel's slip, Re, Cx over the window (arc: 2*pi*N; d_gps: the GPS distance); feeds its stiffness fit."""
+    """One wheel's slip, Re, Cx over the window (arc: 2*pi*N; d_gps: the GPS distance); feeds its stiffness fit.
+    The fitted Cx reported is the run's own, else the stored one."""
     r0_m, r0_source = r0
+    cx_fit: float | None
+    cx_conf: float | None
+    cx_fit, cx_conf = (fit.cx_n, fit.confidence) if fit.cx_n is not None or stored_cx is None else stored_cx
     if arc is None:
-        return WheelEstimate(None, None, r0_m, None, force, None, r0_source, None, fit.cx_n, fit.confidence)
+        return WheelEstimate(None, None, r0_m, None, force, None, r0_source, None, cx_fit, cx_conf)
     d_wpt = r0_m * arc
     wheel_speed = d_wpt / p.window_s
     if d_gps is None or d_gps < p.min_speed_mps * p.window_s or arc <= 0:
-        return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
-                             fit.confidence)
+        return WheelEstimate(None, None, r0_m, None, force, wheel_speed, r0_source, slip_nd, cx_fit, cx_conf)
     slip = slip_from_distances(d_wpt, d_gps)
     re = d_gps / arc
     cx = None
@@ -362,5 +479,6 @@ def wheel_estimate(
         cx = force / slip
     if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
         fit.add(force, arc / d_gps, weight)
-    return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, slip_nd, fit.cx_n,
-                         fit.confidence if fit.cx_n is not None else None)
+    if fit.cx_n is not None or stored_cx is None:
+        cx_fit, cx_conf = fit.cx_n, (fit.confidence if fit.cx_n is not None else None)
+    return WheelEstimate(slip, re, r0_m, cx, force, wheel_speed, r0_source, slip_nd, cx_fit, cx_conf)

@@ -12,11 +12,21 @@ from slipdaq import WHEELS
 from slipdaq.estimator.ring import SeriesRing
 
 TWO_PI = 2.0 * math.pi
+MIN_GAP_S = 0.05
+"""A wheel's samples with an interval longer than max(MIN_GAP_S, GAP_INTERVALS * its mean interval) inside a window
+make the window disturbed: a reader stall (its frames stamped late, in a burst) or many frames lost. Its arc is
+withheld (linear interpolation across the gap would put the stalled revolutions in the wrong window)."""
+GAP_INTERVALS = 4.0
 
 
 def slip_from_distances(d_wpt_m: float, d_gps_m: float) -> float:
     """s = (d_wpt - d_gps) / d_gps."""
     return (d_wpt_m - d_gps_m) / d_gps_m
+
+
+def has_gap(ring: SeriesRing, t0: float, t1: float) -> bool:
+    """The samples spanning [t0, t1] have an interval over max(MIN_GAP_S, GAP_INTERVALS * the mean interval)."""
+    return ring.longest_gap(t0, t1) > max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval())
 
 
 class WheelWindows:
@@ -49,13 +59,25 @@ class WheelWindows:
         return [r for r in self.rings if len(r) and r.last_time >= since_s]
 
     def arcs_m(self, t0: float, t1: float) -> dict[str, float | None]:
-        """Per wheel: 2*pi*revolutions over [t0, t1], or None without samples around both ends."""
+        """Per wheel: 2*pi*revolutions over [t0, t1], or None without samples around both ends or across a gap."""
+        return self.window(t0, t1)[0]
+
+    def window(self, t0: float, t1: float) -> tuple[dict[str, float | None], tuple[str, ...]]:
+        """arcs_m, and the wheels whose arc is missing for a gap in their samples, or for no samples past t1 after
+        samples before t0 (disturbed: a reader stall, frames lost, a wheel that fell silent)."""
         ends = np.array((t0, t1))
         out: dict[str, float | None] = {}
+        gaps: list[str] = []
         for w, ring in self.by_wheel.items():
             revs = ring.at(ends, t0, t1)
+            if revs is None:
+                if len(ring) and ring.first_time <= t0 and ring.last_t < t1:  # it was reporting: stalled or silent
+                    gaps.append(w)
+            elif has_gap(ring, t0, t1):
+                gaps.append(w)
+                revs = None
             out[w] = None if revs is None else TWO_PI * (revs[1] - revs[0])
-        return out
+        return out, tuple(gaps)
 
 
 def reference_slip(arcs: dict[str, float | None], r0: dict[str, tuple[float, str]], reference: tuple[str, ...],

@@ -55,7 +55,8 @@ def dumps(payload: dict[str, Any]) -> bytes:
 
 _JSON_TEXT = {t: json.dumps(t) for t in (
     "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
-    "calibrating", "other_wheels", "tire_size", "configured", "RMC", "VTG", "UBX")}
+    "calibrating", "other_wheels", "tire_size", "configured", "stored", "RMC", "VTG", "UBX", "ok", "uncalibrated",
+    "disturbed")}
 
 
 def _jval(x: object) -> str:

@@ -111,7 +111,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             "gps_latency_wheels_s": _NUM_OR_NULL, "gps_latency_wheels_sigma_s": _NUM_OR_NULL,
             "r0_m": _obj("r0", {w: _NUM for w in WHEELS}),
             "r0_source": _obj("r0_source", {w: {"type": "string", "enum": [
-                "tire_size", "configured", "other_wheels", "calibrating", "calibrated"]} for w in WHEELS}),
+                "tire_size", "configured", "other_wheels", "calibrating", "calibrated", "stored"]} for w in WHEELS}),
             "r0_se_m": _obj("r0_se", {w: _NUM_OR_NULL for w in WHEELS}),
             "cx_fit_n": _obj("cx_fit", {w: _NUM_OR_NULL for w in WHEELS}),
             "cx_fit_conf": _obj("cx_fit_conf", {w: _NUM for w in WHEELS}), "rejected_fixes": _INT,

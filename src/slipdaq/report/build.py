@@ -45,13 +45,20 @@ class ReportResult:
     summary_csv: Path
 
 
-def read_log(path: str | Path) -> LogData:
+def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None = None) -> LogData:
     """Metadata, estimate rows and the last diagnostics of a slipdaq log; LogError or InputError (one line)
-    otherwise."""
+    otherwise. two_pass: the estimates post-processed two-pass from the log's raw records (offline.two_pass_rows),
+    the logged ones when it has none."""
     path = Path(path)
     if not path.is_file():
         raise LogError(f"{path}: no such file")
     metadata = read_metadata(path)
+    if two_pass:
+        from slipdaq.offline import two_pass_rows
+
+        got = two_pass_rows(path, stream=progress)
+        if got is not None:
+            return LogData(path, metadata | {"report_estimates": "two-pass"}, *got)
     rows: list[dict[str, Any]] = []
     diagnostics: dict[str, Any] | None = None
     for topic, _t, d in guarded(path, iter_topic(path, (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS))):
@@ -59,7 +66,7 @@ def read_log(path: str | Path) -> LogData:
             rows.append(d)
         else:
             diagnostics = d
-    return LogData(path, metadata, rows, diagnostics)
+    return LogData(path, metadata | {"report_estimates": "logged"}, rows, diagnostics)
 
 
 def _slug(name: str, taken: set[str]) -> str:
@@ -77,6 +84,7 @@ def make_report(
     *,
     group_by: Sequence[str] | None = None,
     progress: TextIO | None = None,
+    two_pass: bool = False,
 ) -> ReportResult:
     """Every log read first (a bad one fails before anything is written), then the plots and the tables, built in a
     temporary directory in DIR and moved into place when all are done (outputs.atomic_tree): a report that fails
@@ -87,8 +95,8 @@ def make_report(
     say = (lambda msg: print(f"report: {msg}", file=progress, flush=True)) if progress else (lambda msg: None)
     data = []
     for p in log_paths:
-        d = read_log(p)
-        say(f"read {p}: {len(d.rows)} estimates")
+        d = read_log(p, two_pass)
+        say(f"read {p}: {len(d.rows)} estimates ({d.metadata['report_estimates']})")
         data.append(d)
     with atomic_tree(out, inputs=log_paths, last=TABLES) as build:
         taken: set[str] = set()

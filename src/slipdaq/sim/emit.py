@@ -5,6 +5,7 @@ WPT:   PulseCount = (start_count + floor(theta/(2*pi) * pulses_per_rev)) mod 2^3
 GPS:   epoch k at k/gps_rate describes the truth at that instant; its RMC, GGA, VTG lines arrive gps_latency_s later.
 Truth: a TruthSample every 10 ms and at every GPS epoch.
 Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
+Stall: with SimSettings.can_stall, frames are stamped when a stalled reader reads them (_StalledReader).
 """
 
 from __future__ import annotations
@@ -57,6 +58,10 @@ class SimSettings:
     """What the receiver sends each epoch: "nmea" (RMC, GGA, VTG), "ubx" (UBX NAV-PVT) or "both"."""
     host_clock_offset_s: float = 0.0
     """Host clock minus true UTC: added to every record's timestamp (the NMEA UTC fields stay true)."""
+    can_stall: tuple[float, float] | None = None
+    """(start_s, duration_s) in sim time: the CAN reader stalls. Frames arriving in [start, start + duration) are
+    stamped when it reads them: all at start + duration, in arrival order, 1 us apart; a frame arriving while that
+    backlog is read is read after it (1 us after the backlog's last). GPS is not affected. None: no stall."""
     origin_lat_deg: float = 52.0
     origin_lon_deg: float = 10.0
     heading_deg: float = 90.0
@@ -196,6 +201,52 @@ class _Jitter:
         return self._block.pop()
 
 
+class _StalledReader:
+    """CAN frame times as a reader that stalls over [start_s, end_s) and stamps frames when it reads them: the
+    frames that arrived in the stall are read at end_s, in arrival order, READ_SPACING_S apart (a driver that stamps
+    on read, draining its buffer); a frame arriving before the last of them is read is queued behind it.
+
+    Frames arriving from start_s on are held until the stall's end is reached (flush): only then are all the
+    stalled frames, and so the backlog's length, known."""
+
+    READ_SPACING_S = 1e-6
+
+    def __init__(self, start_s: float, duration_s: float) -> None:
+        if not (duration_s >= 0.0 and math.isfinite(start_s) and math.isfinite(duration_s)):
+            raise ValueError(f"can_stall must be (start_s, duration_s >= 0), finite: {(start_s, duration_s)}")
+        self.start_s, self.end_s = start_s, start_s + duration_s
+        self.held: list[tuple[float, int, int, int, int]] = []
+        """(arrival_s, order, wheel, count, seq) of the frames arriving from start_s on, until the flush."""
+        self.flushed = False
+        self.last_read_s = -math.inf
+        """The read time of the backlog's last frame."""
+
+    def holds(self, arrival_s: float) -> bool:
+        return not self.flushed and arrival_s >= self.start_s
+
+    def read_time(self, arrival_s: float) -> float:
+        """A frame's stamp after the flush: its arrival, or behind the backlog when it arrives before its end."""
+        if arrival_s <= self.last_read_s:
+            self.last_read_s += self.READ_SPACING_S
+            return self.last_read_s
+        return arrival_s
+
+    def flush(self) -> list[tuple[float, int, int, int]]:
+        """(stamp_s, wheel, count, seq) of the held frames, in read order."""
+        self.flushed = True
+        out = []
+        stalled = 0
+        for arrival_s, _, wheel, count, seq in sorted(self.held):
+            if arrival_s < self.end_s:
+                self.last_read_s = stamp_s = self.end_s + stalled * self.READ_SPACING_S
+                stalled += 1
+            else:
+                stamp_s = self.read_time(arrival_s)
+            out.append((stamp_s, wheel, count, seq))
+        self.held = []
+        return out
+
+
 def _instant(index: int, rate_hz: float) -> float:
     """index/rate as one correctly rounded division, so coinciding instants of different streams compare equal."""
     return index / rate_hz if rate_hz > 0 else math.inf
@@ -220,6 +271,7 @@ def generate(
     host_t0_s = settings.start_utc_s + settings.host_clock_offset_s
     pending: list[tuple[float, int, SimEvent]] = []
     order = itertools.count()
+    stall = None if settings.can_stall is None else _StalledReader(*settings.can_stall)
 
     def push(time_s: float, record: CanFrame | NmeaLine | UbxFrame | None, truth: TruthSample | None = None) -> None:
         heapq.heappush(pending, (time_s, next(order), SimEvent(time_s, record, truth)))
@@ -228,6 +280,9 @@ def generate(
     t_slot, t_truth, t_gps = _instant(0, slot_rate_hz), 0.0, _instant(0, settings.gps_rate_hz)
     while True:
         t = min(t_slot, t_truth, t_gps)
+        if stall is not None and not stall.flushed and t >= stall.end_s:  # all frames of the stall known
+            for stamp_s, wheel, count, seq in stall.flush():
+                push(stamp_s, encoder.frame(wheel, host_t0_s + stamp_s, count, seq))
         while pending and pending[0][0] <= t and pending[0][0] < end_s:
             yield heapq.heappop(pending)[2]
         if t >= end_s:
@@ -239,7 +294,13 @@ def generate(
             frame_index, wheel = divmod(n_slot, wheel_count)
             count = pulse_count(sim.angles_rad()[wheel], settings.start_count, pulses_per_rev)
             arrival_s = t + jitter.next_s()
-            push(arrival_s, encoder.frame(wheel, host_t0_s + arrival_s, count, frame_index % SEQ_MODULUS))
+            if stall is None:
+                push(arrival_s, encoder.frame(wheel, host_t0_s + arrival_s, count, frame_index % SEQ_MODULUS))
+            elif stall.holds(arrival_s):
+                stall.held.append((arrival_s, n_slot, wheel, count, frame_index % SEQ_MODULUS))
+            else:
+                stamp_s = stall.read_time(arrival_s)
+                push(stamp_s, encoder.frame(wheel, host_t0_s + stamp_s, count, frame_index % SEQ_MODULUS))
             n_slot += 1
             t_slot = _instant(n_slot, slot_rate_hz)
         if t_gps == t:

@@ -1,0 +1,266 @@
+"""The calibration file: what runs learned about one vehicle and tire set, kept between runs (TOML).
+
+A run starts from it (r0 per wheel, GPS latency, fitted Cx per tire: sources `stored`), keeps calibrating, and at
+its end the values it measured replace the stored ones (`merged`), each with when and from which log it was
+learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, `tire.size` or `tire.free_radius_m`,
+`tire.set` of the config): a file of another vehicle or tire set is neither used nor written over.
+
+    format = 1
+    [vehicle]    name, tire, tire_set
+    [latency]    latency_s, sigma_s, method ("wheels" or "utc"), learned_at, learned_from
+    [host_clock] offset_s (host clock minus UTC, when the fixes carried UTC), learned_at, learned_from
+    [r0.FL]      radius_m, se_m, learned_at, learned_from         (one table per wheel)
+    [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import tomli_w
+from pydantic import Field, ValidationError
+
+from slipdaq import WHEELS
+from slipdaq.config import Config, ConfigError, _format_error, _Section
+
+CALIBRATION_FORMAT = 1
+DEFAULT_FILE_NAME = "calibration.toml"
+Wheel = Literal["FL", "FR", "RL", "RR"]
+
+
+class CalibrationError(ConfigError):
+    """A calibration file that cannot be used (not TOML, a bad key); the message names the file and the key."""
+
+
+class Provenance(_Section):
+    learned_at: str = ""
+    """UTC time (ISO 8601) by the logging PC's clock when the value was saved."""
+    learned_from: str = ""
+    """The log the run wrote (or read, for replay)."""
+
+
+class VehicleIdentity(_Section):
+    name: str = ""
+    tire: str = ""
+    tire_set: str = ""
+
+
+class StoredLatency(Provenance):
+    latency_s: float = Field(ge=0, lt=5)
+    sigma_s: float | None = Field(None, ge=0)
+    method: Literal["wheels", "utc"] = "wheels"
+
+
+class StoredClock(Provenance):
+    offset_s: float
+    """Host clock minus UTC."""
+
+
+class StoredRadius(Provenance):
+    radius_m: float = Field(gt=0, lt=2)
+    se_m: float = Field(ge=0)
+
+
+class StoredStiffness(Provenance):
+    cx_n: float = Field(gt=0)
+    confidence: float = Field(ge=0, le=1)
+
+
+class Calibration(_Section):
+    format: int = CALIBRATION_FORMAT
+    vehicle: VehicleIdentity = VehicleIdentity()
+    latency: StoredLatency | None = None
+    host_clock: StoredClock | None = None
+    r0: dict[Wheel, StoredRadius] = {}
+    cx: dict[Wheel, StoredStiffness] = {}
+
+    @property
+    def empty(self) -> bool:
+        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx
+
+
+@dataclass(frozen=True)
+class Learned:
+    """What one run measured (SlipEstimator.learned()): only the values it measured itself."""
+
+    latency: tuple[float, float | None, str] | None = None
+    """(latency_s, sigma_s, method)."""
+    host_clock_offset_s: float | None = None
+    r0: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """wheel -> (radius_m, se_m)."""
+    cx: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """wheel -> (cx_n, confidence)."""
+
+
+def vehicle_identity(config: Config) -> VehicleIdentity:
+    tire = config.tire.size if config.tire.size is not None and config.tire.free_radius_m is None \
+        else f"free radius {config.tire.radius_m} m"
+    return VehicleIdentity(name=config.vehicle.name, tire=tire, tire_set=config.tire.set)
+
+
+def belongs_to(cal: Calibration, config: Config) -> str | None:
+    """None when the calibration is the config's vehicle and tire set's (or names none); else why not."""
+    mine = vehicle_identity(config)
+    if cal.empty or cal.vehicle == mine:
+        return None
+    theirs = cal.vehicle
+    return (f"it is for vehicle {theirs.name!r}, tire {theirs.tire!r}, tire set {theirs.tire_set!r}; the config is "
+            f"vehicle {mine.name!r}, tire {mine.tire!r}, tire set {mine.tire_set!r}")
+
+
+def default_path(log_dir: Path, config: Config) -> Path:
+    """calibration.path of the config (relative to the config file), else calibration.toml in the log directory."""
+    if config.calibration.path:
+        return config.resolve(config.calibration.path)
+    return log_dir / DEFAULT_FILE_NAME
+
+
+def parse_calibration(text: str, source: str = "<calibration>") -> Calibration:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise CalibrationError(f"{source}: not valid TOML: {e}") from None
+    try:
+        cal = Calibration.model_validate(data)
+    except ValidationError as e:
+        raise CalibrationError(_format_error(source, e)) from None
+    if cal.format != CALIBRATION_FORMAT:
+        raise CalibrationError(f"{source}: format: {cal.format} is not a format this slipdaq reads "
+                               f"({CALIBRATION_FORMAT})")
+    return cal
+
+
+def load_calibration(path: str | os.PathLike[str]) -> Calibration | None:
+    """The calibration in `path`, or None when there is no such file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as e:
+        raise CalibrationError(f"{p}: cannot read calibration: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    return parse_calibration(text, str(p))
+
+
+HEADER = ("# slipdaq calibration: learned by the runs of one vehicle and tire set, read at the start of the next.\n"
+          "# `slipdaq calibration show` prints it; `slipdaq calibration reset [--wheel W]` clears it (tires changed).\n")
+
+
+def to_toml(cal: Calibration) -> str:
+    return HEADER + tomli_w.dumps(cal.model_dump(exclude_none=True))
+
+
+def save_calibration(path: str | os.PathLike[str], cal: Calibration) -> None:
+    """Written complete or not at all (a temporary file renamed into place)."""
+    from slipdaq.outputs import atomic_output
+
+    with atomic_output(path) as tmp:
+        tmp.write_text(to_toml(cal), encoding="utf-8")
+
+
+def utc_now() -> str:
+    return dt.datetime.now(dt.UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
+
+
+def merged(stored: Calibration | None, learned: Learned, config: Config, learned_from: str,
+           learned_at: str | None = None) -> Calibration:
+    """The stored calibration with every value the run measured replacing the stored one."""
+    base = stored if stored is not None and belongs_to(stored, config) is None else Calibration()
+    prov = {"learned_at": learned_at or utc_now(), "learned_from": learned_from}
+    latency = base.latency
+    if learned.latency is not None:
+        value, sigma, method = learned.latency
+        latency = StoredLatency.model_validate({"latency_s": value, "sigma_s": sigma, "method": method} | prov)
+    clock = base.host_clock if learned.host_clock_offset_s is None \
+        else StoredClock(offset_s=learned.host_clock_offset_s, **prov)
+    r0: dict[str, StoredRadius] = {str(w): v for w, v in base.r0.items()}
+    r0 |= {w: StoredRadius(radius_m=r, se_m=se, **prov) for w, (r, se) in learned.r0.items()}
+    cx: dict[str, StoredStiffness] = {str(w): v for w, v in base.cx.items()}
+    cx |= {w: StoredStiffness(cx_n=c, confidence=conf, **prov) for w, (c, conf) in learned.cx.items()}
+    return Calibration.model_validate({
+        "vehicle": vehicle_identity(config), "latency": latency, "host_clock": clock,
+        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}})
+
+
+def reset(cal: Calibration, wheels: list[str] | None) -> Calibration:
+    """Without wheels: nothing kept but the identity; with wheels: their r0 and Cx cleared (those tires changed)."""
+    if not wheels:
+        return Calibration(vehicle=cal.vehicle)
+    return cal.model_copy(update={"r0": {w: v for w, v in cal.r0.items() if w not in wheels},
+                                  "cx": {w: v for w, v in cal.cx.items() if w not in wheels}})
+
+
+def summary(cal: Calibration) -> str:
+    """One line: what the calibration holds."""
+    parts = []
+    if cal.latency is not None:
+        parts.append(f"GPS latency {cal.latency.latency_s * 1000:.1f} ms ({cal.latency.method})")
+    if cal.r0:
+        parts.append("r0 " + ", ".join(f"{w} {r.radius_m * 1000:.2f} mm" for w, r in cal.r0.items()))
+    if cal.cx:
+        parts.append("Cx " + ", ".join(f"{w} {c.cx_n / 1000:.1f} kN" for w, c in cal.cx.items()))
+    return "; ".join(parts) or "nothing learned yet"
+
+
+def show(cal: Calibration, path: str) -> str:
+    """The calibration as a table for `slipdaq calibration show`."""
+    v = cal.vehicle
+    lines = [f"{path}: vehicle {v.name or '(unnamed)'}, tire {v.tire or '?'}, tire set {v.tire_set or '(unnamed)'}"]
+
+    def when(p: Provenance) -> str:
+        return f"learned {p.learned_at or '?'} from {p.learned_from or '?'}"
+
+    if cal.latency is not None:
+        sig = f" +- {cal.latency.sigma_s * 1000:.1f}" if cal.latency.sigma_s is not None else ""
+        lines.append(f"  GPS latency  {cal.latency.latency_s * 1000:8.1f}{sig} ms ({cal.latency.method}), "
+                     f"{when(cal.latency)}")
+    if cal.host_clock is not None:
+        lines.append(f"  host clock   {cal.host_clock.offset_s:+.3f} s from UTC, {when(cal.host_clock)}")
+    for w in WHEELS:
+        if (r := cal.r0.get(w)) is not None:  # type: ignore[call-overload]  # w is one of the Literal keys
+            lines.append(f"  r0 {w}        {r.radius_m * 1000:8.2f} +- {r.se_m * 1000:.2f} mm, {when(r)}")
+    for w in WHEELS:
+        if (c := cal.cx.get(w)) is not None:  # type: ignore[call-overload]  # w is one of the Literal keys
+            lines.append(f"  Cx {w}        {c.cx_n / 1000:8.1f} kN (confidence {c.confidence:.2f}), {when(c)}")
+    if cal.empty:
+        lines.append("  nothing learned yet")
+    return "\n".join(lines)
+
+
+@dataclass
+class RunCalibration:
+    """A run's calibration: what it starts from and where what it learns is saved."""
+
+    start: Calibration | None
+    save_to: Path | None
+    """None: --no-calibration, or a file of another vehicle (neither used nor written over)."""
+    note: str = ""
+
+    def finish(self, learned: Learned, config: Config, learned_from: str) -> str:
+        """Save the start calibration with what the run learned; a line saying what was saved (or '')."""
+        if self.save_to is None:
+            return ""
+        cal = merged(self.start, learned, config, learned_from)
+        save_calibration(self.save_to, cal)
+        return f"calibration saved: {self.save_to} ({summary(cal)})"
+
+
+def for_run(path: Path | None, config: Config) -> RunCalibration:
+    """The calibration in `path` to start from (None: --no-calibration)."""
+    if path is None:
+        return RunCalibration(None, None)
+    cal = load_calibration(path)
+    if cal is None:
+        return RunCalibration(None, path, f"calibration: {path} not there yet: starting cold")
+    why = belongs_to(cal, config)
+    if why:
+        return RunCalibration(None, None, f"calibration: {path} neither used nor written over: {why} (give another "
+                                          f"with --calibration, or `slipdaq calibration reset {path}`)")
+    return RunCalibration(cal, path, f"calibration: starting from {path} ({summary(cal)})")
