@@ -212,6 +212,14 @@ def test_cli_calibration_persists_shows_resets_and_replays_exactly(logs, tmp_pat
     assert main(["calibration", "reset", str(saved)]) == 0
     emptied = load_calibration(saved)
     assert emptied is not None and emptied.empty
+    # a replay saves into the file that is there, and not over another vehicle's
+    other = tmp_path / "other"
+    other.mkdir()
+    theirs = Calibration.model_validate({"vehicle": {"name": "another car"}, "r0": {"FL": {"radius_m": 0.31, "se_m": 0.0}}})
+    save_calibration(other / "calibration.toml", theirs)
+    before = (other / "calibration.toml").read_bytes()
+    assert main(["replay", str(tmp_path / "second.mcap"), "-o", str(other / "re.mcap")]) == 0
+    assert (other / "calibration.toml").read_bytes() == before and "another car" in capsys.readouterr().out
     # --no-calibration: starts cold, writes nothing
     _import(first, cfg, tmp_path / "cold" / "x.mcap", "--no-calibration")
     assert not (tmp_path / "cold" / "calibration.toml").exists()

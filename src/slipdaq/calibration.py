@@ -242,12 +242,14 @@ class RunCalibration:
     save_to: Path | None
     """None: --no-calibration, or a file of another vehicle (neither used nor written over)."""
     note: str = ""
+    base: Calibration | None = None
+    """What the values learned are merged into: the file as it was when the run started (default: start)."""
 
     def finish(self, learned: Learned, config: Config, learned_from: str) -> str:
-        """Save the start calibration with what the run learned; a line saying what was saved (or '')."""
+        """Save the file's calibration with what the run learned; a line saying what was saved (or '')."""
         if self.save_to is None:
             return ""
-        cal = merged(self.start, learned, config, learned_from)
+        cal = merged(self.base if self.base is not None else self.start, learned, config, learned_from)
         save_calibration(self.save_to, cal)
         return f"calibration saved: {self.save_to} ({summary(cal)})"
 
@@ -264,3 +266,13 @@ def for_run(path: Path | None, config: Config) -> RunCalibration:
         return RunCalibration(None, None, f"calibration: {path} neither used nor written over: {why} (give another "
                                           f"with --calibration, or `slipdaq calibration reset {path}`)")
     return RunCalibration(cal, path, f"calibration: starting from {path} ({summary(cal)})")
+
+
+def for_replay(logged: Calibration | None, path: Path, config: Config) -> RunCalibration:
+    """A replay's: it starts from the calibration its log started from (`logged`), so that it gives the run's
+    estimates, and saves what it learns into the file at `path` as that file is now (or, without one, into
+    `logged`); a file of another vehicle is not written over."""
+    file = for_run(path, config)
+    if file.save_to is None:
+        return RunCalibration(logged, None, file.note)
+    return RunCalibration(logged, path, base=file.start if file.start is not None else logged)

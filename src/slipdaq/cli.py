@@ -302,7 +302,7 @@ def _unfinished_note(path: str, scanned: object) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from slipdaq.calibration import default_path
+    from slipdaq.calibration import default_path, for_replay
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.logformat.salvage import ScanResult
     from slipdaq.offline import first_pass, process_to_log, start_calibration
@@ -316,8 +316,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     out_dir = Path(args.output).resolve().parent
     if args.no_calibration or args.calibration:
         cal = _run_calibration(args, cfg, out_dir)
-    else:  # the calibration the run started from, saved to the default file
-        cal = RunCalibration(start_calibration(meta, args.log, cfg), default_path(out_dir, cfg))
+    else:  # the calibration the run started from; what it learns goes into the default file
+        cal = for_replay(start_calibration(meta, args.log, cfg), default_path(out_dir, cfg), cfg)
+        if cal.note:
+            print(cal.note)
     scanned = ScanResult(Path(args.log))
     first = None
     if args.two_pass:
