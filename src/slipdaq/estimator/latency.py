@@ -157,7 +157,7 @@ class WheelLatency:
         self._weight = lam * self._weight + 1.0
         self.rows += 1
         self.informative_rows += informative
-        if self.rows >= MIN_ROWS:
+        if self.rows >= MIN_ROWS and (self.rows % 5 == 0 or not self.converged()):  # every row until it converges
             self._solve()
 
     def _solve(self) -> None:

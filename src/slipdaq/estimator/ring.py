@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slipdaq.compiled import kernel
+
 
 class SeriesRing:
     """Samples in time order; `times`/`values` are contiguous views of the kept samples.
@@ -56,30 +58,19 @@ class SeriesRing:
     def longest_gap(self, t_first: float, t_last: float) -> float:
         """The longest interval between consecutive samples from the last one at or before t_first to the first one
         at or after t_last (the samples an interpolation over [t_first, t_last] uses); 0 when that is one sample."""
-        t = self._t[self._start : self._end]
-        i = max(int(t.searchsorted(t_first, "right")) - 1, 0)
-        j = min(int(t.searchsorted(t_last, "left")) + 1, len(t))
-        return float(np.diff(t[i:j]).max()) if j - i >= 2 else 0.0
+        return float(longest_gap()(self._t[self._start : self._end], t_first, t_last))
 
     def local_linear(self, times: np.ndarray, half: int) -> np.ndarray | None:
         """The values at `times` from a least-squares line through the 2*half+1 samples nearest each time (by
-        index), or None with fewer samples. Unlike linear interpolation between the two samples around a time, its
-        noise from jittered sample times hardly depends on where the time falls between samples."""
+        index: those around the first sample at or after it), or None with fewer samples. Unlike linear
+        interpolation between the two samples around a time, its noise from jittered sample times hardly depends on
+        where the time falls between samples."""
         s, e = self._start, self._end
-        k = 2 * half + 1
-        if e - s < k:
+        if e - s < 2 * half + 1:
             return None
-        t, v = self._t[s:e], self._v[s:e]
-        i = np.clip(t.searchsorted(times), half, e - s - half - 1)
-        idx = i[:, None] + np.arange(-half, half + 1)[None, :]
-        dt = t[idx] - times[:, None]
-        vv = v[idx]
-        dt_mean, v_mean = dt.mean(axis=1), vv.mean(axis=1)
-        dc = dt - dt_mean[:, None]
-        sxx = (dc * dc).sum(axis=1)
-        sxy = (dc * (vv - v_mean[:, None])).sum(axis=1)
-        slope = np.divide(sxy, sxx, out=np.zeros_like(sxy), where=sxx > 0)  # samples all at one time: their mean
-        return v_mean - slope * dt_mean
+        out = np.empty(len(times))
+        local_lines()(self._t[s:e], self._v[s:e], times, half, out)
+        return out
 
     def append(self, t: float, v: float) -> None:
         if self._end == len(self._t):
@@ -123,3 +114,74 @@ class SeriesRing:
         v[:n] = self._v[keep_from : self._end]
         self._t, self._v = t, v
         self._start, self._end = 0, n
+
+
+MIN_LINE_SPAN_S = 1e-6
+"""Samples spanning less than this are one instant to local_linear (a line through them has no slope)."""
+
+
+def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray) -> None:
+    """out[q]: the least-squares line through samples c - half .. c + half at times[q], c the first sample at or
+    after times[q] (kept within the samples); a line is fitted once for consecutive times that share it."""
+    n = len(t)
+    k = 2 * half + 1
+    last_c = -1
+    t_mean = v_mean = slope = 0.0
+    for q in range(len(times)):
+        x = times[q]
+        lo, hi = 0, n
+        while lo < hi:  # the first index with t >= x
+            mid = (lo + hi) // 2
+            if t[mid] < x:
+                lo = mid + 1
+            else:
+                hi = mid
+        c = min(max(lo, half), n - half - 1)
+        if c != last_c:
+            st = sv = 0.0
+            for j in range(c - half, c + half + 1):
+                st += t[j]
+                sv += v[j]
+            t_mean, v_mean = st / k, sv / k
+            sxx = sxy = 0.0
+            for j in range(c - half, c + half + 1):
+                d = t[j] - t_mean
+                sxx += d * d
+                sxy += d * (v[j] - v_mean)
+            # samples all at one instant (a burst stamped together): their mean
+            slope = sxy / sxx if t[c + half] - t[c - half] > MIN_LINE_SPAN_S else 0.0
+            last_c = c
+        out[q] = v_mean + slope * (x - t_mean)
+
+
+local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:])")
+"""local_lines()(t, v, times, half, out): see _local_lines (SeriesRing.local_linear)."""
+
+
+def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
+    """SeriesRing.longest_gap over the times t (in order)."""
+    n = len(t)
+    lo, hi = 0, n
+    while lo < hi:  # the first index with t > t_first
+        mid = (lo + hi) // 2
+        if t[mid] <= t_first:
+            lo = mid + 1
+        else:
+            hi = mid
+    i = max(lo - 1, 0)
+    lo, hi = i, n
+    while lo < hi:  # the first index with t >= t_last
+        mid = (lo + hi) // 2
+        if t[mid] < t_last:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = min(lo + 1, n)
+    gap = 0.0
+    for k in range(i + 1, j):
+        gap = max(gap, t[k] - t[k - 1])
+    return gap
+
+
+longest_gap = kernel(_longest_gap, "float64(float64[:], float64, float64)")
+"""longest_gap()(t, t_first, t_last): see _longest_gap."""

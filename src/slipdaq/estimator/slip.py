@@ -58,8 +58,9 @@ STORED_LATENCY_SIGMA_S = 0.01
 UTC_LATENCY_SIGMA_S = 0.005
 """The UTC method's latency counts as this uncertain (NMEA times to 0.01 s, the host clock's own jitter)."""
 LATENCY_TOLERANCE_S = 0.005
-R0_TOLERANCE_M = 0.0002
-"""A radius changes by this much with tire temperature and pressure within a day: not a contradiction."""
+R0_TOLERANCE_M = 0.001
+"""A radius changes by this much with tire temperature and pressure within a day (0.3 bar: about 1 mm), and a run's
+own radius early on can be a few tenths of a mm off by more than its standard error says: not a contradiction."""
 CX_CONFIDENT = 0.5
 """A stiffness fit this confident is stored."""
 CX_CONTRADICTS = 0.8
@@ -371,14 +372,15 @@ class SlipEstimator:
         return r0_per_wheel(self._radius, p.r_ref_m, p.r_ref_configured, p.calibrate_r0, stored, own=not self.frozen)
 
     def _check_stored(self) -> None:
-        """Stored radii and stiffnesses that the run's own usable values contradict beyond both uncertainties are
-        dropped (the run's own are used from then on), each with an event."""
+        """Stored radii and stiffnesses that the run's own converged values contradict beyond both uncertainties
+        are dropped (the run's own are used from then on), each with an event. Converged, not just usable: early in
+        a run a radius's standard error understates its spread (overlapping windows), which made false alarms."""
         if self.frozen:
             return
         for w, (radius, se) in list(self._stored_r0.items()):
             cal = self._radius[w]
             own, own_se = cal.radius_m, cal.standard_error_m
-            if own is not None and own_se is not None and cal.usable \
+            if own is not None and own_se is not None and cal.converged \
                     and abs(own - radius) > 3.0 * math.hypot(own_se, se) + R0_TOLERANCE_M:
                 del self._stored_r0[w]
                 self._replaced(f"r0 {w}: stored {radius * 1000:.2f} mm, this run {own * 1000:.2f} mm "
