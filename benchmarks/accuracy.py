@@ -39,7 +39,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.cli import build_parser
 from slipdaq.cli import main as slipdaq
-from slipdaq.config import Config, load_config
+from slipdaq.config import Config, load_config, parse_config
 from slipdaq.estimator.gps_track import integrate_speed_m
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
@@ -68,6 +68,7 @@ class Scenario:
     clock_offset_s: float = 0.0
     r0_offset_m: float = -0.008
     can_stall: tuple[float, float] | None = None
+    driven_axle: str = "front"
     mode: str = "cold"
     """cold: import and replay with --no-calibration (and the uncompensated method); stored: an earlier drive of the
     same car stores its calibration, the measured drive is imported from it and replayed; two-pass: a cold import,
@@ -93,6 +94,8 @@ SCENARIOS = [
     Scenario("off UTC, stored calibration", clock_offset_s=3.0, mode="stored"),
     Scenario("off UTC, two-pass", clock_offset_s=3.0, mode="two-pass"),
     Scenario("2 s reader stall", can_stall=(20.0, 2.0), figures="stall"),
+    Scenario("off UTC, all-wheel drive, cold", clock_offset_s=3.0, driven_axle="all", figures="cold"),
+    Scenario("off UTC, all-wheel drive, two-pass", clock_offset_s=3.0, driven_axle="all", mode="two-pass"),
 ]
 QUICK = [sc for sc in SCENARIOS if sc.name in ("paved cycle (target)", "sand cycle", "host clock off UTC, cold")]
 
@@ -298,6 +301,10 @@ def row_figures(sc: Scenario, rows: list[dict], truth_ts: dict) -> tuple[str, di
 
 def run(sc: Scenario, base: Config, folder: Path, cli: CliFeatures) -> dict[str, Any]:
     """The row's figures: slipdaq's (and the uncompensated method's on cold rows), the floor, the row's own."""
+    if sc.driven_axle != base.vehicle.driven_axle:
+        axle = f'driven_axle = "{base.vehicle.driven_axle}"'
+        assert axle in base.source_text
+        base = parse_config(base.source_text.replace(axle, f'driven_axle = "{sc.driven_axle}"'), base.source_path)
     window_s = base.estimator.window_s
     settings = sim_settings(sc)
     can_path, nmea_path, truth = write_logs(base, sc, settings, folder / "measured")

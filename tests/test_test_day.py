@@ -90,6 +90,34 @@ def test_cold_off_utc_finds_the_latency_early_and_flags_what_came_before(cold) -
     assert slip_error(ok, truth).rms_points < 0.3
 
 
+@pytest.mark.parametrize("wpt_rate_hz", [25.0, 100.0])
+def test_cold_off_utc_finds_a_latency_near_zero(cfg_, wpt_rate_hz: float) -> None:  # type: ignore[no-untyped-def]
+    """A receiver and reader with almost no delay (the lab, the HIL VM): the lag's minimum is at the grid's 0, which
+    must still count as an estimate."""
+    settings = SimSettings(gps_latency_s=0.0, gps_noise_mps=0.02, can_jitter_s=0.0005, host_clock_offset_s=3.0,
+                           seed=1, wpt_rate_hz=wpt_rate_hz)
+    _, rows, truth, _, pipeline = drive(cfg_, settings, duration_s=20.0)
+    assert pipeline.estimator.latency.source == "wheels"
+    assert pipeline.estimator.latency.latency_s == pytest.approx(0.0, abs=0.004)
+    assert slip_error([r for r in rows if r["quality"] == "ok"], truth).rms_points < 0.3
+
+
+def test_cold_off_utc_with_every_wheel_driven_finds_the_latency_too(cfg_) -> None:  # type: ignore[no-untyped-def]
+    """No wheel rolls freely while the car accelerates: the fit takes their slip in proportion to the acceleration."""
+    awd = cfg_.with_overrides(vehicle={"driven_axle": "all"})
+    _, rows, truth, _, pipeline = drive(awd)
+    assert pipeline.estimator.latency.source == "wheels"
+    assert pipeline.estimator.latency.latency_s == pytest.approx(0.085, abs=0.005)
+    moving = [r for r in rows if r["speed_mps"] > 1.0]
+    known = next(r for r in moving if r["latency_source"] == "wheels")
+    assert known["time_s"] - moving[0]["time_s"] < 3.0
+    errors = slip_errors(rows, truth)
+    fast = [r for r in rows if r["speed_mps"] > 5.0 and r["source"] == "gps"]
+    assert len(errors) > 0.9 * 4 * len(fast), "slip in nearly every window, not withheld for an unknown latency"
+    assert abs(errors).max() * 100 < 5.0
+    assert slip_error([r for r in rows if r["quality"] == "ok"], truth).rms_points < 0.3
+
+
 def test_quality_is_a_csv_column_after_the_others_and_a_field_of_the_estimate() -> None:
     names = list(ALL_COLUMNS)
     assert names[-1] == "quality"

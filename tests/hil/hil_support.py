@@ -72,19 +72,20 @@ def report(text: str) -> None:
 
 # ---- configs ----
 
-def write_config(directory: Path, gps_port: str) -> Path:
+def write_config(directory: Path, gps_port: str, latency: str = "0.0") -> Path:
     """The example config on vcan0 with the GPS on gps_port, the DBC copied beside it.
 
-    GPS latency is fixed at 0: the traffic sources send NMEA with zero latency on the same clock as their CAN frames.
-    ("auto" would take the time between a sentence's UTC and its arrival; the sources here replay or simulate
-    sentences whose UTC is not the time they are sent.)
+    GPS latency is fixed at 0 by default: the traffic sources send NMEA with zero latency on the same clock as their
+    CAN frames. With latency '"auto"' the daemon finds it itself: the sentences' UTC is not the time they are sent
+    (the simulator's drive is dated 2026-01-01), so to the daemon the host clock is months off UTC, as in a car
+    without network time, and the latency must come from the wheels.
     """
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "wpt.dbc").write_text((ROOT / "config" / "wpt.dbc").read_text())
     text = (ROOT / "config" / "slipdaq.toml").read_text()
     text = text.replace('channel = "can0"', f'channel = "{CHANNEL}"').replace('"/dev/ttyUSB0"', f'"{gps_port}"')
-    text = re.sub(r"^latency_s = .*$", "latency_s = 0.0", text, count=1, flags=re.M)
-    assert 'interface = "socketcan"' in text and f'"{gps_port}"' in text and "latency_s = 0.0" in text
+    text = re.sub(r"^latency_s = .*$", f"latency_s = {latency}", text, count=1, flags=re.M)
+    assert 'interface = "socketcan"' in text and f'"{gps_port}"' in text and f"latency_s = {latency}" in text
     path = directory / "slipdaq.toml"
     path.write_text(text)
     return path

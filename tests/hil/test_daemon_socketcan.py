@@ -34,7 +34,7 @@ import signal
 import statistics
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -183,6 +183,8 @@ class Case1:
     log: LogContent
     verdict: DriveVerdict | None = None
     attempts: int = 1
+    drive: list[Any] = field(default_factory=list)
+    """The drive's truth samples (slipdaq.sim.vehicle.TruthSample), for another run of it."""
 
 
 def _drive(env: Env, d: Path) -> tuple[list[Any], list[tuple[float, str]]]:
@@ -207,10 +209,10 @@ def _drive(env: Env, d: Path) -> tuple[list[Any], list[tuple[float, str]]]:
     return truth, nmea
 
 
-def _play(env: Env, d: Path, drive: Path, nmea: Path) -> tuple[dict[str, Any], DaemonResult]:
-    """One daemon, the drive played into it by wpt_sender.py; its records in d."""
+def _play(env: Env, d: Path, drive: Path, nmea: Path, latency: str = "0.0") -> tuple[dict[str, Any], DaemonResult]:
+    """One daemon (its gps.latency_s: latency), the drive played into it by wpt_sender.py; its records in d."""
     gps = "/tmp/hil-gps-case1"
-    cfg_path = write_config(d, gps)
+    cfg_path = write_config(d, gps, latency)
     daemon = Daemon(env.zygote, cfg_path, d / "logs")
     sender = start_sender(SIM_RATE_HZ, SIM_DURATION_S, go=daemon.go, delay_s=1.5, record=d / "sent.csv",
                           drive=drive, nmea=nmea, gps_link=gps, nmea_record=d / "nmea-sent.csv",
@@ -243,31 +245,37 @@ def case1(env: Env) -> Case1:
     When the run cannot be judged (the machine did not run the sender or the daemon in real time: see judge.py),
     the drive is played again into a new daemon, up to CASE1_ATTEMPTS times; then the verdict's reason fails the case.
     """
+    base = env.tmp / "case1"
+    truth, nmea = _drive(env, base)
+    return _judged_run(env, base, truth, nmea, "case1")
+
+
+def _judged_run(env: Env, base: Path, truth: list[Any], nmea: list[tuple[float, str]], name: str,
+                latency: str = "0.0") -> Case1:
+    """The drive in base played into a daemon and judged, played again (up to CASE1_ATTEMPTS) while no verdict."""
     from slipdaq.logformat.reader import iter_estimates
     from slipdaq.sim.truth import truth_series
 
-    base = env.tmp / "case1"
-    truth, nmea = _drive(env, base)
     for attempt in range(1, CASE1_ATTEMPTS + 1):
-        d = base / f"attempt{attempt}"
-        r, result = _play(env, d, base / "drive.json", base / "drive.nmea")
+        d = base / f"{name}-attempt{attempt}"
+        r, result = _play(env, d, base / "drive.json", base / "drive.nmea", latency)
         log = read_log(result.log)
         c = Case1(truth_series(truth, r["zero_s"]), nmea, r, read_sent(d / "sent.csv"),
-                  read_nmea_record(d / "nmea-sent.csv"), result, log, attempts=attempt)
+                  read_nmea_record(d / "nmea-sent.csv"), result, log, attempts=attempt, drive=truth)
         try:
             shift = gps_shift(log, c.nmea_written, [r["zero_s"] + t for t, _ in nmea])
             c.verdict = judge_drive(iter_estimates(result.log), c.truth, wheel_frames(log, c.sent), shift)
         except ValueError as e:  # frames or lines in the log are not the ones sent: test_case1_every_frame_... says
-            report(f"case 1: no verdict: {e}")
+            report(f"{name}: no verdict: {e}")
             break
         if not c.verdict.problems or not c.verdict.problems[0].startswith("no verdict"):
             break
-        report(f"case 1: attempt {attempt}: {c.verdict.problems[0]}; {c.verdict.summary()}")
-    for name, path in (("live.mcap", result.log), ("sent.csv", d / "sent.csv"), ("nmea-sent.csv", d / "nmea-sent.csv"),
+        report(f"{name}: attempt {attempt}: {c.verdict.problems[0]}; {c.verdict.summary()}")
+    for what, path in (("live.mcap", result.log), ("sent.csv", d / "sent.csv"), ("nmea-sent.csv", d / "nmea-sent.csv"),
                        ("drive.nmea", base / "drive.nmea")):
-        keep(path, f"case1-{name}")
+        keep(path, f"{name}-{what}")
     if os.environ.get("SLIPDAQ_HIL_ARTIFACTS"):
-        save_truth(Path(os.environ["SLIPDAQ_HIL_ARTIFACTS"]) / "case1-truth.json.gz", c.truth)
+        save_truth(Path(os.environ["SLIPDAQ_HIL_ARTIFACTS"]) / f"{name}-truth.json.gz", c.truth)
     return c
 
 
@@ -321,6 +329,41 @@ def test_case1_estimates_follow_the_simulators_truth(env: Env, case1: Case1) -> 
            f"`slipdaq replay` of its own log: {len(own)} differences")
     assert not c.verdict.problems, c.verdict.problems
     assert not own, f"the daemon's estimates differ from `slipdaq replay` of its own log: {own[:5]}"
+
+
+# ---- case 6: cold, GPS latency "auto", the host clock months off the GPS's UTC ---------------------------------
+
+def test_case6_cold_without_utc_finds_the_latency_and_flags_what_came_before(env: Env, case1: Case1) -> None:
+    """Case 1's drive into a daemon with gps.latency_s = "auto" and no calibration: the sentences' UTC (the drive is
+    dated 2026-01-01) is months off the host clock, so only the wheels can give the latency. The daemon finds it
+    within the first acceleration, near the delay the sentences really had (their stamps against plan); every
+    window before is not `ok` (and has no slip while the speed changes); the judge's bounds hold over the windows
+    with a slip; no window says a slip beyond 50 %; and its estimates are what `slipdaq replay` computes from its
+    own log."""
+    c = _judged_run(env, env.tmp / "case1", case1.drive, case1.nmea, "case6", latency='"auto"')
+    assert c.verdict is not None
+    rows = list(_estimates(c.result.log))
+    before = [r for r in rows if r["latency_source"] == "none"]
+    known = [r for r in rows if r["latency_source"] == "wheels"]
+    shift = c.verdict.gps_shift_s
+    report(f"case 6 (attempt {c.attempts}): latency {known[-1]['gps_latency_s'] * 1e3 if known else float('nan'):.1f} "
+           f"ms from the wheels (the sentences' median stamp against plan: {shift * 1e3:.1f} ms); "
+           f"{len(before)} estimates before it, first known at {known[0]['time_s'] - rows[0]['time_s'] if known else -1:.1f} s "
+           f"into the log; qualities {sorted({r['quality'] for r in rows})}; {c.verdict.summary()}")
+    assert known, "the latency was never found from the wheels"
+    assert abs(known[-1]["gps_latency_s"] - shift) < 0.015
+    assert all(r["quality"] != "ok" for r in before)
+    assert not [r for r in rows if r["speed_mps"] > 5 for w in ("FL", "FR", "RL", "RR")
+                if r[f"slip_{w}"] is not None and abs(r[f"slip_{w}"]) > 0.5]
+    assert not c.verdict.problems, c.verdict.problems
+    own = replay_differences(c.result.log, env.tmp / "case1" / "case6-replay-own.mcap")
+    assert not own, f"the daemon's estimates differ from `slipdaq replay` of its own log: {own[:5]}"
+
+
+def _estimates(log: Path) -> Iterator[dict[str, Any]]:
+    from slipdaq.logformat.reader import iter_estimates
+
+    return iter_estimates(log)
 
 
 # ---- case 2 ---------------------------------------------------------------------------------------------------

@@ -127,19 +127,29 @@ def _median_abs_deviation(s: list[float], med: float) -> float:
 
 MIN_INFORMATIVE_ROWS = 8
 MIN_ROWS = 8
+NEGATIVE_LAG_S = 0.02
+"""The grid of lags starts this far below 0, so that a latency near 0 is a minimum inside it, not at its edge
+(an edge is no estimate): a receiver and a reader with almost no delay, as in the lab."""
 
 
 class WheelLatency:
     """Grid search of the lag that aligns GPS distance with free-rolling wheel distance (see module docstring)."""
 
-    def __init__(self, max_latency_s: float, step_s: float = 0.001, forgetting: float = 0.998) -> None:
-        self.taus_s = np.arange(0.0, max_latency_s + 0.5 * step_s, step_s)
+    def __init__(self, max_latency_s: float, step_s: float = 0.001, forgetting: float = 0.998,
+                 slip_terms: bool = False) -> None:
+        """slip_terms: the wheels slip in proportion to the acceleration (every wheel driven: no free-rolling one),
+        y_k = x_k(tau) * (r + b_drive * max(a_k, 0) + b_brake * min(a_k, 0)), fitted per tau."""
+        self.taus_s = np.arange(-NEGATIVE_LAG_S, max_latency_s + 0.5 * step_s, step_s)
         self.max_tau_s = float(self.taus_s[-1])
         self.step_s = step_s
         self.forgetting = forgetting
+        self.slip_terms = slip_terms
         self._syy = 0.0
         self._sxy = np.zeros_like(self.taus_s)
         self._sxx = np.zeros_like(self.taus_s)
+        self._terms = np.zeros((6, len(self.taus_s)))
+        """With slip_terms, per tau: sum p*x^2, n*x^2, p^2*x^2, n^2*x^2, p*x*y, n*x*y (p, n: the acceleration's
+        positive and negative parts)."""
         self.rows = 0
         self.informative_rows = 0
         self._weight = 0.0
@@ -147,23 +157,49 @@ class WheelLatency:
         self.sigma_s: float | None = None
         self.radius_m: float | None = None
 
-    def add(self, gps_distance_m: float, wheel_arc_m: np.ndarray, informative: bool = False) -> None:
+    def add(self, gps_distance_m: float, wheel_arc_m: np.ndarray, informative: bool = False,
+            accel_mps2: float = 0.0) -> None:
         """One fix interval: GPS distance, and 2*pi*revolutions of the reference wheels for each lag on the grid;
-        informative when taken while the speed changes."""
+        informative when taken while the speed changes; the acceleration for the slip terms."""
         lam = self.forgetting
-        self._syy = lam * self._syy + gps_distance_m * gps_distance_m
-        self._sxy = lam * self._sxy + gps_distance_m * wheel_arc_m
-        self._sxx = lam * self._sxx + wheel_arc_m * wheel_arc_m
+        y, x = gps_distance_m, wheel_arc_m
+        self._syy = lam * self._syy + y * y
+        self._sxy = lam * self._sxy + y * x
+        xx = x * x
+        self._sxx = lam * self._sxx + xx
+        if self.slip_terms:
+            p, n = max(accel_mps2, 0.0), min(accel_mps2, 0.0)
+            self._terms *= lam
+            self._terms[0] += p * xx
+            self._terms[1] += n * xx
+            self._terms[2] += p * p * xx
+            self._terms[3] += n * n * xx
+            self._terms[4] += p * y * x
+            self._terms[5] += n * y * x
         self._weight = lam * self._weight + 1.0
         self.rows += 1
         self.informative_rows += informative
         if self.rows >= MIN_ROWS and (self.rows % 5 == 0 or not self.converged()):  # every row until it converges
             self._solve()
 
+    def _residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per tau: the least-squares residual and the radius."""
+        if not self.slip_terms:
+            return self._syy - self._sxy**2 / self._sxx, self._sxy / self._sxx
+        sxp, sxn, spp, snn, spy, sny = self._terms[:6]
+        ridge = 1e-9 * self._sxx  # no rows with one sign of acceleration yet: that term stays 0
+        a = np.zeros((len(self.taus_s), 3, 3))
+        a[:, 0, 0], a[:, 1, 1], a[:, 2, 2] = self._sxx, spp + ridge, snn + ridge
+        a[:, 0, 1] = a[:, 1, 0] = sxp
+        a[:, 0, 2] = a[:, 2, 0] = sxn
+        b = np.stack((self._sxy, spy, sny), axis=1)
+        coef = np.linalg.solve(a, b[:, :, None])[:, :, 0]
+        return self._syy - (coef * b).sum(axis=1), coef[:, 0]
+
     def _solve(self) -> None:
         if np.any(self._sxx <= 0):
             return
-        resid = self._syy - self._sxy**2 / self._sxx
+        resid, radius = self._residuals()
         j = int(np.argmin(resid))
         if j == 0 or j == len(resid) - 1:
             self.latency_s = self.sigma_s = None
@@ -174,9 +210,9 @@ class WheelLatency:
             return
         offset = 0.5 * (r0 - r2) / (r0 - 2 * r1 + r2) * self.step_s
         sigma2 = max(r1, 0.0) / max(self._weight - 2.0, 1.0)
-        self.latency_s = float(self.taus_s[j] + offset)
+        self.latency_s = max(float(self.taus_s[j] + offset), 0.0)  # a few ms below 0: timing noise about 0
         self.sigma_s = float(math.sqrt(2.0 * sigma2 / curv))
-        self.radius_m = float(self._sxy[j] / self._sxx[j])
+        self.radius_m = float(radius[j])
 
     def converged(self, sigma_max_s: float = 0.01) -> bool:
         return (
@@ -198,6 +234,9 @@ LOCAL_FIT_HALF_SAMPLES = 5
 interpolation, the noise of jittered CAN timestamps depends on where a lag falls between samples, which biased the
 lag by several ms (2 ms of jitter: 5 ms)."""
 MAX_ROW_INTERVAL_S = 0.3
+MAX_SLIP_TERMS_ACCEL_MPS2 = 4.0
+"""Every wheel driven: rows up to this acceleration either way (the tires' linear region, where the slip is in
+proportion to the force)."""
 
 
 class WheelLatencyRows:
@@ -256,7 +295,12 @@ class WheelLatencyRows:
             return
         accel = (wheel_speed - speed_before) / dt
         thr = PHASE_ACCEL_MPS2  # the reference wheels roll freely unless the car brakes (all driven: or drives)
-        free = abs(accel) <= thr if self.every_wheel_driven else accel >= -thr
+        if self.every_wheel_driven:  # slip in proportion to the acceleration, in the fit (WheelLatency.slip_terms)
+            if abs(accel) <= MAX_SLIP_TERMS_ACCEL_MPS2 and min(v_prev, speed_mps) >= LATENCY_MIN_SPEED_MPS \
+                    and dt <= MAX_ROW_INTERVAL_S:
+                fit.add(0.5 * (v_prev + speed_mps) * dt, arcs - arcs_prev, abs(accel) >= 0.5, accel)
+            return
+        free = accel >= -thr
         if not free:  # the reference wheels are braked: drop the rows just before, skip the rows just after
             self._queue.clear()
             self._blocked_until_s = arrival_s + self.max_latency_s + self.window_s

@@ -139,7 +139,7 @@ class SlipEstimator:
         self._windows = WheelWindows()
         self._pending: deque[tuple[float, float]] = deque()  # epochs still to estimate: (arrival, UTC or NaN)
         self._utc = UtcLatency(params.max_latency_s)
-        self._lag = WheelLatency(params.max_latency_s)
+        self._lag = WheelLatency(params.max_latency_s, slip_terms=params.driven_axle == "all")
         self._driven = driven_wheels(params.driven_axle)
         self._reference = tuple(w for w in WHEELS if w not in self._driven)
         self._lag_rows = WheelLatencyRows(self._lag, not self._reference, params.r0_min_speed_mps,
