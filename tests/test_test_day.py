@@ -47,8 +47,9 @@ class _Events(CollectingSink):
 
 
 def drive(cfg: Config, settings: SimSettings = OFF_UTC, duration_s: float = 30.0, calibration: Calibration | None = None,
-          frozen: bool = False, gps_speeds: list[float] | None = None):  # type: ignore[no-untyped-def]
-    events = list(generate(cfg, "cycle", "paved", settings, duration_s, r0_offset_m=R0_OFFSET_M))
+          frozen: bool = False, gps_speeds: list[float] | None = None, scenario: str = "cycle",
+          road: str = "paved"):  # type: ignore[no-untyped-def]
+    events = list(generate(cfg, scenario, road, settings, duration_s, r0_offset_m=R0_OFFSET_M))
     records = [e.record for e in events if e.record is not None]
     truth = [e.truth for e in events if e.truth is not None]
     sink = _Events()
@@ -116,6 +117,16 @@ def test_cold_off_utc_with_every_wheel_driven_finds_the_latency_too(cfg_) -> Non
     assert len(errors) > 0.9 * 4 * len(fast), "slip in nearly every window, not withheld for an unknown latency"
     assert abs(errors).max() * 100 < 5.0
     assert slip_error([r for r in rows if r["quality"] == "ok"], truth).rms_points < 0.3
+
+
+def test_a_wheel_latency_resting_on_a_slip_model_never_replaces_utc(cfg_) -> None:  # type: ignore[no-untyped-def]
+    """Every wheel driven, on sand, the host on UTC: the UTC latency stays. The wheels' estimate, from a model of
+    their slip that sand bends, is 20 ms off here and took over for a third of the run when it could."""
+    awd = cfg_.with_overrides(vehicle={"driven_axle": "all"})
+    settings = SimSettings(gps_latency_s=0.085, gps_noise_mps=0.03, can_jitter_s=0.0005, seed=7)
+    _, rows, _, _, pipeline = drive(awd, settings, duration_s=30.0, road="sand")
+    assert pipeline.estimator.status()["gps_latency_wheels_s"] is not None  # it has one
+    assert {r["latency_source"] for r in rows[20:]} == {"utc"}
 
 
 def test_quality_is_a_csv_column_after_the_others_and_a_field_of_the_estimate() -> None:

@@ -173,8 +173,10 @@ class SlipEstimator:
         stored = self._stored_latency
         if stored is not None and self.frozen:
             return LatencyEstimate(stored[0], "stored", utc, wheels, lag.sigma_s)
-        if wheels is not None and (utc is None or abs(utc - wheels) > 3.0 * (lag.sigma_s or 0.0) + 0.02):
-            # measured alignment beats an assumption about the host clock when the two disagree
+        if wheels is not None and (utc is None or (abs(utc - wheels) > 3.0 * (lag.sigma_s or 0.0) + 0.02
+                                                   and not lag.slip_terms)):
+            # measured alignment beats an assumption about the host clock when the two disagree (not when it rests
+            # on a model of the wheels' slip: every wheel driven)
             own = LatencyEstimate(wheels, "wheels", utc, wheels, lag.sigma_s)
             own_sigma = lag.sigma_s or 0.0
         elif utc is not None:

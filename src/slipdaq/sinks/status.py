@@ -179,7 +179,8 @@ def render(s: StatusSink, rates: _Rates) -> Group:
     if gps_problem:
         lines.append(Text(f"      {gps_problem}", style="bold red"))
     lines += [
-        Text(f"accel {_fmt(e.accel_mps2 if e else None, '+.2f')} m/s²   Fx {_fmt(e.force_n if e else None, '+.0f')} N"),
+        Text(f"accel {_fmt(e.accel_mps2 if e else None, '+.2f')} m/s²   Fx {_fmt(e.force_n if e else None, '+.0f')} N"
+             f"   {estimate_quality(e)}", style="" if e is None or e.quality == "ok" else "yellow"),
         Text(f"CAN   {s.sources.can}: {rates.can_fps:7.0f} frames/s, {s.can_frames} frames, "
              f"unknown {d.get('unknown_frames', 0)}, errors {d.get('error_frames', 0)}{can_error_text(s)}, "
              f"reader errors {s.sources.can_reader_errors()}",
@@ -190,6 +191,14 @@ def render(s: StatusSink, rates: _Rates) -> Group:
     ]
     lines += [Text(f"event {_event_text(ev)}", style="dim") for ev in s.events]
     return Group(wheels, *lines)
+
+
+def estimate_quality(e: Estimate | None) -> str:
+    """The estimate's quality and what it rests on: the GPS latency and its source."""
+    if e is None:
+        return "no estimate yet"
+    latency = "unknown" if e.latency_source == "none" else f"{e.gps_latency_s * 1000:.0f} ms ({e.latency_source})"
+    return f"quality {e.quality}, GPS latency {latency}"
 
 
 def gps_diagnostic(s: StatusSink) -> str | None:
@@ -247,7 +256,7 @@ def status_line(s: StatusSink, rates: _Rates) -> str:
     gps_problem, log_problem = gps_diagnostic(s), log_diagnostic(s)
     return (
         f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'}{gps_gaps(s)}"
-        f"{f' [{gps_problem}]' if gps_problem else ''} | slip {slips} | "
+        f"{f' [{gps_problem}]' if gps_problem else ''} | slip {slips} ({estimate_quality(e)}) | "
         f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}{can_error_text(s)}{reader_errors(s)}) | "
         f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)} | "
         f"log {s.sources.log_path_now()} {_size(s.sources.log_size_bytes())}"
