@@ -289,7 +289,7 @@ def test_linearity_of_a_pacejka_curve_refits_below_the_end() -> None:
     f = [tire.force_n(x, 3000.0) for x in s]
     lin = analyse_linearity(s.tolist(), f)
     assert lin.end_slip is not None and lin.end_slip < tire.peak_slip
-    assert lin.end_force_n < 0.9 * lin.line.cx_n * lin.end_slip
+    assert lin.end_force_n < 0.9 * lin.line.force_n(lin.end_slip)
     assert lin.line.points < sum(s <= 0.10)  # refitted on the points below the end only
     assert 0.75 * tire.stiffness_n(3000.0) < lin.line.cx_n < tire.stiffness_n(3000.0)
 

@@ -111,7 +111,7 @@ def make_report(
             plot_paths[name] = {}
             for m in log.maneuvers:
                 made = plots.plot_maneuver(log, m, build / name)
-                plot_paths[name][m.phase] = {k: p.relative_to(build).as_posix() for k, p in made.items()}
+                plot_paths[name][m.key] = {k: p.relative_to(build).as_posix() for k, p in made.items()}
                 pngs += (out / p.relative_to(build) for p in made.values())
                 say(f"{name}: {m.title}: {len(made)} plots")
             if not log.maneuvers:

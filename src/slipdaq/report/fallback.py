@@ -4,7 +4,7 @@
   `derive_phases` classifies each row from its speed and acceleration (the report then debounces either).
 - `cx_fit_W_n` / `cx_fit_W_conf` per estimate (an online fitted stiffness and its confidence): when a maneuver's
   rows have none, the report's own least-squares line through the origin over the linear region stands in
-  (`summary.fit_through_origin`, confidence as defined there); see `fitted_cx`.
+  (`summary.analyse_linearity`'s line, confidence as defined there); see `fitted_cx`.
 """
 
 from __future__ import annotations

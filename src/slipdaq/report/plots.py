@@ -101,7 +101,7 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         ax.set_ylabel(ylabel)
         _finish(ax, any_data, extra=extra)
         _title(fig, titles[key], m.title, log)
-        paths[key] = out_dir / f"{m.phase}-{key}.png"
+        paths[key] = out_dir / f"{m.key}-{key}.png"
         _save(fig, paths[key])
 
     # slip against time
@@ -190,7 +190,7 @@ def _draw_line_and_end(ax: Any, w: str, lin: Any, xs: list[float]) -> None:
     if lin.line is None or not xs:
         return
     color = WHEEL_STYLE[w]["color"]
-    _line(ax, lin.line.cx_n, xs, color, "--")
+    _line(ax, lin.line, xs, color, "--")
     if lin.end_slip is not None and lin.end_force_n is not None:
         ax.plot([lin.end_slip * 100], [lin.end_force_n], marker="X", markersize=12, color=color,
                 markeredgecolor="black", linestyle="none")
@@ -201,10 +201,11 @@ def _draw_line_and_end(ax: Any, w: str, lin: Any, xs: list[float]) -> None:
                 markeredgecolor=color, markeredgewidth=1.5, linestyle="none")
 
 
-def _line(ax: Any, cx_n: float, xs_pct: list[float], color: str, style: Any) -> None:
-    """Fx = Cx·s through the origin, over the slip range of the points (slip in %)."""
+def _line(ax: Any, line: Any, xs_pct: list[float], color: str, style: Any) -> None:
+    """The fitted line Fx = Cx·(s − s0) (summary.LineFit), over the slip range of the points (slip in %)."""
     lo, hi = min(min(xs_pct), 0.0) * 1.05, max(max(xs_pct), 0.0) * 1.05
-    ax.plot([lo, hi], [lo / 100.0 * cx_n, hi / 100.0 * cx_n], color=color, linestyle=style, linewidth=1.4)
+    ax.plot([lo, hi], [line.force_n(lo / 100.0), line.force_n(hi / 100.0)], color=color, linestyle=style,
+            linewidth=1.4)
 
 
 def _finish(ax: Any, any_data: bool, extra: list[Line2D] | None = None) -> None:
@@ -238,7 +239,7 @@ def plot_comparison(phase: str, logs: Sequence[LogSummary], path: Path) -> Path:
                         markersize=4.5, alpha=0.7, markerfacecolor="none" if gi % 2 else color)
                 lin = m.wheels[w].linearity
                 if lin.line is not None:
-                    _line(ax, lin.line.cx_n, xs, color, GROUP_LINES[gi % len(GROUP_LINES)])
+                    _line(ax, lin.line, xs, color, GROUP_LINES[gi % len(GROUP_LINES)])
     ax.axhline(0.0, color="#888888", linewidth=0.8)
     ax.axvline(0.0, color="#888888", linewidth=0.8)
     ax.set_xlabel(SLIP_LABEL)

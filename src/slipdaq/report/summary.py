@@ -3,16 +3,26 @@
 Maneuvers
     Each estimate row has a phase: its own `phase` field when the log has one, else `fallback.derive_phases`
     (speed < 0.5 m/s standstill, |a| < 0.3 m/s² cruise, else accelerate or brake). A run of fewer than 3
-    consecutive rows of one phase between two runs of one other phase (noise on a) takes that phase. A maneuver is every row of
-    one phase in a log (all accelerate rows together, ...); standstill, and phases of fewer than 5 rows or
-    without any defined slip, make none. Its title gives the speed range in km/h rounded to 5 (e.g. "accelerate 0–60 km/h").
+    consecutive rows of one phase between two runs of one other phase (noise on a) takes that phase. A maneuver is
+    one event: a run of rows of one phase; two runs of accelerate (or brake) with nothing but cruise between them,
+    for less than MERGE_GAP_S (a gear change, an ABS cycle), are one event. Standstill, and events of fewer than 5
+    rows or without any defined slip, make none. Its title gives the speed range in km/h rounded to 5 (e.g.
+    "accelerate 0–60 km/h"), numbered "#1", "#2", ... in time order when a log has several of one phase; its `key`
+    (the phase, or "accelerate-2", ...) names its plots.
 
 Linear region and the end of linearity (per wheel and maneuver), the exact rule
     1. Points: rows with slip s and tire force Fx (`force_W_n`) both defined, |s| >= S_MIN and Fx·s > 0
        (force and slip of the same sign; a wheel carrying no force has no points).
        S_MIN, S_MAX are the log's `estimator.cx_slip_min`, `cx_slip_max` (defaults 0.005, 0.10).
-    2. Line: Cx_line = Σ Fx·s / Σ s² (least squares through the origin) over the points with |s| <= S_MAX
-       (at least 3 points, else no line and no linearity result).
+    2. Line: slip on force, s = s0 + Fx/Cx_line, least squares over the maneuver's windows whose force has the
+       maneuver's sign (any slip) and the log's cruise windows (which anchor Fx = 0; a log without: step 2's
+       fallback), both with |s| <= S_MAX. The
+       slip is the noisy one (GPS), so it is the regressand: its noise adds spread, not bias; Fx = M·a spreads
+       widely between cruise and the maneuver and its own noise is small against that spread (docs/method.md,
+       fitted stiffness). s0 takes a radius error out. Without force spread (fewer than 3 points, or a slope not
+       3 standard errors above 0: one cluster of points):
+       Fx = Cx_line·s through the origin over the sign-consistent points (the secant; `cx_line_method` says which).
+       With neither, no line and no linearity result.
     3. Bins: the points are binned by |s| in steps of 1 % slip ([0, 1 %), [1 %, 2 %), ...); bins of fewer than
        5 points are skipped. A bin is below the line when its median |Fx| < (1 − 0.10)·Cx_line·(its median |s|).
     4. Linearity ends at the first bin (by increasing |s|) that is below the line and after which every kept bin
@@ -57,7 +67,29 @@ PHASES: tuple[str, ...] = ("accelerate", "cruise", "brake")
 MIN_RUN_ROWS = 3
 """A run of fewer consecutive rows of one phase between two runs of another phase (noise on a) takes that phase."""
 MIN_MANEUVER_ROWS = 5
-"""A phase with fewer rows (after debouncing) makes no maneuver."""
+"""An event with fewer rows (after debouncing) makes no maneuver."""
+MERGE_GAP_S = 2.0
+"""Two runs of one phase with only cruise between them, for less than this, are one event."""
+
+
+def events(phases: Sequence[str | None], times_s: Sequence[float]) -> list[tuple[str | None, list[int]]]:
+    """The rows (indices) of each event in time order: runs of one phase, two runs of a phase with only a short
+    cruise between them joined (the cruise rows between belong to neither)."""
+    runs: list[tuple[str | None, list[int]]] = []
+    for i, p in enumerate(phases):
+        if runs and runs[-1][0] == p:
+            runs[-1][1].append(i)
+        else:
+            runs.append((p, [i]))
+    out: list[tuple[str | None, list[int]]] = []
+    for p, rows in runs:
+        if p in ("accelerate", "brake") and len(out) >= 2 and out[-2][0] == p and out[-1][0] == "cruise" \
+                and times_s[rows[0]] - times_s[out[-2][1][-1]] < MERGE_GAP_S:
+            out.pop()
+            out[-1][1].extend(rows)
+            continue
+        out.append((p, list(rows)))
+    return out
 
 
 def debounce(phases: Sequence[str | None], min_run: int = MIN_RUN_ROWS) -> list[str | None]:
@@ -96,6 +128,13 @@ class LineFit:
     cx_n: float
     stderr_n: float
     points: int
+    slip_offset: float = 0.0
+    """s0: the line is Fx = Cx·(s − s0)."""
+    method: str = "through origin"
+    """'slip on force' or 'through origin' (rule step 2)."""
+
+    def force_n(self, slip: float) -> float:
+        return self.cx_n * (slip - self.slip_offset)
 
     @property
     def confidence(self) -> float:
@@ -137,10 +176,38 @@ def fit_through_origin(points: Sequence[tuple[float, float]]) -> LineFit | None:
     return LineFit(cx, stderr, len(points))
 
 
+MIN_SLOPE_T = 3.0
+"""The slip-on-force slope must be this many standard errors above 0."""
+
+
+def fit_slip_on_force(points: Sequence[tuple[float, float]]) -> LineFit | None:
+    """s = s0 + Fx/Cx by least squares (slip the regressand); None for fewer than 3 points or no positive slope."""
+    n = len(points)
+    if n < 3:
+        return None
+    f_mean = sum(f for _, f in points) / n
+    s_mean = sum(s for s, _ in points) / n
+    sff = sum((f - f_mean) ** 2 for _, f in points)
+    if sff <= 0:
+        return None
+    b = sum((f - f_mean) * (s - s_mean) for s, f in points) / sff
+    a = s_mean - b * f_mean
+    resid = sum((s - a - b * f) ** 2 for s, f in points)
+    se_b = math.sqrt(resid / (n - 2) / sff)
+    if b <= MIN_SLOPE_T * se_b:  # no force spread beyond the noise (one cluster): no slope to take
+        return None
+    return LineFit(1.0 / b, se_b / (b * b), n, a, "slip on force")
+
+
 def analyse_linearity(
     slips: Sequence[float | None], forces: Sequence[float | None], rule: LinearityRule = LinearityRule(),
+    anchors: Sequence[tuple[float | None, float | None]] = (),
 ) -> Linearity:
-    """The linear region of one wheel's force–slip points (rule in the module docstring)."""
+    """The linear region of one wheel's force–slip points (rule in the module docstring); anchors: (slip, force) of
+    the log's cruise windows."""
+    both = [(s, f) for s, f in zip(slips, forces) if s is not None and f is not None]
+    sign = 1.0 if sum(f for _, f in both) >= 0 else -1.0
+    anchor = [(s, f) for s, f in anchors if s is not None and f is not None]
     pts = sorted(
         ((s, f) for s, f in zip(slips, forces)
          if s is not None and f is not None and abs(s) >= rule.slip_min and s * f > 0),
@@ -160,12 +227,14 @@ def analyse_linearity(
         fit_pts = [p for p in pts if abs(p[0]) <= fit_max]
         if len(fit_pts) < rule.min_fit_points:
             break
-        line = fit_through_origin(fit_pts)
+        line = (fit_slip_on_force([(s, f) for s, f in both if f * sign > 0 and abs(s) <= fit_max]
+                                  + [(s, f) for s, f in anchor if abs(s) <= fit_max]) if anchor else None) \
+            or fit_through_origin(fit_pts)
         if line is None:
             break
         below = [
             statistics.median(abs(f) for _, f in b)
-            < (1.0 - rule.tolerance) * abs(line.cx_n) * statistics.median(abs(s) for s, _ in b)
+            < (1.0 - rule.tolerance) * abs(line.force_n(sign * statistics.median(abs(s) for s, _ in b)))
             for _, b in kept
         ]
         end = None
@@ -238,6 +307,8 @@ class WheelSummary:
 class ManeuverSummary:
     phase: str
     title: str
+    key: str
+    """Unique in its log: the phase, or the phase and its number ("accelerate-2") when the log has several."""
     rows: tuple[dict[str, Any], ...] = field(repr=False, compare=False)
     t_start_s: float
     """Seconds since the log's first estimate."""
@@ -311,10 +382,13 @@ def log_config(metadata: dict[str, str]) -> Config | None:
 
 def summarize_wheel(
     rows: Sequence[dict[str, Any]], wheel: str, rule: LinearityRule, lost_frames: int | None,
+    anchors: Sequence[dict[str, Any]] = (),
 ) -> WheelSummary:
+    """anchors: the log's cruise rows (rule step 2)."""
     slips = [r.get(f"slip_{wheel}") for r in rows]
     defined = [s for s in slips if s is not None]
-    lin = analyse_linearity(slips, [r.get(f"force_{wheel}_n") for r in rows], rule)
+    lin = analyse_linearity(slips, [r.get(f"force_{wheel}_n") for r in rows], rule,
+                            [(r.get(f"slip_{wheel}"), r.get(f"force_{wheel}_n")) for r in anchors])
     peak_cx = peak_binned(
         [(r[f"slip_{wheel}"], r[f"cx_{wheel}_n"]) for r in rows
          if r.get(f"cx_{wheel}_n") is not None and r.get(f"slip_{wheel}") is not None], rule)
@@ -362,28 +436,39 @@ def summarize_log(
     t0 = rows[0]["time_s"] if rows else None
     cfg_latency = None if cfg is None else (cfg.latency_fixed_s or 0.0)  # "auto": 0
     maneuvers: list[ManeuverSummary] = []
+    found = events(phases, [r["time_s"] for r in rows])
+    cruise = tuple(r for r, p in zip(rows, phases) if p == "cruise")
     for phase in PHASES:
-        prow = tuple(r for r, p in zip(rows, phases) if p == phase)
-        if len(prow) < MIN_MANEUVER_ROWS or not any(r.get(f"slip_{w}") is not None for r in prow for w in WHEELS):
-            continue
-        title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
-        lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
-        if lat:
-            srcs = [r["latency_source"] for r in prow if r.get("latency_source")]
-            latency: float | None = float(statistics.median(lat))
-            lat_src = f"estimates ({statistics.mode(srcs)})" if srcs else "estimates"
-        else:
-            latency, lat_src = cfg_latency, "config"
-        maneuvers.append(ManeuverSummary(
-            phase=phase, title=title, rows=prow,
-            t_start_s=prow[0]["time_s"] - t0, t_end_s=prow[-1]["time_s"] - t0,
-            speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
-            wheels={w: summarize_wheel(prow, w, rule, lost.get(w)) for w in WHEELS},
-        ))
+        kept = [tuple(rows[i] for i in idx) for p, idx in found if p == phase]
+        kept = [prow for prow in kept if len(prow) >= MIN_MANEUVER_ROWS
+                and any(r.get(f"slip_{w}") is not None for r in prow for w in WHEELS)]
+        for k, prow in enumerate(kept, start=1):
+            maneuvers.append(_maneuver(phase, prow, k if len(kept) > 1 else 0, rows[0]["time_s"], cfg_latency, rule, lost,
+                                       cruise if phase != "cruise" else ()))
     return LogSummary(
         path=path, name=name, labels=dict(labels), group=group_of(labels, group_by),
         mode=metadata.get("mode", ""), estimates=len(rows), t0_s=t0, lost_frames=lost,
         bad_sentences=diag.get("bad_sentences"), maneuvers=maneuvers,
+    )
+
+
+def _maneuver(phase: str, prow: tuple[dict[str, Any], ...], number: int, t0: float, cfg_latency: float | None,
+              rule: LinearityRule, lost: dict[str, int], anchors: Sequence[dict[str, Any]]) -> ManeuverSummary:
+    """One event's maneuver; number: its place among the log's events of the phase (0: the only one)."""
+    title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
+    lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
+    if lat:
+        srcs = [r["latency_source"] for r in prow if r.get("latency_source")]
+        latency: float | None = float(statistics.median(lat))
+        lat_src = f"estimates ({statistics.mode(srcs)})" if srcs else "estimates"
+    else:
+        latency, lat_src = cfg_latency, "config"
+    return ManeuverSummary(
+        phase=phase, title=f"{title} #{number}" if number else title,
+        key=f"{phase}-{number}" if number else phase, rows=prow,
+        t_start_s=prow[0]["time_s"] - t0, t_end_s=prow[-1]["time_s"] - t0,
+        speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
+        wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
     )
 
 
@@ -392,7 +477,8 @@ def summarize_log(
 COLUMNS: tuple[str, ...] = (
     "log", "labels", "group", "maneuver", "phase", "wheel", "t_start_s", "t_end_s", "speed_from_kmh",
     "speed_to_kmh", "slip_samples", "mean_slip", "max_abs_slip", "linearity", "linear_end_slip",
-    "linear_end_fx_n", "peak_linear_fx_n", "peak_linear_fx_slip", "cx_line_n", "cx_line_points", "mean_re_m",
+    "linear_end_fx_n", "peak_linear_fx_n", "peak_linear_fx_slip", "cx_line_n", "cx_line_points", "cx_line_method",
+    "cx_line_slip_offset", "mean_re_m",
     "r0_m", "peak_cx_n", "peak_cx_slip", "cx_fit_n", "cx_fit_conf", "cx_fit_source", "gps_latency_s",
     "gps_latency_source", "lost_frames", "bad_sentences",
 )
@@ -415,6 +501,8 @@ def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
                     "peak_linear_fx_n": lin.peak_fx_n, "peak_linear_fx_slip": lin.peak_fx_slip,
                     "cx_line_n": lin.line.cx_n if lin.line else None,
                     "cx_line_points": lin.line.points if lin.line else 0,
+                    "cx_line_method": lin.line.method if lin.line else None,
+                    "cx_line_slip_offset": lin.line.slip_offset if lin.line else None,
                     "mean_re_m": ws.mean_re_m, "r0_m": ws.r0_m,
                     "peak_cx_n": ws.peak_cx_n, "peak_cx_slip": ws.peak_cx_slip,
                     "cx_fit_n": ws.cx_fit_n, "cx_fit_conf": ws.cx_fit_conf, "cx_fit_source": ws.cx_fit_source,

@@ -65,7 +65,7 @@ def write_json(
                 "estimates": log.estimates, "lost_frames": log.lost_frames, "bad_sentences": log.bad_sentences,
                 "maneuvers": [
                     {"maneuver": m.title, "phase": m.phase, "t_start_s": m.t_start_s, "t_end_s": m.t_end_s,
-                     "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.phase, {})}
+                     "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.key, {})}
                     for m in log.maneuvers
                 ],
             }
@@ -216,7 +216,7 @@ def write_html(
         for m in log.maneuvers:
             out.append(f"<h3>{escape(m.title)}</h3>")
             out.append(_maneuver_table(log, m))
-            out.append(_images(plots.get(log.name, {}).get(m.phase, {})))
+            out.append(_images(plots.get(log.name, {}).get(m.key, {})))
     out.append("</body></html>\n")
     path.write_text("\n".join(out), encoding="utf-8")
 
