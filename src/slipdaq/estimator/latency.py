@@ -7,9 +7,13 @@ really on UTC).
 - From the wheels: the lag tau that best aligns GPS distance between consecutive fixes with the distance rolled by
   the non-driven wheels while they roll freely: minimise sum_k (y_k - r * x_k(tau))^2 over a grid of tau, with
   y_k the GPS distance over fix interval k (trapezoid) and x_k(tau) = 2*pi*revolutions over the same interval of
-  arrival times shifted by -tau (r, the radius, is fitted per tau). Needs speed changes to be identifiable: it
-  counts only after MIN_INFORMATIVE_ROWS rows taken while accelerating (a >= 0.5 m/s^2). Least squares with
-  exponential forgetting; uncertainty from the curvature of the residual at its minimum.
+  arrival times shifted by -tau (r, the radius, is fitted per tau), the revolutions from local lines through the
+  nearest samples; tau on a 1 ms grid from -20 ms (a minimum at 0 is inside it), taken as >= 0. Needs speed changes
+  to be identifiable: it counts only after MIN_INFORMATIVE_ROWS rows taken while the wheels accelerate
+  (a >= 0.5 m/s^2, from the wheels themselves). Least squares with exponential forgetting; uncertainty from the
+  curvature of the residual at its minimum. Every wheel driven (none rolls freely): the rows while driving, with
+  the wheels' slip in proportion to the acceleration in the fit (slip_terms); that estimate never replaces a
+  plausible UTC one (slip.py).
 """
 
 from __future__ import annotations
@@ -244,11 +248,10 @@ class WheelLatencyRows:
     """The rows of the wheel-based latency fit: each fix interval against the free-rolling (reference) wheels, taken
     while they roll freely and not just before or after braking."""
 
-    def __init__(self, fit: WheelLatency, every_wheel_driven: bool, min_speed_mps: float, max_latency_s: float,
+    def __init__(self, fit: WheelLatency, every_wheel_driven: bool, max_latency_s: float,
                  window_s: float) -> None:
         self.fit = fit
         self.every_wheel_driven = every_wheel_driven
-        self.min_speed_mps = min_speed_mps
         self.max_latency_s = max_latency_s
         self.window_s = window_s
         """After braking, rows are skipped for max latency + window."""

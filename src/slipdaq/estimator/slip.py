@@ -142,8 +142,7 @@ class SlipEstimator:
         self._lag = WheelLatency(params.max_latency_s, slip_terms=params.driven_axle == "all")
         self._driven = driven_wheels(params.driven_axle)
         self._reference = tuple(w for w in WHEELS if w not in self._driven)
-        self._lag_rows = WheelLatencyRows(self._lag, not self._reference, params.r0_min_speed_mps,
-                                          params.max_latency_s, params.window_s)
+        self._lag_rows = WheelLatencyRows(self._lag, not self._reference, params.max_latency_s, params.window_s)
         self._radius = {w: RadiusCalibration() for w in WHEELS}
         self._stiffness = {w: StiffnessFit() for w in WHEELS}
         self._wheel_clock = WheelClockEstimates(params.window_s, self._reference, self._driven,
