@@ -147,10 +147,16 @@ async def _soak(
                 await play(events, bus=CountingBus(), nmea_write=gps.write,  # type: ignore[arg-type]
                            start_wall_s=settings.start_utc_s)
                 timing["drive_wall_s"] = time.monotonic() - t
-                # let the daemon read what is queued (it never should be much), then stop it
+                # let the daemon read what is queued (it never should be much): the CAN backlog and the GPS lines
+                # (the pty's input queue empty twice, 0.1 s apart: the kernel moves written bytes there by itself),
+                # then stop it
                 deadline = time.monotonic() + 10.0
                 while backlog() and time.monotonic() < deadline:
                     await asyncio.sleep(0.05)
+                empty = 0
+                while empty < 2 and time.monotonic() < deadline:
+                    await asyncio.sleep(0.1)
+                    empty = empty + 1 if gps.unread_bytes() == 0 else 0
                 await asyncio.sleep(0.5)
                 stop.set()
 

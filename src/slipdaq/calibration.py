@@ -17,16 +17,15 @@ from __future__ import annotations
 
 import datetime as dt
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import tomli_w
-from pydantic import Field, ValidationError
+from pydantic import Field
 
 from slipdaq import WHEELS
-from slipdaq.config import Config, ConfigError, _format_error, _Section
+from slipdaq.config import Config, ConfigError, _Section, parse_toml
 
 CALIBRATION_FORMAT = 1
 DEFAULT_FILE_NAME = "calibration.toml"
@@ -121,14 +120,7 @@ def default_path(log_dir: Path, config: Config) -> Path:
 
 
 def parse_calibration(text: str, source: str = "<calibration>") -> Calibration:
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise CalibrationError(f"{source}: not valid TOML: {e}") from None
-    try:
-        cal = Calibration.model_validate(data)
-    except ValidationError as e:
-        raise CalibrationError(_format_error(source, e)) from None
+    cal = parse_toml(Calibration, text, source, CalibrationError)
     if cal.format != CALIBRATION_FORMAT:
         raise CalibrationError(f"{source}: format: {cal.format} is not a format this slipdaq reads "
                                f"({CALIBRATION_FORMAT})")

@@ -9,7 +9,7 @@ import re
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -239,17 +239,24 @@ def _format_error(source: str, err: ValidationError) -> str:
     return f"{source}: {key}: {msg}{shown}{more}"
 
 
-def parse_config(text: str, source_path: Path | None = None, dbc_text: str | None = None) -> Config:
-    """Parse TOML text into a Config; raises ConfigError with one line naming the file and key."""
-    source = str(source_path) if source_path is not None else "<config>"
+M = TypeVar("M", bound=BaseModel)
+
+
+def parse_toml(model: type[M], text: str, source: str, error: type[ConfigError] = ConfigError) -> M:
+    """TOML text validated into `model`; `error` with one line naming the file (source) and the key otherwise."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{source}: not valid TOML: {e}") from None
+        raise error(f"{source}: not valid TOML: {e}") from None
     try:
-        cfg = Config.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(_format_error(source, e)) from None
+        raise error(_format_error(source, e)) from None
+
+
+def parse_config(text: str, source_path: Path | None = None, dbc_text: str | None = None) -> Config:
+    """Parse TOML text into a Config; raises ConfigError with one line naming the file and key."""
+    cfg = parse_toml(Config, text, str(source_path) if source_path is not None else "<config>")
     return cfg.model_copy(update={"source_path": source_path, "source_text": text, "dbc_text": dbc_text})
 
 

@@ -118,20 +118,16 @@ def process_to_log(
     mode: str,
     *,
     metadata: dict[str, str] | None = None,
-    calibration: Calibration | None = None,
-    frozen: bool = False,
-    gps_speeds: Sequence[float] | None = None,
-    total: int | None = None,
-    stream: TextIO | None = None,
-    description: str = "",
+    **options: Any,
 ) -> Pipeline:
-    """process() into a new MCAP log at out_path; the calibration it started from is stored in the log's metadata
-    (calibration_toml), so that a replay of the log starts from it too."""
+    """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
+    calibration it started from is stored in the log's metadata (calibration_toml), so that a replay of the log
+    starts from it too."""
+    calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
     sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
     try:
-        return process(config, records, [sink], calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
-                       total=total, stream=stream, description=description or mode)
+        return process(config, records, [sink], **({"description": mode} | options))
     finally:
         sink.close()
 

@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import fcntl
 import os
 import pty
 import signal
+import struct
 import sys
+import termios
 import time
 import tty
 from collections.abc import Callable
@@ -61,6 +64,10 @@ class PtyGps:
             os.write(self.master_fd, data)
         except BlockingIOError:
             self.dropped_lines += 1
+
+    def unread_bytes(self) -> int:
+        """Bytes written that the reader has not read yet (the slave's input queue)."""
+        return int(struct.unpack("i", fcntl.ioctl(self.slave_fd, termios.FIONREAD, b"\0" * 4))[0])
 
     def close(self) -> None:
         if self.link is not None:

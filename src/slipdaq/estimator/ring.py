@@ -116,6 +116,18 @@ class SeriesRing:
         self._start, self._end = 0, n
 
 
+def first_index(t: np.ndarray, x: float, lo: int, after: bool) -> int:
+    """The first index from lo on with t > x (after) or t >= x: searchsorted's right or left side, for kernels."""
+    hi = len(t)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t[mid] < x or (after and t[mid] == x):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 MIN_LINE_SPAN_S = 1e-6
 """Samples spanning less than this are one instant to local_linear (a line through them has no slope)."""
 
@@ -129,14 +141,7 @@ def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out
     t_mean = v_mean = slope = 0.0
     for q in range(len(times)):
         x = times[q]
-        lo, hi = 0, n
-        while lo < hi:  # the first index with t >= x
-            mid = (lo + hi) // 2
-            if t[mid] < x:
-                lo = mid + 1
-            else:
-                hi = mid
-        c = min(max(lo, half), n - half - 1)
+        c = min(max(first_index(t, x, 0, False), half), n - half - 1)
         if c != last_c:
             st = sv = 0.0
             for j in range(c - half, c + half + 1):
@@ -154,34 +159,20 @@ def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out
         out[q] = v_mean + slope * (x - t_mean)
 
 
-local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:])")
+local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:])", uses=(first_index,))
 """local_lines()(t, v, times, half, out): see _local_lines (SeriesRing.local_linear)."""
 
 
 def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
     """SeriesRing.longest_gap over the times t (in order)."""
     n = len(t)
-    lo, hi = 0, n
-    while lo < hi:  # the first index with t > t_first
-        mid = (lo + hi) // 2
-        if t[mid] <= t_first:
-            lo = mid + 1
-        else:
-            hi = mid
-    i = max(lo - 1, 0)
-    lo, hi = i, n
-    while lo < hi:  # the first index with t >= t_last
-        mid = (lo + hi) // 2
-        if t[mid] < t_last:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = min(lo + 1, n)
+    i = max(first_index(t, t_first, 0, True) - 1, 0)
+    j = min(first_index(t, t_last, i, False) + 1, n)
     gap = 0.0
     for k in range(i + 1, j):
         gap = max(gap, t[k] - t[k - 1])
     return gap
 
 
-longest_gap = kernel(_longest_gap, "float64(float64[:], float64, float64)")
+longest_gap = kernel(_longest_gap, "float64(float64[:], float64, float64)", uses=(first_index,))
 """longest_gap()(t, t_first, t_last): see _longest_gap."""

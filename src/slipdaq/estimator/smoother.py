@@ -110,21 +110,14 @@ def estimate_noise_mps(time_s: np.ndarray, speed_mps: np.ndarray, max_gap_s: flo
 
 
 class _Filtered:
-    """The forward pass's filtered and predicted states and covariances (covariance as p00, p01, p11)."""
+    """The forward pass's predicted and filtered states, each (v, a, c00, c01, c11): speed, acceleration and the
+    covariance's three elements."""
 
-    __slots__ = ("fv", "fa", "f00", "f01", "f11", "pv", "pa", "p00", "p01", "p11")
+    __slots__ = ("predicted", "filtered")
 
     def __init__(self) -> None:
-        self.fv: list[float] = []
-        self.fa: list[float] = []
-        self.f00: list[float] = []
-        self.f01: list[float] = []
-        self.f11: list[float] = []
-        self.pv: list[float] = []
-        self.pa: list[float] = []
-        self.p00: list[float] = []
-        self.p01: list[float] = []
-        self.p11: list[float] = []
+        self.predicted: list[tuple[float, float, float, float, float]] = []
+        self.filtered: list[tuple[float, float, float, float, float]] = []
 
 
 def _forward(t: list[float], z: list[float], var: list[float], q: float, out: _Filtered | None) -> float:
@@ -146,11 +139,7 @@ def _forward(t: list[float], z: list[float], var: list[float], q: float, out: _F
             c01 += dt * c11 + 0.5 * qdt * dt
             c11 += qdt
         if out is not None:
-            out.pv.append(v)
-            out.pa.append(a)
-            out.p00.append(c00)
-            out.p01.append(c01)
-            out.p11.append(c11)
+            out.predicted.append((v, a, c00, c01, c11))
         r = var[k]
         s = c00 + r
         y = z[k] - v
@@ -164,37 +153,32 @@ def _forward(t: list[float], z: list[float], var: list[float], q: float, out: _F
         if k >= 2:
             loglik -= 0.5 * (_LOG_2PI + math.log(s) + y * y / s)
         if out is not None:
-            out.fv.append(v)
-            out.fa.append(a)
-            out.f00.append(c00)
-            out.f01.append(c01)
-            out.f11.append(c11)
+            out.filtered.append((v, a, c00, c01, c11))
     return loglik
 
 
 def _backward(t: list[float], f: _Filtered) -> tuple[list[float], list[float]]:
     """RTS pass: the smoothed speed and acceleration."""
     n = len(t)
-    sv = list(f.fv)
-    sa = list(f.fa)
+    sv = [x[0] for x in f.filtered]
+    sa = [x[1] for x in f.filtered]
     for k in range(n - 2, -1, -1):
         dt = t[k + 1] - t[k]
+        fv, fa, f00, f01, f11 = f.filtered[k]
+        pv, pa, m00, m01, m11 = f.predicted[k + 1]
         # G = P[k|k] F'
-        g00 = f.f00[k] + dt * f.f01[k]
-        g01 = f.f01[k]
-        g10 = f.f01[k] + dt * f.f11[k]
-        g11 = f.f11[k]
-        m00 = f.p00[k + 1]
-        m01 = f.p01[k + 1]
-        m11 = f.p11[k + 1]
+        g00 = f00 + dt * f01
+        g01 = f01
+        g10 = f01 + dt * f11
+        g11 = f11
         det = m00 * m11 - m01 * m01
         i00 = m11 / det
         i01 = -m01 / det
         i11 = m00 / det
-        dv = sv[k + 1] - f.pv[k + 1]
-        da = sa[k + 1] - f.pa[k + 1]
-        sv[k] = f.fv[k] + (g00 * i00 + g01 * i01) * dv + (g00 * i01 + g01 * i11) * da
-        sa[k] = f.fa[k] + (g10 * i00 + g11 * i01) * dv + (g10 * i01 + g11 * i11) * da
+        dv = sv[k + 1] - pv
+        da = sa[k + 1] - pa
+        sv[k] = fv + (g00 * i00 + g01 * i01) * dv + (g00 * i01 + g01 * i11) * da
+        sa[k] = fa + (g10 * i00 + g11 * i01) * dv + (g10 * i01 + g11 * i11) * da
     return sv, sa
 
 
