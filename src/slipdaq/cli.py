@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import slipdaq
-from slipdaq.calibration import RunCalibration
+from slipdaq.calibration import Calibration, Learned, RunCalibration
 from slipdaq.config import Config, ConfigError, load_config
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.outputs import OutputError, atomic_output
@@ -53,15 +53,27 @@ def _add_calibration(p: argparse.ArgumentParser, default: str, replay: bool = Fa
     g.add_argument("--no-calibration", action="store_true", help="start cold and save nothing")
 
 
-def _run_calibration(args: argparse.Namespace, cfg: Config, log_dir: Path) -> RunCalibration:
-    """--calibration / --no-calibration / the default file; prints what it starts from."""
-    from slipdaq.calibration import default_path, for_run
+def _run_calibration(args: argparse.Namespace, cfg: Config, log_dir: Path, *, replay: bool = False,
+                     logged: Calibration | None = None) -> RunCalibration:
+    """--calibration / --no-calibration / the default file; prints what it starts from. A replay without either
+    flag starts from `logged`, the calibration the logged run started from, and saves to the default file."""
+    from slipdaq.calibration import default_path, for_replay, for_run
 
-    path = None if args.no_calibration else Path(args.calibration) if args.calibration else default_path(log_dir, cfg)
-    cal = for_run(path, cfg)
+    if replay and not args.no_calibration and not args.calibration:
+        cal = for_replay(logged, default_path(log_dir, cfg), cfg)
+    else:
+        path = None if args.no_calibration else Path(args.calibration) if args.calibration \
+            else default_path(log_dir, cfg)
+        cal = for_run(path, cfg)
     if cal.note:
         print(cal.note)
     return cal
+
+
+def _save_calibration(cal: RunCalibration, learned: Learned, cfg: Config, learned_from: str) -> None:
+    saved = cal.finish(learned, cfg, learned_from)
+    if saved:
+        print(saved)
 
 
 def _add_allow_empty(p: argparse.ArgumentParser, what: str) -> None:
@@ -236,9 +248,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                                         metadata=_labels_meta(args) or None, calibration=cal.start))
     print(f"log written: {result.log_path} ({result.can_frames} CAN frames, {result.nmea_lines} NMEA lines, "
           f"{result.estimates} estimates, {result.lost_frames} lost frames, {result.bad_sentences} bad sentences)")
-    saved = cal.finish(result.learned, cfg, str(result.log_path))
-    if saved:
-        print(saved)
+    _save_calibration(cal, result.learned, cfg, str(result.log_path))
     segments = getattr(result, "log_segments", None) or []
     if len(segments) > 1:
         print(f"log segments: {' '.join(str(p) for p in segments)}")
@@ -285,9 +295,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     ubx = f" ({d.ubx_frames} UBX frames)" if d.ubx_frames else ""
     print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines{ubx} -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
-    saved = cal.finish(p.estimator.learned(), cfg, str(args.output))
-    if saved:
-        print(saved)
+    _save_calibration(cal, p.estimator.learned(), cfg, str(args.output))
     return EXIT_OK
 
 
@@ -302,7 +310,6 @@ def _unfinished_note(path: str, scanned: object) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from slipdaq.calibration import default_path, for_replay
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.logformat.salvage import ScanResult
     from slipdaq.offline import first_pass, process_to_log, start_calibration
@@ -313,13 +320,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     total = raw_record_count(args.log)
     meta = read_metadata(args.log)
     labels = {k: v for k, v in meta.items() if k.startswith(LABEL_PREFIX)}  # kept
-    out_dir = Path(args.output).resolve().parent
-    if args.no_calibration or args.calibration:
-        cal = _run_calibration(args, cfg, out_dir)
-    else:  # the calibration the run started from; what it learns goes into the default file
-        cal = for_replay(start_calibration(meta, args.log, cfg), default_path(out_dir, cfg), cfg)
-        if cal.note:
-            print(cal.note)
+    # without --calibration: the calibration the run started from (so the estimates are the run's)
+    cal = _run_calibration(args, cfg, Path(args.output).resolve().parent, replay=True,
+                           logged=start_calibration(meta, args.log))
     scanned = ScanResult(Path(args.log))
     first = None
     if args.two_pass:
@@ -327,16 +330,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
     with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp:
         p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
                            metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
-                           total=total, description="pass 2 of 2" if first else "replay",
-                           calibration=first.calibration if first else cal.start, frozen=first is not None,
-                           gps_speeds=first.gps_speeds if first else None)
+                           total=total, **(first.second_pass() if first else {"calibration": cal.start}))
         records = p.can_frames + p.nmea.lines + p.ubx.frames
         _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)
     _unfinished_note(args.log, scanned)
     print(f"replayed {records} records -> {args.output} ({p.estimates} estimates{', two-pass' if first else ''})")
-    saved = cal.finish(first.learned if first else p.estimator.learned(), cfg, str(args.log))
-    if saved:
-        print(saved)
+    _save_calibration(cal, first.learned if first else p.estimator.learned(), cfg, str(args.log))
     return EXIT_OK
 
 

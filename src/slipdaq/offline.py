@@ -17,7 +17,7 @@ from slipdaq import WHEELS, compiled
 from slipdaq.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.config import Config
 from slipdaq.estimator.force import driven_wheels
-from slipdaq.estimator.gps_track import MAX_GPS_GAP_S
+from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, CanFrameBatch, Estimate, GpsFix, RawRecord, WheelSampleBatch
@@ -156,7 +156,8 @@ class _FirstPassSink(Sink):
         i = WHEELS.index(wheel)
         mine = np.concatenate(self._wheel) == i
         t, r = np.concatenate(self._time)[mine], np.concatenate(self._revs)[mine]
-        keep = np.concatenate(([True], np.diff(t) > 0))  # strictly increasing times, as the estimator keeps them
+        # a sample counts when it is later than every one before it, as the estimator keeps them (readiness.py)
+        keep = t > np.concatenate(([-np.inf], np.maximum.accumulate(t)[:-1]))
         return t[keep], r[keep]
 
 
@@ -169,6 +170,11 @@ class FirstPass:
     """The calibration the second pass uses: the one the run started from, with what the first pass learned."""
     gps_speeds: list[float]
     """Per GPS fix, in order, the speed the second pass takes (estimator/reference_speed.py)."""
+
+    def second_pass(self) -> dict[str, Any]:
+        """process()'s options for the second pass: this calibration held fixed, these speeds."""
+        return {"calibration": self.calibration, "frozen": True, "gps_speeds": self.gps_speeds,
+                "description": "pass 2 of 2"}
 
 
 def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
@@ -183,13 +189,14 @@ def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], sta
 
 def smoothed_gps_speeds(seen: _FirstPassSink, calibration: Calibration, config: Config) -> list[float]:
     """Each fix's speed smoothed over the run (reference_speed_mps), where the fixes are valid, finite and in time
-    order, on the estimator's time line (UTC + the median host-clock offset, else the arrival time, minus the
-    latency); the others' speeds as they are."""
+    order, on the estimator's time line (smooth_arrival_times with the run's median offset of arrival from UTC,
+    minus the latency); the others' speeds as they are."""
     fixes = seen.fixes
     speeds = [f.speed_mps for f in fixes]
     arrival = np.array([f.timestamp_s for f in fixes])
     utc = np.array([math.nan if f.fix_time_utc_s is None else f.fix_time_utc_s for f in fixes])
-    times = utc + float(np.median(arrival - utc)) if len(fixes) and np.isfinite(utc).all() else arrival
+    offsets = (arrival - utc)[np.isfinite(arrival - utc)]
+    times = smooth_arrival_times(arrival, utc, float(np.median(offsets)) if len(offsets) else None)
     fixed = config.latency_fixed_s
     times = times - (fixed if fixed is not None else calibration.latency.latency_s if calibration.latency else 0.0)
     use: list[int] = []
@@ -215,7 +222,7 @@ def smoothed_gps_speeds(seen: _FirstPassSink, calibration: Calibration, config: 
     return speeds
 
 
-def start_calibration(metadata: dict[str, str], log: str | Path, config: Config) -> Calibration | None:
+def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration | None:
     """The calibration a logged run started from (its metadata's calibration_toml; none in a log from before it)."""
     text = metadata.get("calibration_toml", "")
     return parse_calibration(text, f"{log}: calibration_toml") if text else None
@@ -243,14 +250,14 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None
     from slipdaq.sources.read_errors import guarded
 
     config = config_from_log(log)
-    start = start_calibration(read_metadata(log), log, config)
+    start = start_calibration(read_metadata(log), log)
     total = raw_record_count(log)
     if total == 0:
         return None
     first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
     rows = _Rows()
-    p = process(config, guarded(log, iter_raw_batches(log)), [rows], calibration=first.calibration, frozen=True,
-                gps_speeds=first.gps_speeds, total=total, stream=stream, description="pass 2 of 2")
+    p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
+                **first.second_pass())
     if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
         return None
     return rows.rows, rows.diagnostics

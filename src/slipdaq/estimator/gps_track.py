@@ -51,6 +51,13 @@ def smooth_arrival(arrival_s: float, utc_s: float, offset_s: float | None) -> fl
     return arrival_s if offset_s is None or utc_s != utc_s else utc_s + offset_s
 
 
+def smooth_arrival_times(arrivals_s: np.ndarray, utc_s: np.ndarray, offset_s: float | None) -> np.ndarray:
+    """smooth_arrival of many fixes: UTC + offset where a fix has a UTC time (NaN: none), else its arrival."""
+    if offset_s is None:
+        return arrivals_s
+    return np.where(np.isnan(utc_s), arrivals_s, utc_s + offset_s)
+
+
 class GpsTrack:
     def __init__(self) -> None:
         self.speed = SeriesRing(256)  # arrival time -> speed
@@ -76,11 +83,7 @@ class GpsTrack:
 
     def smooth_arrivals(self, offset_s: float | None) -> np.ndarray:
         """Arrival times with the read jitter taken out: UTC + offset where the fix has a UTC time."""
-        arrivals = self.speed.times
-        if offset_s is None:
-            return arrivals
-        utc = self.utc.values
-        return np.where(np.isnan(utc), arrivals, utc + offset_s)
+        return smooth_arrival_times(self.speed.times, self.utc.values, offset_s)
 
     @staticmethod
     def covers(fix_times: list[float], t0: float, t1: float) -> bool:

@@ -73,10 +73,9 @@ def _phases(t: np.ndarray, wheel_speed: np.ndarray) -> list[tuple[int, int]]:
     deceleration beyond BRAKING_MPS2, widened by PHASE_MARGIN_S on each side)."""
     if len(t) < 3:
         return [(0, len(t))]
-    braked = np.gradient(wheel_speed, t) < BRAKING_MPS2
-    near = np.zeros(len(t), dtype=bool)
-    for i in np.flatnonzero(braked).tolist():
-        near |= np.abs(t - t[i]) <= PHASE_MARGIN_S
+    braked_t = t[np.gradient(wheel_speed, t) < BRAKING_MPS2]
+    # a braked fix within PHASE_MARGIN_S on either side (one search per fix, not one pass per braked fix)
+    near = np.searchsorted(braked_t, t + PHASE_MARGIN_S, "right") > np.searchsorted(braked_t, t - PHASE_MARGIN_S, "left")
     edges = np.flatnonzero(np.diff(near.astype(np.int8))) + 1
     bounds = [0, *edges.tolist(), len(t)]
     return list(zip(bounds[:-1], bounds[1:]))
