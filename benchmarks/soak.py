@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import io
 import json
 import os
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TextIO
 
@@ -96,13 +97,35 @@ class SoakResult:
 
 
 class _CountingPty(PtyGps):
+    """The GPS port of the soak: what does not fit into the pty's buffer (the daemon shares the event loop and was
+    late reading) waits here and goes out with the next write, in order, so a slow daemon delays lines instead of
+    losing them, as with the CAN frames (PtyGps alone drops them, as a UART would)."""
+
     def __init__(self) -> None:
         super().__init__()
         self.lines = 0
+        self.pending = b""
 
     def write(self, data: bytes) -> None:  # type: ignore[override]
-        super().write(data)
         self.lines += data.count(b"\n")
+        self.pending += data
+        self.flush()
+
+    def flush(self) -> None:
+        try:
+            while self.pending:
+                self.pending = self.pending[os.write(self.master_fd, self.pending):]
+        except BlockingIOError:
+            pass
+
+
+def _opened(path: str) -> int:
+    """How many of this process's file descriptors are open on path."""
+    n = 0
+    for fd in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            n += os.readlink(f"/proc/self/fd/{fd}") == path
+    return n
 
 
 async def _soak(
@@ -112,7 +135,7 @@ async def _soak(
     gps = _CountingPty()
     channel = f"slipdaq-soak-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel)
-    settings = SimSettings(wpt_rate_hz=wpt_rate_hz, gps_rate_hz=gps_rate_hz, start_utc_s=time.time() + 0.5)
+    settings = SimSettings(wpt_rate_hz=wpt_rate_hz, gps_rate_hz=gps_rate_hz)
     samples: list[tuple[float, int, int, int]] = []
     sent = {"frames": 0}
     timing = {"drive_wall_s": 0.0}
@@ -142,10 +165,16 @@ async def _soak(
                         pass
 
             async def drive() -> None:
-                events = generate(cfg, "cycle", "paved", settings, duration_s=duration_s)
-                t = time.monotonic() + max(0.0, settings.start_utc_s - time.time())  # when sim time 0 comes
+                # start once the daemon has the GPS port open (opening it flushes what was written before): under
+                # load its start-up takes longer than any fixed delay
+                deadline = time.monotonic() + 30.0
+                while _opened(gps.path) < 2 and time.monotonic() < deadline:  # ours, and the daemon's
+                    await asyncio.sleep(0.02)
+                run = replace(settings, start_utc_s=time.time() + 0.1)
+                events = generate(cfg, "cycle", "paved", run, duration_s=duration_s)
+                t = time.monotonic() + max(0.0, run.start_utc_s - time.time())  # when sim time 0 comes
                 await play(events, bus=CountingBus(), nmea_write=gps.write,  # type: ignore[arg-type]
-                           start_wall_s=settings.start_utc_s)
+                           start_wall_s=run.start_utc_s)
                 timing["drive_wall_s"] = time.monotonic() - t
                 # let the daemon read what is queued (it never should be much): the CAN backlog and the GPS lines
                 # (the pty's input queue empty twice, 0.1 s apart: the kernel moves written bytes there by itself),
@@ -156,7 +185,8 @@ async def _soak(
                 empty = 0
                 while empty < 2 and time.monotonic() < deadline:
                     await asyncio.sleep(0.1)
-                    empty = empty + 1 if gps.unread_bytes() == 0 else 0
+                    gps.flush()
+                    empty = empty + 1 if not gps.pending and gps.unread_bytes() == 0 else 0
                 await asyncio.sleep(0.5)
                 stop.set()
 
