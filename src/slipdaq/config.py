@@ -36,6 +36,9 @@ class VehicleConfig(_Section):
     rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off)")
     drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off)")
     air_density_kgpm3: float = Field(1.2, gt=0, lt=2)
+    wheelbase_m: float = Field(2.6, gt=0.5, lt=10, description="L in the load transfer M*a*h/L")
+    cg_height_m: float = Field(0.55, gt=0, lt=5, description="h, the centre of gravity's height above the road")
+    front_axle_load_share: float = Field(0.6, gt=0, lt=1, description="share of M*g on the front axle at rest")
 
 
 class TireConfig(_Section):
@@ -103,7 +106,8 @@ class CanConfig(_Section):
     interface: str = "socketcan"
     channel: str = "can0"
     bitrate: int = Field(500000, gt=0)
-    dbc: str = "wpt.dbc"
+    dbc: str | list[str] = "wpt.dbc"
+    """One DBC, or several (the wheels' and the sensors', e.g. ["wpt.dbc", "canmod-gps.dbc"]) read as one."""
     receive_buffer_bytes: int = Field(8 * 1024 * 1024, ge=0, description="SO_RCVBUF asked for on SocketCAN")
     read_interval_s: float = Field(
         0.02, ge=0, le=0.1,
@@ -113,11 +117,27 @@ class CanConfig(_Section):
 
 
 class GpsConfig(_Section):
+    """The reference speed: a GNSS receiver on a serial port (NMEA/UBX), or a speed signal on CAN (VBOX, OxTS RT,
+    a CAN GNSS module), decoded by the DBC."""
+
+    source: Literal["serial", "can"] = "serial"
     port: str = "/dev/ttyUSB0"
     baudrate: int = Field(115200, gt=0)
     latency_s: Literal["auto"] | float = "auto"
     velocity: Literal["nmea", "ubx"] = "nmea"
     """Which messages give the GPS velocity: NMEA sentences, or u-blox UBX NAV-PVT (with its speed accuracy)."""
+    message: str | None = Field(None, min_length=1, description="source = 'can': the DBC message with the speed")
+    signal: str | None = Field(None, min_length=1, description="source = 'can': the speed signal")
+    unit: Literal["km/h", "kph", "m/s", "mph", "kn"] | None = None
+    """source = "can": the speed signal's unit (default: the DBC's)."""
+    valid_signal: str | None = Field(None, min_length=1, description="a signal that is 0 when the speed is invalid")
+    accuracy_signal: str | None = Field(None, min_length=1, description="the speed's 1-sigma accuracy (as UBX sAcc)")
+
+    @model_validator(mode="after")
+    def _can_fields(self) -> GpsConfig:
+        if self.source == "can" and (self.message is None or self.signal is None):
+            raise ValueError('source = "can" needs gps.message and gps.signal (the DBC names of the speed signal)')
+        return self
 
     @field_validator("latency_s")
     @classmethod
@@ -127,8 +147,39 @@ class GpsConfig(_Section):
         return v
 
 
+class ImuConfig(_Section):
+    """The longitudinal acceleration from an inertial sensor on CAN (positive forward, after `sign`)."""
+
+    message: str | None = Field(None, min_length=1, description="the DBC message; unset: no IMU (GPS speed differences)")
+    signal: str | None = Field(None, min_length=1)
+    unit: Literal["m/s^2", "g"] | None = None
+    """The signal's unit (default: the DBC's)."""
+    sign: Literal[1, -1] = 1
+    """-1 for a sensor mounted backwards."""
+
+    @model_validator(mode="after")
+    def _both(self) -> ImuConfig:
+        if (self.message is None) != (self.signal is None):
+            raise ValueError("give both imu.message and imu.signal, or neither")
+        return self
+
+
+class BrakeConfig(_Section):
+    """A brake signal on CAN (a pedal switch, or a pressure: nonzero = pressed), for the brake onset."""
+
+    message: str | None = Field(None, min_length=1)
+    signal: str | None = Field(None, min_length=1)
+
+    @model_validator(mode="after")
+    def _both(self) -> BrakeConfig:
+        if (self.message is None) != (self.signal is None):
+            raise ValueError("give both brake.message and brake.signal, or neither")
+        return self
+
+
 class EstimatorConfig(_Section):
     window_s: float = Field(0.5, gt=0, le=10)
+    fast_rate_hz: float = Field(100.0, ge=0, le=1000, description="rate of the high-rate slip (/slip/fast); 0 = off")
     min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
     cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
     cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
@@ -160,6 +211,8 @@ class Config(_Section):
     wpt: WptConfig = WptConfig()
     can: CanConfig = CanConfig()
     gps: GpsConfig = GpsConfig()
+    imu: ImuConfig = ImuConfig()
+    brake: BrakeConfig = BrakeConfig()
     estimator: EstimatorConfig = EstimatorConfig()
     log: LogConfig = LogConfig()
     calibration: CalibrationConfig = CalibrationConfig()
@@ -196,14 +249,30 @@ class Config(_Section):
         return self.model_copy(update=update)
 
     def load_dbc_text(self) -> str:
-        """The DBC's text: from the log it was stored in, else from can.dbc on disk."""
+        """The DBC's text: from the log it was stored in, else from can.dbc on disk (several DBCs: merged into one
+        by cantools, so that a log stores one text)."""
         if self.dbc_text is not None:
             return self.dbc_text
-        path = self.resolve(self.can.dbc)
-        try:
-            return path.read_text(encoding="utf-8", errors="replace")
-        except OSError as e:
-            raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot read {path}: {e.strerror}") from None
+        names = [self.can.dbc] if isinstance(self.can.dbc, str) else self.can.dbc
+        texts = []
+        for name in names:
+            path = self.resolve(name)
+            try:
+                texts.append(path.read_text(encoding="utf-8", errors="replace"))
+            except OSError as e:
+                raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot read {path}: {e.strerror}") \
+                    from None
+        if len(texts) == 1:
+            return texts[0]
+        import cantools
+
+        db = cantools.database.can.Database(strict=False)
+        for name, text in zip(names, texts):
+            try:
+                db.add_dbc_string(text)
+            except Exception as e:  # cantools raises several parse error types
+                raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot parse {name}: {e}") from None
+        return str(db.as_dbc_string())
 
 
 def packaged_config_path() -> Path:
