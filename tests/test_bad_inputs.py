@@ -239,7 +239,9 @@ def test_a_corrupt_log_is_one_line_and_leaves_nothing(work: Path, capsys: pytest
                                                       verb: str) -> None:
     _corrupt_a_chunk(work / "drive.mcap", work / "corrupt.mcap")
     out = ["-o", "out.mcap"] if verb == "replay" else ["--csv", "out.csv"]
-    fails_cleanly([verb, "corrupt.mcap", *out], work, capsys, 1, "corrupt.mcap", "cannot read it", "crc validation failed")
+    err = fails_cleanly([verb, "corrupt.mcap", *out], work, capsys, 1, "corrupt.mcap", "cannot read it")
+    # flipped bytes of a compressed chunk: its CRC or the decompressor finds them, depending on where they fall
+    assert "crc validation failed" in err or "decompression error" in err, err
 
 
 # ---- 4. empty inputs ----

@@ -93,7 +93,7 @@ def test_report_writes_every_plot_as_a_real_png_of_the_fixed_size(report) -> Non
     expected = [out / log / f"{phase}-{stem}.png" for log, phases in maneuvers.items() for phase in phases
                 for stem, _ in PLOTS]
     expected += [out / f"compare-{p}-fx-slip.png" for p in ("accelerate", "cruise", "brake")]
-    assert len(expected) == 5 * (3 + 2 + len(maneuvers[demo])) + 3
+    assert len(expected) == len(PLOTS) * (3 + 2 + len(maneuvers[demo])) + 3 and len(PLOTS) == 6
     for png in expected:
         assert png.is_file(), png
         assert _png_size(png) == (FIG_W_PX, FIG_H_PX) == (800, 600)
@@ -208,7 +208,7 @@ def test_comparison_groups_logs_by_label(report) -> None:  # type: ignore[no-unt
 def test_report_progress_lines_and_group_by(report, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     lines = report["progress"]
     assert lines[0].startswith("report: read ") and lines[0].endswith(" estimates (two-pass)")
-    assert "report: brake-sand: brake 90–0 km/h: 5 plots" in lines
+    assert "report: brake-sand: brake 90–0 km/h: 6 plots" in lines
     assert "report: comparison brake: road=paved, road=sand" in lines
     assert lines[-1].startswith("report: wrote ") and "index.html" in lines[-1]
     out = tmp_path / "r"

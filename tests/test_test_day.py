@@ -131,7 +131,7 @@ def test_a_wheel_latency_resting_on_a_slip_model_never_replaces_utc(cfg_) -> Non
 
 def test_quality_is_a_csv_column_after_the_others_and_a_field_of_the_estimate() -> None:
     names = list(ALL_COLUMNS)
-    assert names[-1] == "quality"
+    assert names[-2:] == ["quality", "accel_source"]  # columns added later come after it
     assert names.index("quality") > names.index("cx_fit_RR_conf")
     from slipdaq.logformat.schemas import SCHEMAS
 

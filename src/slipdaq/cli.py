@@ -10,8 +10,10 @@ from pathlib import Path
 import slipdaq
 from slipdaq.calibration import Calibration, Learned, RunCalibration
 from slipdaq.config import Config, ConfigError, load_config
+from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.outputs import OutputError, atomic_output
+from slipdaq.sim import SCENARIOS
 from slipdaq.sources.read_errors import InputError
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
@@ -90,7 +92,7 @@ def _config_files(cfg: Config) -> list[Path]:
     """The files a config was read from (its TOML and DBC; none for the config stored in a log): inputs too."""
     if cfg.source_path is None or cfg.dbc_text is not None:
         return []
-    return [cfg.source_path, cfg.resolve(cfg.can.dbc)]
+    return [cfg.source_path, *cfg.dbc_paths()]
 
 
 def _labels_meta(args: argparse.Namespace) -> dict[str, str]:
@@ -127,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "VTG at 10 Hz) to a serial port, in real time. Without --gps-port a pseudo-terminal is made "
                        "and its path printed (and linked at --gps-link).")
     _add_config(p)
-    p.add_argument("--scenario", choices=("accelerate", "brake", "cycle"), default="cycle")
+    p.add_argument("--scenario", choices=SCENARIOS, default="cycle")
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--gps-port", metavar="P", help="serial device to write NMEA to (default: a new pseudo-terminal)")
     p.add_argument("--gps-link", metavar="L", help="with a pseudo-terminal: make L a symlink to it")
@@ -143,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "pseudo-terminal, with the live view, writing an MCAP log under ./logs; at the end, the "
                        "estimated slip is compared with the simulator's truth.")
     p.add_argument("--duration", type=float, default=30.0, metavar="S", help="seconds to run (default 30)")
-    p.add_argument("--scenario", choices=("accelerate", "brake", "cycle"), default="cycle")
+    p.add_argument("--scenario", choices=SCENARIOS, default="cycle")
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--log-dir", metavar="D", default="logs", help="where the MCAP log goes (default ./logs)")
     _add_label(p)
@@ -177,10 +179,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "acceleration is as good as the last. Without it, replay gives the live run's estimates, bit for bit")
 
     p = sub.add_parser("export", help="estimates of a log -> CSV",
-                       description="One CSV row per estimate: time_s, speed_mps, accel_mps2, force_n, then for each "
-                       "wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n. Empty cell = undefined." + OUTPUT_RULES)
+                       description="--csv: one row per estimate: time_s, speed_mps, accel_mps2, force_n, then for "
+                       "each wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n (then the extra columns of the "
+                       "README). --fast-csv: one row per instant of the high-rate slip (estimator.fast_rate_hz, "
+                       "/slip/fast): time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR (slip a fraction; empty "
+                       "below the minimum speed). Empty cell = undefined." + OUTPUT_RULES)
     p.add_argument("log", metavar="LOG.mcap")
-    p.add_argument("--csv", required=True, metavar="OUT.csv")
+    p.add_argument("--csv", metavar="OUT.csv", help="the windowed estimates")
+    p.add_argument("--fast-csv", metavar="OUT.csv", help="the high-rate slip")
     _add_allow_empty(p, "a log without estimates (the CSV is then its header only)")
 
     p = sub.add_parser("report", help="plots and tables of the slip study from one or more logs",
@@ -230,8 +236,9 @@ def _config(path: str | None) -> Config:
     cfg = load_config(path)
     try:
         WheelDecoder(cfg)
+        SignalDecoder(cfg)
     except DbcError as e:
-        raise ConfigError(f"{cfg.source_path}: can.dbc ({cfg.resolve(cfg.can.dbc)}): {e}") from None
+        raise ConfigError(f"{cfg.source_path}: can.dbc ({', '.join(map(str, cfg.dbc_paths()))}): {e}") from None
     return cfg
 
 
@@ -359,18 +366,29 @@ def cmd_calibration(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from slipdaq.logformat.reader import iter_estimates, read_metadata
+    from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, read_metadata
     from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.sinks.csv_export import write_csv
+    from slipdaq.sinks.csv_export import ALL_COLUMNS, FAST_COLUMNS, write_csv
     from slipdaq.sources.read_errors import guarded
 
+    if not args.csv and not args.fast_csv:
+        raise OutputError("export: give --csv OUT.csv (the estimates), --fast-csv OUT.csv (the high-rate slip), or both")
+    if args.csv and args.fast_csv and Path(args.csv).resolve() == Path(args.fast_csv).resolve():
+        raise OutputError(f"export: --csv and --fast-csv name the same file {args.csv}")
     read_metadata(args.log)
     scanned = ScanResult(Path(args.log))
-    with atomic_output(args.csv, inputs=[args.log]) as tmp:
-        n = write_csv(guarded(args.log, iter_estimates(args.log, scanned)), tmp)
-        _require(n, f"{args.log}: no estimates in it to export", args)
+    jobs = [(args.csv, iter_estimates, ALL_COLUMNS, "estimates"),
+            (args.fast_csv, iter_fast_slip, FAST_COLUMNS, "high-rate slip rows")]
+    for out, rows, columns, what in jobs:
+        if not out:
+            continue
+        with atomic_output(out, inputs=[args.log]) as tmp:
+            n = write_csv(guarded(args.log, rows(args.log, scanned)), tmp, columns)
+            _require(n, f"{args.log}: no {what} in it to export" + (
+                " (a log recorded with estimator.fast_rate_hz = 0, or before there was one: `slipdaq replay` it)"
+                if rows is iter_fast_slip else ""), args)
+        print(f"{n} {what} -> {out}")
     _unfinished_note(args.log, scanned)
-    print(f"{n} estimates -> {args.csv}")
     return EXIT_OK
 
 

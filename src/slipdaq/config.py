@@ -248,15 +248,18 @@ class Config(_Section):
         update = {name: getattr(self, name).model_copy(update=values) for name, values in sections.items()}
         return self.model_copy(update=update)
 
+    def dbc_paths(self) -> list[Path]:
+        """can.dbc's files (one or several), resolved."""
+        return [self.resolve(n) for n in ([self.can.dbc] if isinstance(self.can.dbc, str) else self.can.dbc)]
+
     def load_dbc_text(self) -> str:
         """The DBC's text: from the log it was stored in, else from can.dbc on disk (several DBCs: merged into one
         by cantools, so that a log stores one text)."""
         if self.dbc_text is not None:
             return self.dbc_text
-        names = [self.can.dbc] if isinstance(self.can.dbc, str) else self.can.dbc
+        paths = self.dbc_paths()
         texts = []
-        for name in names:
-            path = self.resolve(name)
+        for path in paths:
             try:
                 texts.append(path.read_text(encoding="utf-8", errors="replace"))
             except OSError as e:
@@ -267,11 +270,11 @@ class Config(_Section):
         import cantools
 
         db = cantools.database.can.Database(strict=False)
-        for name, text in zip(names, texts):
+        for path, text in zip(paths, texts):
             try:
                 db.add_dbc_string(text)
             except Exception as e:  # cantools raises several parse error types
-                raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot parse {name}: {e}") from None
+                raise ConfigError(f"{self.source_path or '<config>'}: can.dbc: cannot parse {path}: {e}") from None
         return str(db.as_dbc_string())
 
 

@@ -8,7 +8,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TextIO
+from typing import TextIO, get_args
 
 import can
 
@@ -17,17 +17,42 @@ from slipdaq.config import Config, load_config, packaged_config_path
 from slipdaq.daemon import RunResult, new_log_path, open_bus, run_daemon
 from slipdaq.logformat.reader import iter_estimates
 from slipdaq.report.labels import labels_metadata
+from slipdaq.sim import SlipScenario
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
 from slipdaq.sim.vehicle import TruthSample
-from slipdaq.simulate import PtyGps
+from slipdaq.simulate import BRAKE_RATE_HZ, IMU_RATE_HZ, PtyGps
+
+SENSOR_SCENARIOS: tuple[str, ...] = get_args(SlipScenario)
+"""Scenarios whose demo adds the IMU and the brake switch on CAN (sensors.dbc)."""
+SENSORS_DBC = "sensors.dbc"
+ABS_WPT_RATE_HZ = 500.0
+"""WPT frames per second per wheel in the brake-abs demo: several samples per ABS cycle."""
 
 
-def demo_config(gps_port: str, channel: str) -> Config:
-    """The packaged example config, on a virtual bus and the given GPS port."""
+def demo_config(gps_port: str, channel: str, scenario: str = "cycle") -> Config:
+    """The packaged example config, on a virtual bus and the given GPS port; for the sensor scenarios also the DBC
+    of the sensors (sensors.dbc) and its IMU (IMU_ACCEL.AccelX) and brake switch (BRAKE.BrakePressed)."""
     cfg = load_config(packaged_config_path())
-    return cfg.with_overrides(can={"interface": "virtual", "channel": channel}, gps={"port": gps_port})
+    cfg = cfg.with_overrides(can={"interface": "virtual", "channel": channel}, gps={"port": gps_port})
+    if scenario not in SENSOR_SCENARIOS:
+        return cfg
+    wheels_dbc = [cfg.can.dbc] if isinstance(cfg.can.dbc, str) else list(cfg.can.dbc)
+    return cfg.with_overrides(
+        can={"dbc": [*wheels_dbc, SENSORS_DBC]},
+        imu={"message": "IMU_ACCEL", "signal": "AccelX"},
+        brake={"message": "BRAKE", "signal": "BrakePressed"},
+    )
+
+
+def demo_settings(scenario: str) -> SimSettings:
+    """The simulator's settings for the demo: the defaults; the sensor scenarios add the IMU (IMU_RATE_HZ) and the
+    brake switch (BRAKE_RATE_HZ), brake-abs also WPT at ABS_WPT_RATE_HZ."""
+    if scenario not in SENSOR_SCENARIOS:
+        return SimSettings()
+    wpt_rate_hz = ABS_WPT_RATE_HZ if scenario == "brake-abs" else SimSettings().wpt_rate_hz
+    return SimSettings(imu_rate_hz=IMU_RATE_HZ, brake_rate_hz=BRAKE_RATE_HZ, wpt_rate_hz=wpt_rate_hz)
 
 
 async def run_demo_async(
@@ -39,7 +64,7 @@ async def run_demo_async(
     calibration: the stored calibration the daemon starts from."""
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
-    cfg = demo_config(gps.path, channel)
+    cfg = demo_config(gps.path, channel, scenario)
     truth: list[TruthSample] = []
     started: list[SimSettings] = []
     log_path = new_log_path(log_dir, "demo")
@@ -49,7 +74,7 @@ async def run_demo_async(
         while not log_path.exists():
             await asyncio.sleep(0.02)
         await asyncio.sleep(0.2)
-        run = replace(settings or SimSettings(), start_utc_s=time.time() + 0.1)
+        run = replace(settings or demo_settings(scenario), start_utc_s=time.time() + 0.1)
         started.append(run)
         events = generate(cfg, scenario, road, run, duration_s=duration_s)  # type: ignore[arg-type]  # the scenario and road names are the Literal's values
         await play(events, bus=bus, nmea_write=gps.write, on_truth=truth.append, start_wall_s=run.start_utc_s,

@@ -3,6 +3,7 @@ progress; the first pass of a two-pass run."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -20,7 +21,16 @@ from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import CanFrame, CanFrameBatch, Estimate, GpsFix, RawRecord, WheelSampleBatch
+from slipdaq.records import (
+    CanFrame,
+    CanFrameBatch,
+    Estimate,
+    FastSlip,
+    GpsFix,
+    RawRecord,
+    SensorSample,
+    WheelSampleBatch,
+)
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 
@@ -228,24 +238,32 @@ def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration 
     return parse_calibration(text, f"{log}: calibration_toml") if text else None
 
 
-class _Rows(Sink):
-    """The estimates as the log's rows, and the last diagnostics."""
+class Rows(Sink):
+    """The estimates as the log's rows, the high-rate slip rows, the sensor samples (as the log's JSON), and the last
+    diagnostics."""
 
     def __init__(self) -> None:
         self.rows: list[dict[str, Any]] = []
+        self.fast: list[dict[str, Any]] = []
+        self.sensors: list[dict[str, Any]] = []
         self.diagnostics: dict[str, Any] | None = None
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self.rows.append(estimate.as_row())
 
+    def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
+        self.fast.append(row.as_row())
+
+    def on_sensor(self, sample: SensorSample) -> None:
+        self.sensors.append(dataclasses.asdict(sample))
+
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics = diagnostics
 
 
-def two_pass_rows(log: str | Path, *, stream: TextIO | None = None
-                  ) -> tuple[list[dict[str, Any]], dict[str, Any] | None] | None:
-    """A log's estimates post-processed two-pass (as `replay --two-pass`, in memory), as its /estimate rows, and the
-    last diagnostics; None when the log has no raw records to replay."""
+def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | None:
+    """A log's estimates (and high-rate slip) post-processed two-pass (as `replay --two-pass`, in memory), as its
+    /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records."""
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.sources.read_errors import guarded
 
@@ -255,9 +273,9 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None
     if total == 0:
         return None
     first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
-    rows = _Rows()
+    rows = Rows()
     p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
                 **first.second_pass())
     if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
         return None
-    return rows.rows, rows.diagnostics
+    return rows

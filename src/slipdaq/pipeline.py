@@ -17,6 +17,7 @@ import numpy as np
 
 from slipdaq.calibration import Calibration
 from slipdaq.config import Config
+from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
@@ -30,6 +31,7 @@ from slipdaq.records import (
     GpsFix,
     NmeaLine,
     RawRecord,
+    SensorSample,
     UbxFrame,
     WheelSampleBatch,
 )
@@ -102,7 +104,10 @@ class Pipeline:
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.ubx = UbxDecoder()
-        self._velocity_from = NmeaLine if config.gps.velocity == "nmea" else UbxFrame
+        self.sensors = SignalDecoder(config)
+        self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
+            NmeaLine if config.gps.velocity == "nmea" else UbxFrame
+        """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
         self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen)
         self._gps_speeds = gps_speeds
         self.fixes = 0
@@ -128,16 +133,33 @@ class Pipeline:
             s.on_raw(record)
         fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
         if fix is not None and isinstance(record, self._velocity_from):  # else gps.velocity names the other protocol
-            for s in self.sinks:
-                s.on_fix(fix)
-            if self._gps_speeds is not None and self.fixes < len(self._gps_speeds):
-                fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
-            self.fixes += 1
-            for e in self.estimator.add_gps(fix):
-                self._estimate(e, record.timestamp_s)
-            if self.estimator.events:
-                self._events()
+            self._fix(fix, record.timestamp_s)
         self._tick(record.timestamp_s)
+
+    def _fix(self, fix: GpsFix, log_time_s: float) -> None:
+        """A reference-speed fix (GPS on the serial port, or the reference on CAN) to the sinks and the estimator."""
+        for s in self.sinks:
+            s.on_fix(fix)
+        if self._gps_speeds is not None and self.fixes < len(self._gps_speeds):
+            fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
+        self.fixes += 1
+        for e in self.estimator.add_gps(fix):
+            self._estimate(e, log_time_s)
+        if self.estimator.events:
+            self._events()
+        if self.estimator.fast_rows:
+            for row in self.estimator.take_fast():
+                for s in self.sinks:
+                    s.on_fast_slip(row, log_time_s)
+
+    def _sensor(self, sample: SensorSample) -> None:
+        for s in self.sinks:
+            s.on_sensor(sample)
+        if sample.kind == "imu_accel":
+            self.estimator.add_imu(sample.time_s, sample.value)
+        elif sample.kind == "reference_speed":
+            self._fix(GpsFix(sample.time_s, sample.value, None, sample.valid, sentence="CAN",
+                             speed_accuracy_mps=sample.accuracy), sample.time_s)
 
     def _events(self) -> None:
         """The estimator's events (a stored calibration value replaced) to every sink."""
@@ -242,19 +264,37 @@ class Pipeline:
         self.can_frames += n
         error = (batch.flags & FLAG_ERROR) != 0
         self.error_frames += int(np.count_nonzero(error))
-        self.unknown_frames += int(np.count_nonzero(~error & (which < 0)))
-        released = self.estimator.add_wheels(samples.wheel, samples.timestamp_s, samples.revolutions) \
-            if len(samples) else []
-        # the sinks get the frames and samples up to the frame that released an estimate, then the estimate: the
-        # order of frames one by one
-        start = 0
+        sensed = self.sensors.decode(batch) if self.sensors else []
+        unknown = ~error & (which < 0)
+        if sensed:
+            unknown[self.sensors.sensor_frames(batch)] = False
+        self.unknown_frames += int(np.count_nonzero(unknown))
+        # the sinks get the frames and samples up to the frame that released an estimate (or carried a sensor's
+        # value), then the estimate (the value): the order of frames one by one
         ts = batch.timestamp_s
-        for i, e in released:
-            stop = int(samples.frame[i]) + 1
-            if stop > start:
-                self._deliver(parts, samples, offset, start, stop)
-                start = stop
-            self._estimate(e, float(ts[stop - 1]))
+        start = pos = 0  # frames delivered, samples given to the estimator
+
+        def wheels_up_to(stop_sample: int) -> None:
+            nonlocal start, pos
+            if stop_sample <= pos:
+                return
+            released = self.estimator.add_wheels(samples.wheel[pos:stop_sample], samples.timestamp_s[pos:stop_sample],
+                                                 samples.revolutions[pos:stop_sample])
+            for i, e in released:
+                stop = int(samples.frame[pos + i]) + 1
+                if stop > start:
+                    self._deliver(parts, samples, offset, start, stop)
+                    start = stop
+                self._estimate(e, float(ts[stop - 1]))
+            pos = stop_sample
+
+        for f, sample in sensed:
+            wheels_up_to(int(samples.frame.searchsorted(f, side="right")))
+            if f + 1 > start:
+                self._deliver(parts, samples, offset, start, f + 1)
+                start = f + 1
+            self._sensor(sample)
+        wheels_up_to(len(samples))
         if start < n:
             self._deliver(parts, samples, offset, start, n)
         if self.estimator.events:
@@ -312,7 +352,7 @@ class Pipeline:
             counter_resets=self.wheels.counter_resets,
             unknown_frames=self.unknown_frames,
             error_frames=self.error_frames,
-            bad_frames=self.wheels.bad_frames,
+            bad_frames=self.wheels.bad_frames + self.sensors.bad_frames,
             nmea_lines=self.nmea.lines,
             bad_sentences=self.nmea.bad_sentences,
             dropped_sentences=dict(self.nmea.dropped),

@@ -329,6 +329,24 @@ class GpsFix:
     """The receiver's own 1-sigma speed accuracy estimate, where it gives one (UBX NAV-PVT sAcc)."""
 
 
+SENSOR_KINDS = ("reference_speed", "imu_accel", "brake")
+
+
+@dataclass(frozen=True, slots=True)
+class SensorSample:
+    """One value of the vehicle's other sensors, decoded from a CAN frame (decode/can_signals.py), in SI units."""
+
+    time_s: float
+    """The frame's receive time."""
+    kind: str = field(metadata={"enum": SENSOR_KINDS})
+    """reference_speed (m/s), imu_accel (longitudinal, forward positive, m/s^2) or brake (1 pressed, 0 released)."""
+    value: float
+    valid: bool = True
+    """reference_speed: false when its valid signal says so."""
+    accuracy: float | None = None
+    """reference_speed: its stated 1-sigma accuracy (m/s)."""
+
+
 @dataclass(frozen=True, slots=True)
 class WheelEstimate:
     slip: float | None
@@ -368,19 +386,52 @@ class Estimate:
     """'ok'; 'uncalibrated': the GPS latency unknown or a wheel's radius not calibrated (taken from the tire size or
     the other wheels); 'disturbed': a gap in a wheel's samples (reader stall, frames lost) or in the GPS fixes inside
     the window, or GPS lost (estimates on the wheels' clock)."""
+    accel_source: str = "gps"
+    """Where accel_mps2 (and so Fx = M*a) comes from: 'imu' (the mean of the IMU's samples over the window) or 'gps'
+    (the central difference of the reference speed)."""
 
     def as_row(self) -> dict[str, float | str | None]:
         """Flat mapping in the log's and the CSV's column names (ESTIMATE_COLUMNS, wheels in this estimate's order)."""
-        row: dict[str, float | str | None] = {}
-        for group in ESTIMATE_COLUMNS:
-            if group.per_wheel:
-                for w, we in self.wheels.items():
-                    for c in group.columns:
-                        row[c.key(w)] = getattr(we, c.attribute)
-            else:
+        return record_row(self, ESTIMATE_COLUMNS)
+
+
+@dataclass(frozen=True, slots=True)
+class FastWheel:
+    slip: float | None
+    """(omega*r0 - V) / V at this instant; None below the minimum speed or without the wheel's samples around it."""
+    speed_mps: float | None
+    """Wheel circumferential speed omega*r0."""
+
+
+@dataclass(frozen=True, slots=True)
+class FastSlip:
+    """High-rate slip: each wheel's circumferential speed against the vehicle speed at one instant of a fixed grid
+    (estimator.fast_rate_hz), the vehicle speed fused from the reference speed and the IMU."""
+
+    time_s: float
+    speed_mps: float
+    accel_mps2: float
+    accel_source: str
+    """'imu' when the IMU's samples fed the filter, else 'gps'."""
+    wheels: dict[str, FastWheel]
+
+    def as_row(self) -> dict[str, float | str | None]:
+        """Flat mapping in the /slip/fast JSON's and the fast CSV's column names (FAST_SLIP_COLUMNS)."""
+        return record_row(self, FAST_SLIP_COLUMNS)
+
+
+def record_row(record: Any, groups: Sequence[ColumnGroup]) -> dict[str, float | str | None]:
+    """A record's flat mapping by its column groups (a per-wheel group: each of record.wheels in its order)."""
+    row: dict[str, float | str | None] = {}
+    for group in groups:
+        if group.per_wheel:
+            for w, we in record.wheels.items():
                 for c in group.columns:
-                    row[c.name] = getattr(self, c.attribute)
-        return row
+                    row[c.key(w)] = getattr(we, c.attribute)
+        else:
+            for c in group.columns:
+                row[c.name] = getattr(record, c.attribute)
+    return row
 
 
 @dataclass(frozen=True, slots=True)
@@ -411,6 +462,7 @@ class ColumnGroup:
 
 PHASES = ("standstill", "accelerate", "cruise", "brake")
 QUALITIES = ("ok", "uncalibrated", "disturbed")
+ACCEL_SOURCES = ("imu", "gps")
 
 ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((Column("time_s", "time_s", "number"), Column("speed_mps", "speed_mps", "number"),
@@ -426,12 +478,23 @@ ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
                  Column("cx_fit_{w}_n", "cx_fit_n", "number?"), Column("cx_fit_{w}_conf", "cx_fit_conf", "number?")),
                 per_wheel=True, csv="extra"),
     ColumnGroup((Column("quality", "quality", "enum", QUALITIES),), per_wheel=False, csv="extra"),
+    ColumnGroup((Column("accel_source", "accel_source", "enum", ACCEL_SOURCES),), per_wheel=False, csv="extra"),
     ColumnGroup((Column("window_s", "window_s", "number"),), per_wheel=False, csv=""),
     ColumnGroup((Column("force_{w}_n", "force_n", "number?"), Column("wheel_speed_{w}_mps", "speed_mps", "number?")),
                 per_wheel=True, csv=""),
 )
 """An estimate's columns, declared once, in the order of its /estimate JSON and its CSV row: the log's JSON, its JSON
 Schema, the CSV's columns and Estimate.as_row are derived from this."""
+
+FAST_SLIP_COLUMNS: tuple[ColumnGroup, ...] = (
+    ColumnGroup((Column("time_s", "time_s", "number"), Column("speed_mps", "speed_mps", "number")),
+                per_wheel=False, csv="contract"),
+    ColumnGroup((Column("slip_{w}", "slip", "number?"),), per_wheel=True, csv="contract"),
+    ColumnGroup((Column("accel_mps2", "accel_mps2", "number"),
+                 Column("accel_source", "accel_source", "enum", ACCEL_SOURCES)), per_wheel=False, csv=""),
+    ColumnGroup((Column("wheel_speed_{w}_mps", "speed_mps", "number?"),), per_wheel=True, csv=""),
+)
+"""A FastSlip's columns (the /slip/fast JSON, its schema, `export --fast-csv`)."""
 
 
 def column_names(groups: Sequence[ColumnGroup], wheels: Sequence[str], csv: str | None = None) -> tuple[str, ...]:

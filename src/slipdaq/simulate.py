@@ -1,4 +1,5 @@
-"""`slipdaq simulate`: the vehicle model's WPT frames onto a python-can bus and its NMEA onto a serial port."""
+"""`slipdaq simulate`: the vehicle model's WPT frames onto a python-can bus and its NMEA onto a serial port; the IMU,
+brake switch and reference speed on CAN too when the config names them ([imu], [brake], [gps] message/signal)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,9 @@ from slipdaq.daemon import open_bus
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 
+IMU_RATE_HZ, BRAKE_RATE_HZ = 100.0, 50.0
+"""Frame rates of the simulated IMU and brake switch (sent only when the config names their signals)."""
+
 
 @dataclass(frozen=True)
 class SimOptions:
@@ -39,7 +43,8 @@ class SimOptions:
     def from_args(cls, a: argparse.Namespace) -> SimOptions:
         return cls(a.scenario, a.road, a.gps_port, a.gps_link, a.duration, SimSettings(
             wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz, gps_latency_s=a.gps_latency_s,
-            gps_noise_mps=a.gps_noise_mps, seed=a.seed,
+            gps_noise_mps=a.gps_noise_mps, seed=a.seed, imu_rate_hz=IMU_RATE_HZ, brake_rate_hz=BRAKE_RATE_HZ,
+            ref_speed_rate_hz=a.gps_rate_hz, ref_speed_latency_s=a.gps_latency_s, ref_speed_noise_mps=a.gps_noise_mps,
         ))
 
 

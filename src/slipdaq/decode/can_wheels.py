@@ -53,7 +53,9 @@ NOT_WHEEL_DATA = FLAG_EXTENDED | FLAG_ERROR | FLAG_REMOTE
 """Frames that carry no wheel data whatever their ID."""
 
 _REV_PER_S_PER_UNIT = {"rpm": 1.0 / 60.0, "rad/s": 1.0 / (2 * math.pi), "deg/s": 1.0 / 360.0}
-_MPS_PER_UNIT = {"km/h": 1.0 / 3.6, "kph": 1.0 / 3.6, "kmh": 1.0 / 3.6, "m/s": 1.0, "mph": 0.44704}
+MPS_PER_UNIT = {"km/h": 1.0 / 3.6, "kph": 1.0 / 3.6, "kmh": 1.0 / 3.6, "m/s": 1.0, "mps": 1.0, "mph": 0.44704,
+                "kn": 1852.0 / 3600.0, "kt": 1852.0 / 3600.0, "knots": 1852.0 / 3600.0}
+"""m/s per unit of a linear speed signal (DBC unit names, lower case)."""
 
 
 class DbcError(ValueError):
@@ -147,8 +149,8 @@ def _rev_per_s_per_unit(wheel: str, src: WheelSourceConfig, signal: cantools.dat
     unit = (src.unit or signal.unit or "").strip().lower().replace("kph", "km/h").replace("kmh", "km/h")
     if unit in _REV_PER_S_PER_UNIT:
         return _REV_PER_S_PER_UNIT[unit]
-    if unit in _MPS_PER_UNIT:
-        return _MPS_PER_UNIT[unit] / (2 * math.pi * radius_m)
+    if unit in MPS_PER_UNIT:
+        return MPS_PER_UNIT[unit] / (2 * math.pi * radius_m)
     raise DbcError(
         f"wheels.{wheel}: speed signal {src.message}.{src.signal} has unit {signal.unit!r}: "
         f"set wheels.{wheel}.unit to one of km/h, m/s, mph, rpm, rad/s, deg/s"

@@ -21,6 +21,8 @@ TIME_TOL_S = 1e-5
 """GPS times this close count as equal when a window's ends are compared with fixes: the fix that ends a window
 (UTC + offset - latency) and the window's end (centre + W/2) are the same instant computed two ways, and float
 rounding (a few ulps: 2.4e-7 s at today's epoch seconds) must not decide whether an estimate waits for one more fix."""
+ACCEL_HALF_BASELINE_S = 0.075
+"""The central difference's fixes are at least this far either side of the centre (a 10 Hz receiver's neighbours)."""
 GPS_GAP_INTERVALS = 2.5
 """A fix interval this many times the mean inside a window makes it disturbed."""
 REFERENCE_SPEED_ACCURACY_MPS = 0.05
@@ -109,11 +111,18 @@ class GpsTrack:
 
     @staticmethod
     def accel(fix_times: list[float], speeds: list[float], t_c: float) -> float | None:
-        """a(c) = (v(c+1) - v(c-1)) / (t(c+1) - t(c-1)), or None at the ends or across a gap."""
+        """a(c) = (v(c+1) - v(c-1)) / (t(c+1) - t(c-1)), or None at the ends or across a gap; c-1 and c+1 are the
+        nearest fixes at least ACCEL_HALF_BASELINE_S from c (a fast reference: not its neighbours, whose difference
+        is mostly noise)."""
         i = bisect_left(fix_times, t_c)
-        if i < 1 or i + 1 >= len(fix_times) or fix_times[i + 1] - fix_times[i - 1] > 2 * MAX_GPS_GAP_S:
+        n = len(fix_times)
+        if i < 1 or i + 1 >= n:
             return None
-        return _div(speeds[i + 1] - speeds[i - 1], fix_times[i + 1] - fix_times[i - 1])
+        j0 = min(bisect_right(fix_times, t_c - ACCEL_HALF_BASELINE_S) - 1, i - 1)
+        j1 = max(bisect_left(fix_times, t_c + ACCEL_HALF_BASELINE_S), i + 1)
+        if j0 < 0 or j1 >= n or fix_times[j1] - fix_times[j0] > 2 * MAX_GPS_GAP_S:
+            return None
+        return _div(speeds[j1] - speeds[j0], fix_times[j1] - fix_times[j0])
 
     def weight(self, fix_times: list[float], t0: float, t1: float) -> float:
         """(reference / stated speed accuracy)^2 over the window's fixes, within 0.1..10; 1 without a stated one."""

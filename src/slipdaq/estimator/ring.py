@@ -65,12 +65,22 @@ class SeriesRing:
         index: those around the first sample at or after it), or None with fewer samples. Unlike linear
         interpolation between the two samples around a time, its noise from jittered sample times hardly depends on
         where the time falls between samples."""
+        lines = self.local_lines(times, half)
+        return None if lines is None else lines[0]
+
+    def local_lines(self, times: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """local_linear's values at `times` and the slopes of their lines (value per second), or None."""
         s, e = self._start, self._end
         if e - s < 2 * half + 1:
             return None
         out = np.empty(len(times))
-        local_lines()(self._t[s:e], self._v[s:e], times, half, out)
-        return out
+        slopes = np.empty(len(times))
+        local_lines()(self._t[s:e], self._v[s:e], times, half, out, slopes)
+        return out, slopes
+
+    def count_from(self, t: float) -> int:
+        """Samples at or after t."""
+        return self._end - self._start - int(np.searchsorted(self.times, t, side="left"))
 
     def append(self, t: float, v: float) -> None:
         if self._end == len(self._t):
@@ -132,9 +142,11 @@ MIN_LINE_SPAN_S = 1e-6
 """Samples spanning less than this are one instant to local_linear (a line through them has no slope)."""
 
 
-def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray) -> None:
+def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
+                 slopes: np.ndarray) -> None:
     """out[q]: the least-squares line through samples c - half .. c + half at times[q], c the first sample at or
-    after times[q] (kept within the samples); a line is fitted once for consecutive times that share it."""
+    after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for consecutive times
+    that share it."""
     n = len(t)
     k = 2 * half + 1
     last_c = -1
@@ -157,10 +169,12 @@ def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out
             slope = sxy / sxx if t[c + half] - t[c - half] > MIN_LINE_SPAN_S else 0.0
             last_c = c
         out[q] = v_mean + slope * (x - t_mean)
+        slopes[q] = slope
 
 
-local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:])", uses=(first_index,))
-"""local_lines()(t, v, times, half, out): see _local_lines (SeriesRing.local_linear)."""
+local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])",
+                     uses=(first_index,))
+"""local_lines()(t, v, times, half, out, slopes): see _local_lines (SeriesRing.local_lines)."""
 
 
 def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:

@@ -30,6 +30,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.calibration import Calibration, Learned
 from slipdaq.config import Config
+from slipdaq.estimator.fast_slip import FastSlipRows
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, longitudinal_force_n, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
@@ -45,9 +46,10 @@ from slipdaq.estimator.readiness import (
     head_ready,
     scan_samples,
 )
+from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.estimator.windows import WheelWindows, reference_slip, slip_from_distances
-from slipdaq.records import Estimate, GpsFix, SourceEvent, WheelEstimate, WheelSample
+from slipdaq.records import Estimate, FastSlip, GpsFix, SourceEvent, WheelEstimate, WheelSample
 
 __all__ = ["EstimatorParams", "SlipEstimator", "PHASE_ACCEL_MPS2", "STANDSTILL_SPEED_MPS", "phase_of",
            "integrate_speed_m", "slip_from_distances", "tire_forces"]
@@ -69,6 +71,13 @@ CX_TOLERANCE = 0.2
 confidence understates its spread from run to run (the same car and road: +-15 % within the first half minute), and
 Cx changes with the road and the tire's temperature."""
 UNCALIBRATED_R0 = ("tire_size", "other_wheels")
+CAN_EPOCH_INTERVAL_S = 0.1
+"""Windows of a reference speed on CAN are centred this far apart (EstimatorParams.epoch_interval_s)."""
+EPOCH_TOLERANCE_S = 0.005
+"""A CAN reference's arrival jitter: a fix this much early still starts a window."""
+IMU_MAX_GAP_S = 0.1
+"""A window's IMU samples may end this long before its end (their frames arrive with the wheels'), and have no
+interval longer than this, for its acceleration to come from the IMU."""
 """r0 sources that make a window's quality 'uncalibrated' (its own radius not measured)."""
 
 
@@ -97,6 +106,11 @@ class EstimatorParams:
     drag_area_m2: float
     air_density_kgpm3: float
     grade_from_altitude: bool
+    fast_rate_hz: float
+    """The high-rate slip's grid (0: none)."""
+    epoch_interval_s: float
+    """Reference fixes closer than this to the last estimated one make no window of their own (a CAN reference at
+    100 Hz: windows at 10 Hz, as from a GPS receiver); 0: every fix."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> EstimatorParams:
@@ -110,7 +124,8 @@ class EstimatorParams:
             max_latency_s=e.max_latency_s, calibrate_r0=e.calibrate_r0, r0_min_speed_mps=e.r0_min_speed_mps,
             fit_min_speed_mps=e.fit_min_speed_mps, rolling_resistance_coeff=v.rolling_resistance_coeff,
             drag_area_m2=v.drag_area_m2, air_density_kgpm3=v.air_density_kgpm3,
-            grade_from_altitude=e.grade_from_altitude,
+            grade_from_altitude=e.grade_from_altitude, fast_rate_hz=e.fast_rate_hz,
+            epoch_interval_s=CAN_EPOCH_INTERVAL_S if cfg.gps.source == "can" else 0.0,
         ), **overrides)
 
 
@@ -153,6 +168,12 @@ class SlipEstimator:
         """The UTC offset of the latency in use (set with it)."""
         self.rejected_fixes = 0
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
+        self._last_epoch_s = -math.inf
+        self._imu = SeriesRing(1024)
+        """IMU sample time -> longitudinal acceleration."""
+        self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) if params.fast_rate_hz > 0 else None
+        self.fast_rows: list[FastSlip] = []
+        """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
 
     # ---- latency ------------------------------------------------------------------------------------
     @property
@@ -241,6 +262,17 @@ class SlipEstimator:
             pos = stop
         return out
 
+    def add_imu(self, time_s: float, accel_mps2: float) -> None:
+        """One IMU sample (longitudinal acceleration, forward positive) on the host's clock; older than the last: dropped."""
+        if time_s > self._imu.last_t and math.isfinite(accel_mps2):
+            self._imu.append(time_s, accel_mps2)
+            if self._fast is not None:
+                self._fast.speed.add_imu(time_s, accel_mps2)
+
+    def take_fast(self) -> list[FastSlip]:
+        rows, self.fast_rows = self.fast_rows, []
+        return rows
+
     def add_gps(self, fix: GpsFix) -> list[Estimate]:
         if not fix.valid or not math.isfinite(fix.speed_mps):
             self.rejected_fixes += 1
@@ -259,9 +291,22 @@ class SlipEstimator:
         self._invalidate()
         if fix.altitude_m is not None and self.p.grade_from_altitude:
             self._grade.add(a, fix.altitude_m)
-        self._pending.append((a, utc_s))
+        if a - self._last_epoch_s >= self.p.epoch_interval_s - EPOCH_TOLERANCE_S or self.p.epoch_interval_s == 0.0:
+            self._pending.append((a, utc_s))
+            self._last_epoch_s = a
         self._wheel_clock.next_s = None
-        return self._drain()
+        out = self._drain()
+        if self._fast is not None:
+            self._fast_fix(a, utc_s, fix.speed_mps, fix.speed_accuracy_mps)
+        return out
+
+    def _fast_fix(self, arrival_s: float, utc_s: float, speed_mps: float, accuracy_mps: float | None) -> None:
+        """The fix into the vehicle-speed filter at its fix time; the high-rate slip rows that became ready."""
+        assert self._fast is not None
+        fix_s = smooth_arrival(arrival_s, utc_s, self._utc_offset_s) - self.latency.latency_s
+        self._fast.speed.add_speed(fix_s, speed_mps, accuracy_mps if accuracy_mps is not None else math.nan)
+        r0 = self._r0_all()
+        self.fast_rows += self._fast.release(self._windows.rings, [r0[w][0] for w in WHEELS], fix_s)
 
     # ---- readiness ----------------------------------------------------------------------------------
     def _head_consts(self) -> tuple[int, float, float]:
@@ -300,6 +345,7 @@ class SlipEstimator:
         self._track.drop_before(keep)
         self._grade.altitude.drop_before = keep
         self._windows.drop_before(keep)
+        self._imu.drop_before = keep
         return out
 
     # ---- the estimate -------------------------------------------------------------------------------
@@ -314,7 +360,10 @@ class SlipEstimator:
         t_c = fix_times[i]
         t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
         speed_c = speeds[i]
-        accel = track.accel(fix_times, speeds, t_c)
+        accel = self._imu_accel(t0, t1)
+        accel_source = "imu" if accel is not None else "gps"
+        if accel is None:
+            accel = track.accel(fix_times, speeds, t_c)
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), speed_c, [self._windows.by_wheel[w] for w in self._reference or WHEELS])
         covered = track.covers(fix_times, t0, t1)
@@ -360,7 +409,20 @@ class SlipEstimator:
             t_c, speed, accel, force, p.window_s, wheels,
             phase=phase_of(speed, accel),
             source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source, quality=quality,
+            accel_source=accel_source,
         )
+
+    def _imu_accel(self, t0: float, t1: float) -> float | None:
+        """The mean of the IMU's samples over [t0, t1] (Fx = M*a, eq. 3.8, from the IMU), or None unless they span the
+        window within IMU_MAX_GAP_S."""
+        ring = self._imu
+        if len(ring) < 2 or ring.first_time > t0 or ring.last_t < t1 - IMU_MAX_GAP_S:
+            return None
+        times = ring.times
+        i0, i1 = int(times.searchsorted(t0)), int(times.searchsorted(t1, side="right"))
+        if i1 - i0 < 2 or ring.longest_gap(t0, min(t1, ring.last_t)) > IMU_MAX_GAP_S:
+            return None
+        return float(np.mean(ring.values[i0:i1]))
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""

@@ -3,7 +3,7 @@
 Model over each interval dt = t[k+1] - t[k] (the exact discretisation of a' = w, w white with spectral density q):
   x[k+1] = F x[k] + w[k],  F = [[1, dt], [0, 1]],  cov(w[k]) = Q = q * [[dt^3/3, dt^2/2], [dt^2/2, dt]]
   z[k]   = v[k] + e[k],    e[k] ~ N(0, sigma[k]^2)
-Kalman filter forward (predict, update with z[k]); RTS backward:
+Kalman filter forward (predict, update with z[k]: speed_model.py); RTS backward:
   C[k] = P[k|k] F' P[k+1|k]^-1,   x[k|n] = x[k|k] + C[k] (x[k+1|n] - x[k+1|k]).
 Prior: x[0] ~ N([z0, (z1 - z0)/dt0], diag(PRIOR_SIGMA_SPEED_MPS^2, PRIOR_SIGMA_ACCEL_MPS2^2)), wide.
 sigma: the receiver's stated accuracy where finite and > 0, else estimate_noise_mps (robust, from the data).
@@ -19,6 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from slipdaq.estimator.speed_model import State, predict, update_speed
 
 MIN_NOISE_MPS = 0.005
 """Floor of the measurement sigma (estimated or stated): keeps the filter off a zero measurement variance."""
@@ -123,37 +125,19 @@ class _Filtered:
 def _forward(t: list[float], z: list[float], var: list[float], q: float, out: _Filtered | None) -> float:
     """Kalman filter over one segment (len >= 2); returns the log-likelihood of the innovations k >= 2 (the first two
     are those of the prior's centre, ~0 with a huge variance, and carry no information about q)."""
-    n = len(t)
-    v = z[0]
-    a = (z[1] - z[0]) / (t[1] - t[0])
-    c00 = PRIOR_SIGMA_SPEED_MPS * PRIOR_SIGMA_SPEED_MPS
-    c01 = 0.0
-    c11 = PRIOR_SIGMA_ACCEL_MPS2 * PRIOR_SIGMA_ACCEL_MPS2
+    x: State = (z[0], (z[1] - z[0]) / (t[1] - t[0]), PRIOR_SIGMA_SPEED_MPS * PRIOR_SIGMA_SPEED_MPS, 0.0,
+                PRIOR_SIGMA_ACCEL_MPS2 * PRIOR_SIGMA_ACCEL_MPS2)
     loglik = 0.0
-    for k in range(n):
+    for k in range(len(t)):
         if k:
-            dt = t[k] - t[k - 1]
-            qdt = q * dt
-            v += dt * a
-            c00 += dt * (2.0 * c01 + dt * c11) + qdt * dt * dt / 3.0
-            c01 += dt * c11 + 0.5 * qdt * dt
-            c11 += qdt
+            x = predict(x, t[k] - t[k - 1], q)
         if out is not None:
-            out.predicted.append((v, a, c00, c01, c11))
-        r = var[k]
-        s = c00 + r
-        y = z[k] - v
-        k0 = c00 / s
-        k1 = c01 / s
-        v += k0 * y
-        a += k1 * y
-        c11 -= k1 * c01
-        c00 *= r / s
-        c01 *= r / s
+            out.predicted.append(x)
+        x, y, s = update_speed(x, z[k], var[k])
         if k >= 2:
             loglik -= 0.5 * (_LOG_2PI + math.log(s) + y * y / s)
         if out is not None:
-            out.filtered.append((v, a, c00, c01, c11))
+            out.filtered.append(x)
     return loglik
 
 

@@ -26,6 +26,8 @@ from slipdaq.logformat.topics import (
     RAW_TOPICS,
     TOPIC_CAN,
     TOPIC_ESTIMATE,
+    TOPIC_FAST_SLIP,
+    TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
     log_time_ns,
@@ -180,6 +182,18 @@ def iter_raw_records(path: str | Path, scan_result: ScanResult | None = None) ->
             yield from item.frames()
         else:
             yield item
+
+
+def iter_fast_slip(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[dict[str, Any]]:
+    """The /slip/fast rows (FAST_SLIP_COLUMNS) in log order."""
+    for _topic, _t, d in iter_topic(path, (TOPIC_FAST_SLIP,), scan_result):
+        yield d
+
+
+def iter_sensors(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[dict[str, Any]]:
+    """The /can/sensors samples (records.SensorSample's fields) in log order."""
+    for _topic, _t, d in iter_topic(path, (TOPIC_SENSORS,), scan_result):
+        yield d
 
 
 def iter_estimates(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[dict[str, Any]]:

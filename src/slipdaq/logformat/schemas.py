@@ -14,12 +14,14 @@ from slipdaq.logformat.topics import (
     TOPIC_DIAGNOSTICS,
     TOPIC_ESTIMATE,
     TOPIC_EVENTS,
+    TOPIC_FAST_SLIP,
     TOPIC_GPS,
     TOPIC_NMEA,
+    TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
 )
-from slipdaq.records import ESTIMATE_COLUMNS, Column, ColumnGroup, GpsFix, SourceEvent
+from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup, GpsFix, SensorSample, SourceEvent
 
 _NUM = {"type": "number"}
 _NUM_OR_NULL = {"type": ["number", "null"]}
@@ -118,5 +120,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         }),
     } | LIVE_DIAGNOSTICS, optional=tuple(LIVE_DIAGNOSTICS)),
     TOPIC_EVENTS: dataclass_schema("slipdaq.SourceEvent", SourceEvent),
+    TOPIC_FAST_SLIP: columns_schema("slipdaq.FastSlip", FAST_SLIP_COLUMNS),
+    TOPIC_SENSORS: dataclass_schema("slipdaq.SensorSample", SensorSample),
 }
 """The JSON topics (all but BATCH_SCHEMAS), in the order their channels are registered."""

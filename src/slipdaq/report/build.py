@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_topic, read_metadata
-from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE
+from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE, TOPIC_FAST_SLIP, TOPIC_SENSORS
 from slipdaq.outputs import atomic_tree
 from slipdaq.report.labels import labels_of
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
@@ -32,6 +32,10 @@ class LogData:
     metadata: dict[str, str]
     rows: list[dict[str, Any]]
     diagnostics: dict[str, Any] | None
+    fast: list[dict[str, Any]] = field(default_factory=list)
+    """/slip/fast rows."""
+    sensors: list[dict[str, Any]] = field(default_factory=list)
+    """/can/sensors samples."""
 
 
 @dataclass
@@ -58,15 +62,20 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
 
         got = two_pass_rows(path, stream=progress)
         if got is not None:
-            return LogData(path, metadata | {"report_estimates": "two-pass"}, *got)
-    rows: list[dict[str, Any]] = []
-    diagnostics: dict[str, Any] | None = None
-    for topic, _t, d in guarded(path, iter_topic(path, (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS))):
+            return LogData(path, metadata | {"report_estimates": "two-pass"}, got.rows, got.diagnostics, got.fast,
+                           got.sensors)
+    data = LogData(path, metadata | {"report_estimates": "logged"}, [], None)
+    topics = (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS, TOPIC_FAST_SLIP, TOPIC_SENSORS)
+    for topic, _t, d in guarded(path, iter_topic(path, topics)):
         if topic == TOPIC_ESTIMATE:
-            rows.append(d)
+            data.rows.append(d)
+        elif topic == TOPIC_FAST_SLIP:
+            data.fast.append(d)
+        elif topic == TOPIC_SENSORS:
+            data.sensors.append(d)
         else:
-            diagnostics = d
-    return LogData(path, metadata | {"report_estimates": "logged"}, rows, diagnostics)
+            data.diagnostics = d
+    return data
 
 
 def _slug(name: str, taken: set[str]) -> str:
@@ -106,7 +115,7 @@ def make_report(
         for d in data:
             name = _slug(d.path.stem, taken)
             log = summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=name,
-                                labels=labels_of(d.metadata), group_by=group_by)
+                                labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
             logs.append(log)
             plot_paths[name] = {}
             for m in log.maneuvers:

@@ -1,9 +1,10 @@
 """The report's plots: PNG files of FIG_W_PX x FIG_H_PX pixels, drawn with matplotlib's Agg canvas (no display).
 
-Per maneuver, five plots with the four wheels in them, each wheel in its colour and marker (WHEEL_STYLE, the same
+Per maneuver, six plots with the four wheels in them, each wheel in its colour and marker (WHEEL_STYLE, the same
 in every plot): slip against time, speed against slip, tire force Fx against slip (with each wheel's fitted line of
 the linear region and the end of linearity marked), effective rolling radius Re against slip (with r0), and
-stiffness Cx = Fx/s against slip (with the fitted Cx). Per phase over several logs, Fx against slip with one marker
+stiffness Cx = Fx/s against slip (with the fitted Cx), and mu = Fx/Fz against the high-rate slip (with the fitted
+Burckhardt curve and its peak). Per phase over several logs, Fx against slip with one marker
 per label group. Titles name the quantity, the maneuver, the log and its labels.
 """
 
@@ -14,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -38,8 +40,11 @@ PLOTS: tuple[tuple[str, str], ...] = (
     ("fx-slip", "tire force Fx against slip"),
     ("re-slip", "effective rolling radius Re against slip"),
     ("cx-slip", "stiffness Cx against slip"),
+    ("mu-slip", "friction coefficient μ = Fx/Fz against slip (high-rate)"),
 )
-"""(file stem, title) of the five plots of a maneuver, in report order."""
+"""(file stem, title) of the six plots of a maneuver, in report order."""
+MU_POINTS_MAX = 2000
+"""The μ-slip plot shows at most this many high-rate points per wheel (evenly thinned)."""
 
 SLIP_LABEL = "slip s [%]"
 GAP_S = 1.0
@@ -182,6 +187,35 @@ def plot_maneuver(log: LogSummary, m: ManeuverSummary, out_dir: Path) -> dict[st
         if ws.linearity.end_slip is not None:
             ax.axvline(ws.linearity.end_slip * 100, color=WHEEL_STYLE[w]["color"], linestyle=":", linewidth=1.2)
     done(fig, ax, "cx-slip", "stiffness Cx = Fx/s [kN per unit slip]", any_data)
+
+    # mu against the high-rate slip, with the fitted curve and its peak
+    fig, ax = _figure()
+    any_data = False
+    for w in WHEELS:
+        slip, mu = m.mu_points.get(w, (np.empty(0), np.empty(0)))
+        if len(slip) == 0:
+            continue
+        any_data = True
+        step = max(1, len(slip) // MU_POINTS_MAX)
+        st = WHEEL_STYLE[w]
+        ax.plot(slip[::step] * 100, mu[::step], linestyle="none", marker=st["marker"], markersize=2.5, alpha=0.35,
+                color=st["color"])
+        fit = m.wheels[w].mu_slip
+        label = w
+        if fit is not None:
+            x = np.linspace(0.0, fit.max_abs_slip, 200) * fit.slip_sign
+            ax.plot(x * 100, fit.mu(x), color=st["color"], linewidth=1.6)
+            if fit.mu_peak is not None and fit.slip_at_mu_peak is not None:
+                ax.plot([fit.slip_sign * fit.slip_at_mu_peak * 100], [fit.slip_sign * fit.mu_peak], marker="*",
+                        markersize=14, color=st["color"], markeredgecolor="black", linestyle="none")
+                label = f"{w}: μ peak {fit.mu_peak:.2f} at {fit.slip_at_mu_peak * 100:.1f} %"
+            else:
+                label = f"{w}: peak not reached"
+        ax.plot([], [], color=st["color"], marker=st["marker"], label=label)
+    ax.axhline(0.0, color="#888888", linewidth=0.8)
+    ax.axvline(0.0, color="#888888", linewidth=0.8)
+    extra = [Line2D([], [], color="#444444", linewidth=1.6, label="fitted Burckhardt curve")]
+    done(fig, ax, "mu-slip", "μ = Fx / Fz", any_data, extra=extra)
     return paths
 
 

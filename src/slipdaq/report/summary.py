@@ -46,6 +46,17 @@ Other figures per wheel and maneuver
     of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
     common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
     Lost frames (per wheel) and bad sentences: the last `/diagnostics`.
+
+The tire's mu-slip curve (per wheel and maneuver; mu_slip.py), from the high-rate slip (/slip/fast) over the
+maneuver's span (its first window's start - SPAN_BEFORE_S to its last window's end + SPAN_AFTER_S):
+    mu = Fx_tire / Fz_tire, Fx_tire = M*a split as the estimator splits it (driven wheels; brake_front_share), a the
+    fused acceleration of the high-rate rows; Fz with the load transfer M*a*h/L (vehicle.wheelbase_m, cg_height_m,
+    front_axle_load_share); a Burckhardt curve fitted over the whole slip range: mu_peak and slip_at_mu_peak when
+    the data pass the peak (else none: a peak cannot be read off the linear region).
+
+Brake-test figures (per brake maneuver; brake_test.py): the onset from the brake signal on CAN ([brake], nonzero =
+pressed) when the log has one, else from the onset of deceleration; the speed there, the stopping distance to
+standstill, corrected to the nominal speed (ISO 21994), the MFDD (ECE R13-H) and the ABS cycles of the high-rate slip.
 """
 
 from __future__ import annotations
@@ -57,10 +68,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from slipdaq import WHEELS
-from slipdaq.config import Config, ConfigError, EstimatorConfig, parse_config
+from slipdaq.config import Config, ConfigError, EstimatorConfig, VehicleConfig, parse_config
+from slipdaq.estimator.force import tire_forces
 from slipdaq.report import fallback
+from slipdaq.report.brake_test import BrakeFigures, brake_figures
 from slipdaq.report.labels import format_labels
+from slipdaq.report.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n
 
 PHASES: tuple[str, ...] = ("accelerate", "cruise", "brake")
 """Phases that make a maneuver, in report order (standstill has no slip)."""
@@ -70,6 +86,11 @@ MIN_MANEUVER_ROWS = 5
 """An event with fewer rows (after debouncing) makes no maneuver."""
 MERGE_GAP_S = 2.0
 """Two runs of one phase with only cruise between them, for less than this, are one event."""
+SPAN_BEFORE_S = 1.5
+"""The high-rate rows of a maneuver start this long before its first window (a brake's onset precedes the first
+window that the phase classifies as braking)."""
+SPAN_AFTER_S = 3.0
+"""... and end this long after its last window (a stop ends below the estimates' minimum speed)."""
 
 
 def events(phases: Sequence[str | None], times_s: Sequence[float]) -> list[tuple[str | None, list[int]]]:
@@ -301,6 +322,8 @@ class WheelSummary:
     cx_fit_conf: float | None
     cx_fit_source: str
     lost_frames: int | None
+    mu_slip: MuSlipFit | None = None
+    """The tire's mu-slip curve over the maneuver (high-rate slip), or None without enough points."""
 
 
 @dataclass(frozen=True)
@@ -318,6 +341,11 @@ class ManeuverSummary:
     gps_latency_s: float | None
     gps_latency_source: str
     wheels: dict[str, WheelSummary]
+    fast: tuple[dict[str, Any], ...] = field(default=(), repr=False, compare=False)
+    """The high-rate slip rows over the maneuver's span."""
+    mu_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
+    """Per wheel: (slip, mu) of the high-rate rows the mu-slip fit used."""
+    brake: BrakeFigures | None = None
 
 
 @dataclass(frozen=True)
@@ -423,8 +451,11 @@ def summarize_log(
     labels: dict[str, str],
     group_by: Sequence[str] | None = None,
     rule: LinearityRule | None = None,
+    fast: Sequence[dict[str, Any]] = (),
+    sensors: Sequence[dict[str, Any]] = (),
 ) -> LogSummary:
-    """Every maneuver of one log, per wheel."""
+    """Every maneuver of one log, per wheel; fast: its /slip/fast rows, sensors: its /can/sensors samples (the
+    brake signal), both in time order."""
     cfg = log_config(metadata)
     rule = rule or LinearityRule()
     if cfg is not None:  # the bounds the estimator used for Cx
@@ -438,13 +469,17 @@ def summarize_log(
     maneuvers: list[ManeuverSummary] = []
     found = events(phases, [r["time_s"] for r in rows])
     cruise = tuple(r for r, p in zip(rows, phases) if p == "cruise")
+    vehicle = cfg.vehicle if cfg is not None else VehicleConfig()
+    fast_t = np.array([r["time_s"] for r in fast], dtype=np.float64)
+    brake = [(d["time_s"], d["value"]) for d in sensors if d.get("kind") == "brake"]
     for phase in PHASES:
         kept = [tuple(rows[i] for i in idx) for p, idx in found if p == phase]
         kept = [prow for prow in kept if len(prow) >= MIN_MANEUVER_ROWS
                 and any(r.get(f"slip_{w}") is not None for r in prow for w in WHEELS)]
         for k, prow in enumerate(kept, start=1):
-            maneuvers.append(_maneuver(phase, prow, k if len(kept) > 1 else 0, rows[0]["time_s"], cfg_latency, rule, lost,
-                                       cruise if phase != "cruise" else ()))
+            m = _maneuver(phase, prow, k if len(kept) > 1 else 0, rows[0]["time_s"], cfg_latency, rule, lost,
+                          cruise if phase != "cruise" else ())
+            maneuvers.append(_high_rate(m, fast, fast_t, brake, vehicle) if len(fast_t) else m)
     return LogSummary(
         path=path, name=name, labels=dict(labels), group=group_of(labels, group_by),
         mode=metadata.get("mode", ""), estimates=len(rows), t0_s=t0, lost_frames=lost,
@@ -472,6 +507,41 @@ def _maneuver(phase: str, prow: tuple[dict[str, Any], ...], number: int, t0: flo
     )
 
 
+def _high_rate(m: ManeuverSummary, fast: Sequence[dict[str, Any]], fast_t: np.ndarray,
+               brake: Sequence[tuple[float, float]], vehicle: VehicleConfig) -> ManeuverSummary:
+    """The maneuver with its high-rate rows, each wheel's mu-slip fit and, braking, its brake-test figures."""
+    half = 0.5 * float(m.rows[0].get("window_s") or 0.5)
+    t_from = m.rows[0]["time_s"] - half - SPAN_BEFORE_S
+    t_to = m.rows[-1]["time_s"] + half + (SPAN_AFTER_S if m.phase == "brake" else 0.0)
+    i0, i1 = int(fast_t.searchsorted(t_from)), int(fast_t.searchsorted(t_to, side="right"))
+    span = tuple(fast[i0:i1])
+    if len(span) < 3:
+        return m
+    t = fast_t[i0:i1]
+    v = np.array([r["speed_mps"] for r in span])
+    a = np.array([r["accel_mps2"] for r in span])
+    slips = {w: np.array([math.nan if r.get(f"slip_{w}") is None else r[f"slip_{w}"] for r in span]) for w in WHEELS}
+    wheels = dict(m.wheels)
+    points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if m.phase != "cruise":
+        sign = 1.0 if m.phase == "accelerate" else -1.0
+        mass = vehicle.mass_kg
+        for w in WHEELS:
+            fx = np.array([tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share)[w] for x in a])
+            fz = normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
+            mu = mu_from_force(fx, fz)
+            use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0)
+            points[w] = (slips[w][use], mu[use])
+            fit = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
+            wheels[w] = dataclasses.replace(wheels[w], mu_slip=fit)
+    figures = None
+    if m.phase == "brake":
+        bt = [x for x, _ in brake if t_from - 5.0 <= x <= t_to]
+        bv = [y for x, y in brake if t_from - 5.0 <= x <= t_to]
+        figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips)
+    return dataclasses.replace(m, wheels=wheels, fast=span, mu_points=points, brake=figures)
+
+
 # ---- the table (summary.csv / summary.json) ----------------------------------------------------------------
 
 COLUMNS: tuple[str, ...] = (
@@ -480,9 +550,20 @@ COLUMNS: tuple[str, ...] = (
     "linear_end_fx_n", "peak_linear_fx_n", "peak_linear_fx_slip", "cx_line_n", "cx_line_points", "cx_line_method",
     "cx_line_slip_offset", "mean_re_m",
     "r0_m", "peak_cx_n", "peak_cx_slip", "cx_fit_n", "cx_fit_conf", "cx_fit_source", "gps_latency_s",
-    "gps_latency_source", "lost_frames", "bad_sentences",
+    "gps_latency_source", "lost_frames", "bad_sentences", "mu_peak", "slip_at_mu_peak", "mu_slip_model",
+    "brake_speed_kmh", "stopping_distance_m", "stopping_distance_corrected_m", "mfdd_mps2", "abs_cycles",
+    "abs_frequency_hz",
 )
 """One row per log, maneuver and wheel. Slips are fractions, forces N, radii m, stiffness N per unit slip."""
+
+
+BRAKE_COLUMNS = ("brake_speed_kmh", "stopping_distance_m", "stopping_distance_corrected_m", "mfdd_mps2", "abs_cycles",
+                 "abs_frequency_hz")
+
+
+def brake_columns(b: BrakeFigures | None) -> dict[str, Any]:
+    """The brake-test figures of a maneuver by their column names (None each without)."""
+    return {c: getattr(b, c) if b is not None else None for c in BRAKE_COLUMNS}
 
 
 def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
@@ -508,7 +589,10 @@ def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
                     "cx_fit_n": ws.cx_fit_n, "cx_fit_conf": ws.cx_fit_conf, "cx_fit_source": ws.cx_fit_source,
                     "gps_latency_s": m.gps_latency_s, "gps_latency_source": m.gps_latency_source,
                     "lost_frames": ws.lost_frames, "bad_sentences": log.bad_sentences,
-                })
+                    "mu_peak": ws.mu_slip.mu_peak if ws.mu_slip else None,
+                    "slip_at_mu_peak": ws.mu_slip.slip_at_mu_peak if ws.mu_slip else None,
+                    "mu_slip_model": ws.mu_slip.model if ws.mu_slip else None,
+                } | brake_columns(m.brake))
     return out
 
 

@@ -65,7 +65,10 @@ def write_json(
                 "estimates": log.estimates, "lost_frames": log.lost_frames, "bad_sentences": log.bad_sentences,
                 "maneuvers": [
                     {"maneuver": m.title, "phase": m.phase, "t_start_s": m.t_start_s, "t_end_s": m.t_end_s,
-                     "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.key, {})}
+                     "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.key, {}),
+                     "brake": None if m.brake is None else {k: _json_value(v) for k, v in vars(m.brake).items()},
+                     "mu_slip": {w: None if ws.mu_slip is None else {
+                         k: _json_value(v) for k, v in vars(ws.mu_slip).items()} for w, ws in m.wheels.items()}}
                     for m in log.maneuvers
                 ],
             }
@@ -115,7 +118,7 @@ def _wheel(w: str) -> str:
 def _maneuver_table(log: LogSummary, m: ManeuverSummary) -> str:
     head = ("wheel", "slip samples", "mean slip [%]", "linearity", "peak linear Fx [N]", "slip at peak [%]",
             "fitted Cx [kN]", "Cx conf", "Cx source", "peak Cx [kN]", "slip at peak Cx [%]", "mean Re [mm]",
-            "r0 [mm]", "lost frames")
+            "r0 [mm]", "lost frames", "μ peak", "slip at μ peak [%]")
     out = ["<table><tr>" + "".join(f"<th>{escape(h)}</th>" for h in head) + "</tr>"]
     for w in WHEELS:
         ws = m.wheels[w]
@@ -126,6 +129,8 @@ def _maneuver_table(log: LogSummary, m: ManeuverSummary) -> str:
             _f(ws.cx_fit_conf, 1, 2), escape(ws.cx_fit_source), _f(ws.peak_cx_n, 1e-3, 1),
             _f(ws.peak_cx_slip, 100, 2), _f(ws.mean_re_m, 1000, 2), _f(ws.r0_m, 1000, 2),
             "–" if ws.lost_frames is None else str(ws.lost_frames),
+            _f(ws.mu_slip.mu_peak if ws.mu_slip else None, 1, 3),
+            _f(ws.mu_slip.slip_at_mu_peak if ws.mu_slip else None, 100, 1),
         )
         out.append("<tr>" + "".join(f'<td{" class=l" if i in (0, 3, 8) else ""}>{c}</td>'
                                      for i, c in enumerate(cells)) + "</tr>")
@@ -135,6 +140,15 @@ def _maneuver_table(log: LogSummary, m: ManeuverSummary) -> str:
                f"{len(m.rows)} estimates, speed {m.speed_from_kmh:.1f} → {m.speed_to_kmh:.1f} km/h; "
                f"GPS latency {lat} s ({escape(m.gps_latency_source)}); bad sentences in the log: "
                f"{'–' if log.bad_sentences is None else log.bad_sentences}.</p>")
+    b = m.brake
+    if b is not None:
+        abs_text = f"{b.abs_cycles} ABS cycles at {_f(b.abs_frequency_hz, 1, 1)} Hz ({b.abs_wheel})" \
+            if b.abs_cycles else "no ABS cycling"
+        out.append(f'<p class="note"><b>Brake test</b>: onset at {b.onset_s - (log.t0_s or 0.0):.2f} s '
+                   f"({escape(b.onset_source)}) from {b.brake_speed_kmh:.1f} km/h; stopping distance "
+                   f"{_f(b.stopping_distance_m, 1, 2)} m, corrected to {_f(b.nominal_speed_kmh, 1, 0)} km/h: "
+                   f"{_f(b.stopping_distance_corrected_m, 1, 2)} m; MFDD {_f(b.mfdd_mps2, 1, 2)} m/s² "
+                   f"(0.8·v0 to 0.1·v0); {abs_text}.</p>")
     return "\n".join(out)
 
 

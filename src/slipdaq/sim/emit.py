@@ -3,6 +3,10 @@
 WPT:   PulseCount = (start_count + floor(theta/(2*pi) * pulses_per_rev)) mod 2^32 at the nominal sampling instant,
        Seq = frame index mod 256 per wheel; wheel i of WHEELS is sampled at k/rate + i/(4*rate).
 GPS:   epoch k at k/gps_rate describes the truth at that instant; its RMC, GGA, VTG lines arrive gps_latency_s later.
+CAN sensors (each only with its SimSettings rate > 0 and the config naming its message and signal; sensors.py):
+       IMU at k/imu_rate: truth a + N(0, imu_noise); brake switch at k/brake_rate: truth brake_pressed;
+       reference speed measured at k/ref_rate: truth V + N(0, ref_noise), sent ref_speed_latency_s later.
+       Their frames arrive with CAN jitter from their own generator; the WPT's random draws are not disturbed.
 Truth: a TruthSample every 10 ms and at every GPS epoch.
 Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
 Stall: with SimSettings.can_stall, frames are stamped when a stalled reader reads them (_StalledReader).
@@ -13,9 +17,10 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 
 import cantools
 import numpy as np
@@ -24,7 +29,10 @@ from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import load_dbc
 from slipdaq.records import CanFrame, NmeaLine, UbxFrame
-from slipdaq.sim.vehicle import Road, Scenario, TruthSample, VehicleSim
+from slipdaq.sim import Scenario
+from slipdaq.sim.scenarios import vehicle_model
+from slipdaq.sim.sensors import SensorEncoder
+from slipdaq.sim.vehicle import Road, TruthSample
 
 TRUTH_RATE_HZ = 100.0
 """Truth samples per second (plus one at every GPS epoch)."""
@@ -65,6 +73,18 @@ class SimSettings:
     origin_lat_deg: float = 52.0
     origin_lon_deg: float = 10.0
     heading_deg: float = 90.0
+    imu_rate_hz: float = 0.0
+    """IMU frames per second ([imu] message/signal; <= 0: none)."""
+    imu_noise_mps2: float = 0.05
+    """Standard deviation of the Gaussian noise on the IMU's acceleration."""
+    brake_rate_hz: float = 0.0
+    """Brake switch frames per second ([brake] message/signal; <= 0: none)."""
+    ref_speed_rate_hz: float = 0.0
+    """Reference speed frames per second on CAN ([gps] message/signal; <= 0: none)."""
+    ref_speed_latency_s: float = 0.02
+    """A reference speed frame sent at t carries the speed at t - ref_speed_latency_s."""
+    ref_speed_noise_mps: float = 0.02
+    """Standard deviation of the Gaussian noise on the reference speed (also its reported accuracy)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,6 +221,11 @@ class _Jitter:
         return self._block.pop()
 
 
+FrameMaker = Callable[[float], CanFrame]
+"""Builds a CAN frame given its record timestamp (start_utc_s + host offset + stamp time), for frames whose stamp
+is known only when a (stalled) reader reads them."""
+
+
 class _StalledReader:
     """CAN frame times as a reader that stalls over [start_s, end_s) and stamps frames when it reads them: the
     frames that arrived in the stall are read at end_s, in arrival order, READ_SPACING_S apart (a driver that stamps
@@ -215,8 +240,8 @@ class _StalledReader:
         if not (duration_s >= 0.0 and math.isfinite(start_s) and math.isfinite(duration_s)):
             raise ValueError(f"can_stall must be (start_s, duration_s >= 0), finite: {(start_s, duration_s)}")
         self.start_s, self.end_s = start_s, start_s + duration_s
-        self.held: list[tuple[float, int, int, int, int]] = []
-        """(arrival_s, order, wheel, count, seq) of the frames arriving from start_s on, until the flush."""
+        self.held: list[tuple[float, int, FrameMaker]] = []
+        """(arrival_s, order, frame maker) of the frames arriving from start_s on, until the flush."""
         self.flushed = False
         self.last_read_s = -math.inf
         """The read time of the backlog's last frame."""
@@ -231,18 +256,18 @@ class _StalledReader:
             return self.last_read_s
         return arrival_s
 
-    def flush(self) -> list[tuple[float, int, int, int]]:
-        """(stamp_s, wheel, count, seq) of the held frames, in read order."""
+    def flush(self) -> list[tuple[float, FrameMaker]]:
+        """(stamp_s, frame maker) of the held frames, in read order."""
         self.flushed = True
         out = []
         stalled = 0
-        for arrival_s, _, wheel, count, seq in sorted(self.held):
+        for arrival_s, _, make in sorted(self.held, key=lambda held: held[:2]):
             if arrival_s < self.end_s:
                 self.last_read_s = stamp_s = self.end_s + stalled * self.READ_SPACING_S
                 stalled += 1
             else:
                 stamp_s = self.read_time(arrival_s)
-            out.append((stamp_s, wheel, count, seq))
+            out.append((stamp_s, make))
         self.held = []
         return out
 
@@ -261,8 +286,16 @@ def generate(
     r0_offset_m: float | Mapping[str, float] = 0.0,
 ) -> Iterator[SimEvent]:
     """Events in nondecreasing time_s over [0, duration_s) (forever when duration_s is None)."""
-    sim = VehicleSim(config, scenario, road, r0_offset_m, max_step_s=settings.step_s)
+    sim = vehicle_model(config, scenario, road, r0_offset_m, max_step_s=settings.step_s)
     encoder = WptEncoder(config)
+    wants_sensors = settings.imu_rate_hz > 0 or settings.brake_rate_hz > 0 or settings.ref_speed_rate_hz > 0
+    sensors = SensorEncoder(config) if wants_sensors else None
+    imu_rate_hz = settings.imu_rate_hz if sensors is not None and sensors.imu is not None else 0.0
+    brake_rate_hz = settings.brake_rate_hz if sensors is not None and sensors.brake is not None else 0.0
+    ref_rate_hz = settings.ref_speed_rate_hz if sensors is not None and sensors.reference is not None else 0.0
+    sensor_jitter = _Jitter(settings.can_jitter_s, np.random.default_rng([settings.seed, 5]))
+    imu_rng = np.random.default_rng([settings.seed, 3])
+    ref_rng = np.random.default_rng([settings.seed, 4])
     jitter = _Jitter(settings.can_jitter_s, np.random.default_rng([settings.seed, 1]))
     noise_rng = np.random.default_rng([settings.seed, 2])
     pulses_per_rev, wheel_count = config.wpt.pulses_per_rev, len(WHEELS)
@@ -272,17 +305,32 @@ def generate(
     pending: list[tuple[float, int, SimEvent]] = []
     order = itertools.count()
     stall = None if settings.can_stall is None else _StalledReader(*settings.can_stall)
+    held_order = itertools.count()
 
     def push(time_s: float, record: CanFrame | NmeaLine | UbxFrame | None, truth: TruthSample | None = None) -> None:
         heapq.heappush(pending, (time_s, next(order), SimEvent(time_s, record, truth)))
 
-    n_slot = n_truth = n_gps = 0
+    def push_can(arrival_s: float, make: FrameMaker) -> None:
+        """A frame arriving at arrival_s: stamped then, or held and stamped when a stalled reader reads it."""
+        if stall is None:
+            push(arrival_s, make(host_t0_s + arrival_s))
+        elif stall.holds(arrival_s):
+            stall.held.append((arrival_s, next(held_order), make))
+        else:
+            stamp_s = stall.read_time(arrival_s)
+            push(stamp_s, make(host_t0_s + stamp_s))
+
+    def wpt_maker(wheel: int, count: int, seq: int) -> FrameMaker:
+        return lambda timestamp_s: encoder.frame(wheel, timestamp_s, count, seq)
+
+    n_slot = n_truth = n_gps = n_imu = n_brake = n_ref = 0
     t_slot, t_truth, t_gps = _instant(0, slot_rate_hz), 0.0, _instant(0, settings.gps_rate_hz)
+    t_imu, t_brake, t_ref = _instant(0, imu_rate_hz), _instant(0, brake_rate_hz), _instant(0, ref_rate_hz)
     while True:
-        t = min(t_slot, t_truth, t_gps)
+        t = min(t_slot, t_truth, t_gps, t_imu, t_brake, t_ref)
         if stall is not None and not stall.flushed and t >= stall.end_s:  # all frames of the stall known
-            for stamp_s, wheel, count, seq in stall.flush():
-                push(stamp_s, encoder.frame(wheel, host_t0_s + stamp_s, count, seq))
+            for stamp_s, make in stall.flush():
+                push(stamp_s, make(host_t0_s + stamp_s))
         while pending and pending[0][0] <= t and pending[0][0] < end_s:
             yield heapq.heappop(pending)[2]
         if t >= end_s:
@@ -296,11 +344,8 @@ def generate(
             arrival_s = t + jitter.next_s()
             if stall is None:
                 push(arrival_s, encoder.frame(wheel, host_t0_s + arrival_s, count, frame_index % SEQ_MODULUS))
-            elif stall.holds(arrival_s):
-                stall.held.append((arrival_s, n_slot, wheel, count, frame_index % SEQ_MODULUS))
             else:
-                stamp_s = stall.read_time(arrival_s)
-                push(stamp_s, encoder.frame(wheel, host_t0_s + stamp_s, count, frame_index % SEQ_MODULUS))
+                push_can(arrival_s, wpt_maker(wheel, count, frame_index % SEQ_MODULUS))
             n_slot += 1
             t_slot = _instant(n_slot, slot_rate_hz)
         if t_gps == t:
@@ -313,6 +358,24 @@ def generate(
                     push(arrival_s, NmeaLine(host_t0_s + arrival_s, line))
             n_gps += 1
             t_gps = _instant(n_gps, settings.gps_rate_hz)
+        if sensors is not None:
+            if t_imu == t:
+                accel_mps2 = sim.state.accel_mps2 + float(imu_rng.normal(0.0, settings.imu_noise_mps2))
+                push_can(t + sensor_jitter.next_s(), partial(sensors.imu_frame, accel_mps2=accel_mps2))
+                n_imu += 1
+                t_imu = _instant(n_imu, imu_rate_hz)
+            if t_brake == t:
+                pressed = sim.state.brake_pressed
+                push_can(t + sensor_jitter.next_s(), partial(sensors.brake_frame, pressed=pressed))
+                n_brake += 1
+                t_brake = _instant(n_brake, brake_rate_hz)
+            if t_ref == t:  # measured now, sent ref_speed_latency_s later
+                speed_mps = max(0.0, sim.state.speed_mps + float(ref_rng.normal(0.0, settings.ref_speed_noise_mps)))
+                arrival_s = t + settings.ref_speed_latency_s + sensor_jitter.next_s()
+                push_can(arrival_s, partial(sensors.reference_frame, speed_mps=speed_mps,
+                                            accuracy_mps=settings.ref_speed_noise_mps))
+                n_ref += 1
+                t_ref = _instant(n_ref, ref_rate_hz)
         if t_truth == t:
             n_truth += 1
             t_truth = _instant(n_truth, TRUTH_RATE_HZ)

@@ -1,6 +1,6 @@
 """Pure vehicle + tire model: the ground truth the simulator emits. No I/O, no clock.
 
-Longitudinal dynamics only:
+Kinematic model of the profile scenarios (the slip-driven one is in dynamics.py). Longitudinal dynamics only:
     speed V(t)      jerk-limited profile (acceleration ramps linearly to its level in 0.5 s and back)
     Fx = M*a        total longitudinal force, split over the tires (drive: driven wheels; brake: brake_front_share)
     Fx_i = D*sin(C*atan(B*s_i)),  D = mu*Fz_i,  B*C*D = Cx_i = cx_per_fz*Fz_i   (simplified Pacejka)
@@ -19,8 +19,10 @@ from typing import Literal
 
 from slipdaq import WHEELS
 from slipdaq.config import Config
+from slipdaq.sim import ProfileScenario
 
-Scenario = Literal["accelerate", "brake", "cycle"]
+Scenario = ProfileScenario
+"""The scenarios of this (kinematic) model."""
 Road = Literal["paved", "sand"]
 
 G_MPS2 = 9.81
@@ -191,6 +193,10 @@ class TruthWheel:
     force_n: float
     cx_n: float
     """Initial slope Cx of the tire curve at this wheel's static load."""
+    fz_n: float = 0.0
+    """Normal load Fz on this wheel at this instant."""
+    mu: float = 0.0
+    """The tire's friction used at this instant: force_n / fz_n."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +208,8 @@ class TruthSample:
     """Total longitudinal force Fx = M*a."""
     distance_m: float
     wheels: dict[str, TruthWheel]
+    brake_pressed: bool = False
+    """The driver's brake is applied."""
 
 
 def static_loads_n(mass_kg: float) -> dict[str, float]:
@@ -223,6 +231,7 @@ class VehicleSim:
     """Deterministic vehicle model: step(dt_s) advances the profile and integrates the wheel angles.
 
     Each advance is split into equal substeps of at most max_step_s for the trapezoid integral of V*s.
+    Truth: static loads Fz (no load transfer), mu = Fx_i/Fz_i, brake_pressed while Fx < 0.
     """
 
     def __init__(
@@ -329,7 +338,9 @@ class VehicleSim:
                 r0_m=r0,
                 force_n=fx * k,
                 cx_n=self.cx_n[w],
+                fz_n=fz,
+                mu=fx * k / fz,
             )
-            for w, s, r0, angle, k in zip(WHEELS, self._slips, self._r0, self.angles_rad(), shares)
+            for w, s, r0, angle, k, fz in zip(WHEELS, self._slips, self._r0, self.angles_rad(), shares, self._fz)
         }
-        return TruthSample(self._time_s, v, self._a_mps2, fx, self._x_m, wheels)
+        return TruthSample(self._time_s, v, self._a_mps2, fx, self._x_m, wheels, brake_pressed=fx < 0.0)

@@ -8,8 +8,10 @@ from slipdaq import WHEELS
 from slipdaq.records import (
     CanFrameBatch,
     Estimate,
+    FastSlip,
     GpsFix,
     RawRecord,
+    SensorSample,
     SourceEvent,
     WheelSample,
     WheelSampleBatch,
@@ -40,8 +42,14 @@ class Sink:
     def on_fix(self, fix: GpsFix) -> None:
         """One GPS fix of the protocol gps.velocity names."""
 
+    def on_sensor(self, sample: SensorSample) -> None:
+        """One value of the other sensors on CAN (reference speed, IMU, brake), decoded."""
+
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         """One estimate, at the log time of the record that released it."""
+
+    def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
+        """One high-rate slip row, at the log time of the record that released it."""
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         """The pipeline's counters, once a second of log time and at the end."""
@@ -69,6 +77,8 @@ class CollectingSink(Sink):
         self.wheels: list[WheelSample] = []
         self.fixes: list[GpsFix] = []
         self.estimates: list[Estimate] = []
+        self.fast: list[FastSlip] = []
+        self.sensors: list[SensorSample] = []
         self.diagnostics: list[dict[str, object]] = []
 
     def on_raw(self, record: RawRecord) -> None:
@@ -82,6 +92,12 @@ class CollectingSink(Sink):
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self.estimates.append(estimate)
+
+    def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
+        self.fast.append(row)
+
+    def on_sensor(self, sample: SensorSample) -> None:
+        self.sensors.append(sample)
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics.append(diagnostics)

@@ -1,4 +1,5 @@
-"""CSV export: one row per estimate, in the public column order; an empty cell where a value is undefined."""
+"""CSV export: one row per estimate (or per high-rate slip row), in the public column order; an empty cell where a
+value is undefined."""
 
 from __future__ import annotations
 
@@ -8,13 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.records import ESTIMATE_COLUMNS, column_names
+from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, column_names
 
 COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="contract")
 """The public contract's columns, in order."""
 EXTRA_COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="extra")
 """Appended after the contract's columns (extensions keep the contract's columns where they are)."""
 ALL_COLUMNS = COLUMNS + EXTRA_COLUMNS
+FAST_COLUMNS: tuple[str, ...] = column_names(FAST_SLIP_COLUMNS, WHEELS, csv="contract")
+"""`export --fast-csv`: time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR."""
 
 
 def _cell(v: Any) -> str:
@@ -23,13 +26,13 @@ def _cell(v: Any) -> str:
     return repr(float(v)) if isinstance(v, float) else str(v)
 
 
-def write_csv(rows: Iterable[dict[str, Any]], path: str | Path) -> int:
-    """Write estimate rows (dicts with at least COLUMNS) to path; returns the number of rows."""
+def write_csv(rows: Iterable[dict[str, Any]], path: str | Path, columns: tuple[str, ...] = ALL_COLUMNS) -> int:
+    """Write rows (dicts with at least the contract's columns) to path; returns the number of rows."""
     n = 0
     with open(path, "w", newline="", encoding="utf-8") as f:
         out = csv.writer(f)
-        out.writerow(ALL_COLUMNS)
+        out.writerow(columns)
         for row in rows:
-            out.writerow([_cell(row.get(c)) for c in ALL_COLUMNS])
+            out.writerow([_cell(row.get(c)) for c in columns])
             n += 1
     return n

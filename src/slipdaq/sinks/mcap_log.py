@@ -6,6 +6,7 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import logging
 import sys
@@ -29,8 +30,10 @@ from slipdaq.logformat.topics import (
     TOPIC_DIAGNOSTICS,
     TOPIC_ESTIMATE,
     TOPIC_EVENTS,
+    TOPIC_FAST_SLIP,
     TOPIC_GPS,
     TOPIC_NMEA,
+    TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
 )
@@ -42,9 +45,11 @@ from slipdaq.records import (
     CanFrameBatch,
     Estimate,
     EventHandler,
+    FastSlip,
     GpsFix,
     NmeaLine,
     RawRecord,
+    SensorSample,
     SourceEvent,
     UbxFrame,
     WheelSample,
@@ -410,6 +415,12 @@ class McapLogSink(Sink):
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self._write(TOPIC_ESTIMATE, log_time_s, estimate_json(estimate))
+
+    def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
+        self._write(TOPIC_FAST_SLIP, log_time_s, dumps(row.as_row()))
+
+    def on_sensor(self, sample: SensorSample) -> None:
+        self._write(TOPIC_SENSORS, sample.time_s, dumps(dataclasses.asdict(sample)))
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         if self._flush_every_s is not None:  # live: the log's own state goes with the counters

@@ -1,0 +1,262 @@
+"""The tire's mu–slip curve over the whole slip range. Pure: arrays in, dataclasses out.
+
+Normal load per wheel (static axle load plus longitudinal load transfer, a < 0 braking loads the front):
+    Fz_front_axle = M·g·share − M·a·h/L,   Fz_rear_axle = M·g·(1 − share) + M·a·h/L,   each wheel half its axle.
+Friction coefficient: mu = Fx_tire / Fz_tire.
+
+Burckhardt model (Burckhardt 1993; Kiencke & Nielsen, Automotive Control Systems, ch. 7):
+    mu(s) = sign(s)·(c1·(1 − exp(−c2·|s|)) − c3·|s|),   c1, c2, c3 >= 0,
+    initial slope mu'(0) = c1·c2 − c3,   peak at s* = ln(c1·c2/c3)/c2 (when c3 > 0 and c1·c2 > c3).
+Fitted by linear least squares in (c1, c3) for every c2 of a log-spaced grid, then a finer grid around the best;
+with a peak in the data, refitted on the points up to PEAK_WINDOW·s* (fit_mu_slip).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from slipdaq import WHEELS
+from slipdaq.estimator.force import G_MPS2
+
+MIN_POINTS = 20
+"""A fit needs at least this many finite (slip, mu) points."""
+MIN_SLIP_SPAN = 0.01
+"""... spread over at least this much slip (max |s| − min |s|, fraction)."""
+OPPOSITE_SLIP_MAX = 0.01
+"""Points whose slip has the other sign than the maneuver's by more than this are dropped (noise about s = 0 is kept)."""
+PEAK_MARGIN = 1.15
+"""The peak counts as observed only with points beyond PEAK_MARGIN·s* ..."""
+MIN_PEAK_SIDE_POINTS = 5
+"""... at least this many (and at least 5 % of the points) beyond it, and at least this many below s*."""
+PEAK_WINDOW = 1.6
+"""With a peak observed, the fit is repeated on the points with |s| <= PEAK_WINDOW·s* (the range ABS cycles
+over, 0.5–1.6·s*): the sliding branch up to lock (|s| -> 1) bends a 3-parameter curve and shifts its peak ..."""
+PEAK_WINDOW_ITERATIONS = 5
+"""... at most this many times."""
+C2_GRID = np.geomspace(1.0, 200.0, 200)
+"""Coarse grid of c2 (1/slip); the fit refines between the best value's neighbours."""
+LINEARITY_TOLERANCE = 0.10
+"""End of linearity: where the fitted mu falls this fraction below its initial linear slope."""
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def normal_loads_n(
+    wheel: str, accel_mps2: npt.ArrayLike, mass_kg: float, front_axle_load_share: float,
+    cg_height_m: float, wheelbase_m: float,
+) -> FloatArray:
+    """Fz of one wheel ("FL", "FR", "RL", "RR") per acceleration sample: half its axle's
+    M·g·share ∓ M·a·h/L (front −, rear +; a < 0 braking loads the front)."""
+    if wheel not in WHEELS:
+        raise ValueError(f"unknown wheel {wheel!r} (one of {', '.join(WHEELS)})")
+    if wheelbase_m <= 0:
+        raise ValueError("wheelbase_m must be > 0")
+    a = np.asarray(accel_mps2, dtype=float)
+    transfer = mass_kg * a * cg_height_m / wheelbase_m
+    if wheel[0] == "F":
+        axle = mass_kg * G_MPS2 * front_axle_load_share - transfer
+    else:
+        axle = mass_kg * G_MPS2 * (1.0 - front_axle_load_share) + transfer
+    return np.asarray(0.5 * axle, dtype=float)
+
+
+def mu_from_force(force_n: npt.ArrayLike, fz_n: npt.ArrayLike) -> FloatArray:
+    """mu = Fx/Fz elementwise; NaN where Fz <= 0 or either is not finite."""
+    f = np.asarray(force_n, dtype=float)
+    z = np.asarray(fz_n, dtype=float)
+    f, z = np.broadcast_arrays(f, z)
+    ok = np.isfinite(f) & np.isfinite(z) & (z > 0)
+    out = np.full(f.shape, np.nan)
+    np.divide(f, z, out=out, where=ok)
+    return out
+
+
+def _burckhardt(x: FloatArray, c1: float, c2: float, c3: float) -> FloatArray:
+    """The one-sided curve c1·(1 − exp(−c2·x)) − c3·x (x = |s|)."""
+    return np.asarray(c1 * -np.expm1(-c2 * x) - c3 * x, dtype=float)
+
+
+@dataclass(frozen=True)
+class MuSlipFit:
+    """A fitted Burckhardt curve (module docstring). Slips are fractions; `slip_sign` is −1 for braking data.
+
+    mu_peak / slip_at_mu_peak (a positive magnitude) are None unless `peak_observed`: points from the linear
+    region alone do not identify a peak (any c3 fits them about equally well, so s* is an extrapolation)."""
+
+    c1: float
+    c2: float
+    c3: float
+    mu_peak: float | None
+    slip_at_mu_peak: float | None
+    rms_residual: float
+    n_points: int
+    peak_observed: bool
+    slip_sign: float
+    """+1 driving, −1 braking: the sign of the fitted points' slip."""
+    max_abs_slip: float
+    """The largest |s| among the fitted points (the curve is an extrapolation beyond it)."""
+    points_beyond_window: int = 0
+    """Points beyond PEAK_WINDOW·s* left out of the final fit (0: every point fitted)."""
+    model: str = "burckhardt"
+
+    def mu(self, slip: npt.ArrayLike) -> FloatArray:
+        """The fitted mu at each slip, sign(s)·(c1·(1 − exp(−c2·|s|)) − c3·|s|)."""
+        s = np.asarray(slip, dtype=float)
+        return np.sign(s) * _burckhardt(np.abs(s), self.c1, self.c2, self.c3)
+
+    @property
+    def initial_slope(self) -> float:
+        """dmu/ds at s = 0: c1·c2 − c3."""
+        return self.c1 * self.c2 - self.c3
+
+
+def _solve_grid(x: FloatArray, y: FloatArray, c2s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For each c2: least squares y ≈ c1·(1 − exp(−c2·x)) − c3·x with c1, c3 >= 0 (a 2-variable NNLS: the
+    unconstrained solution if feasible, else the better of the boundary solutions). Returns (c1, c3, sse)."""
+    e = -np.expm1(-np.outer(c2s, x))  # (k, n): the c1 basis
+    b = -x  # the c3 basis
+    ee = np.einsum("kn,kn->k", e, e)
+    eb = e @ b
+    bb = float(b @ b)
+    ey = e @ y
+    by = float(b @ y)
+    yy = float(y @ y)
+    det = ee * bb - eb * eb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c1_u = np.where(det > 0, (ey * bb - eb * by) / det, -1.0)
+        c3_u = np.where(det > 0, (ee * by - eb * ey) / det, -1.0)
+        c1_only = np.maximum(0.0, np.where(ee > 0, ey / ee, 0.0))
+    c3_only = max(0.0, by / bb) if bb > 0 else 0.0
+
+    def sse(c1: FloatArray, c3: FloatArray) -> FloatArray:
+        return np.asarray(yy - 2 * c1 * ey - 2 * c3 * by + c1 * c1 * ee + 2 * c1 * c3 * eb + c3 * c3 * bb, dtype=float)
+
+    cands = [
+        (np.maximum(c1_u, 0.0), np.maximum(c3_u, 0.0), (c1_u >= 0) & (c3_u >= 0)),
+        (c1_only, np.zeros_like(c1_only), np.ones_like(ee, dtype=bool)),
+        (np.zeros_like(ee), np.full_like(ee, c3_only), np.ones_like(ee, dtype=bool)),
+    ]
+    best_c1, best_c3 = cands[1][0], cands[1][1]
+    best_sse = sse(best_c1, best_c3)
+    for c1, c3, ok in (cands[0], cands[2]):
+        s = np.where(ok, sse(c1, c3), np.inf)
+        better = s < best_sse
+        best_c1 = np.where(better, c1, best_c1)
+        best_c3 = np.where(better, c3, best_c3)
+        best_sse = np.where(better, s, best_sse)
+    return best_c1, best_c3, np.maximum(best_sse, 0.0)
+
+
+def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | None = PEAK_WINDOW) -> MuSlipFit | None:
+    """Burckhardt fit to one maneuver's (slip, mu) points, all braking or all driving.
+
+    The maneuver's sign is that of the median slip; points are mirrored onto it (x = sign·s, y = sign·mu, so the
+    noise about s = 0 stays unbiased) and points of the other sign beyond OPPOSITE_SLIP_MAX are dropped. c2 is
+    searched on C2_GRID, then on 200 values between the best one's neighbours; (c1, c3) by least squares, >= 0.
+    The peak s* = ln(c1·c2/c3)/c2 counts as observed only with points on both sides of it (MIN_PEAK_SIDE_POINTS
+    below s*, and beyond PEAK_MARGIN·s*); else mu_peak and slip_at_mu_peak are None: the linear region alone
+    does not identify a peak (its points fit a family of curves with peaks anywhere beyond them).
+    With a peak observed and points beyond peak_window·s*, the fit is repeated on the points up to it until s*
+    settles (PEAK_WINDOW_ITERATIONS); the curve is then an extrapolation beyond max_abs_slip. peak_window=None:
+    one fit over every point (the whole-range curve, its peak biased towards the sliding branch).
+    None for fewer than MIN_POINTS points, an |s| spread below MIN_SLIP_SPAN, or no rising curve (c1 = 0)."""
+    s = np.asarray(slip, dtype=float).ravel()
+    m = np.asarray(mu, dtype=float).ravel()
+    if s.shape != m.shape:
+        raise ValueError("slip and mu must have the same length")
+    ok = np.isfinite(s) & np.isfinite(m)
+    s, m = s[ok], m[ok]
+    if s.size < MIN_POINTS:
+        return None
+    sign = -1.0 if np.median(s) < 0 else 1.0
+    x, y = sign * s, sign * m
+    keep = x >= -OPPOSITE_SLIP_MAX
+    x, y = x[keep], y[keep]
+
+    fit = _fit_points(x, y, sign)
+    if peak_window is None or peak_window <= PEAK_MARGIN:
+        return fit
+    for _ in range(PEAK_WINDOW_ITERATIONS):
+        if fit is None or fit.slip_at_mu_peak is None:
+            break
+        inside = x <= peak_window * fit.slip_at_mu_peak
+        if inside.all():
+            break
+        refit = _fit_points(x[inside], y[inside], sign)
+        if refit is None or refit.slip_at_mu_peak is None:
+            break
+        settled = abs(refit.slip_at_mu_peak - fit.slip_at_mu_peak) < 1e-4
+        fit = dataclasses.replace(refit, points_beyond_window=int(np.count_nonzero(~inside)))
+        if settled:
+            break
+    return fit
+
+
+def _fit_points(x: FloatArray, y: FloatArray, sign: float) -> MuSlipFit | None:
+    """The grid fit on mirrored points (x >= −OPPOSITE_SLIP_MAX); None as fit_mu_slip says."""
+    n = int(x.size)
+    if n < MIN_POINTS or float(np.max(np.abs(x)) - np.min(np.abs(x))) < MIN_SLIP_SPAN:
+        return None
+    c1s, c3s, sses = _solve_grid(x, y, C2_GRID)
+    i = int(np.argmin(sses))
+    lo, hi = C2_GRID[max(i - 1, 0)], C2_GRID[min(i + 1, C2_GRID.size - 1)]
+    fine = np.geomspace(lo, hi, 200)
+    f1, f3, fs = _solve_grid(x, y, fine)
+    j = int(np.argmin(fs))
+    if fs[j] <= sses[i]:
+        c1, c2, c3, sse = float(f1[j]), float(fine[j]), float(f3[j]), float(fs[j])
+    else:
+        c1, c2, c3, sse = float(c1s[i]), float(C2_GRID[i]), float(c3s[i]), float(sses[i])
+    if c1 <= 0:
+        return None
+
+    mu_peak: float | None = None
+    s_peak: float | None = None
+    observed = False
+    if c3 > 0 and c1 * c2 > c3:
+        s_star = math.log(c1 * c2 / c3) / c2
+        beyond = int(np.count_nonzero(x > PEAK_MARGIN * s_star))
+        below = int(np.count_nonzero((x > 0) & (x < s_star)))
+        observed = beyond >= max(MIN_PEAK_SIDE_POINTS, 0.05 * n) and below >= MIN_PEAK_SIDE_POINTS
+        if observed:
+            s_peak = s_star
+            mu_peak = float(_burckhardt(np.array([s_star]), c1, c2, c3)[0])
+    return MuSlipFit(
+        c1=c1, c2=c2, c3=c3, mu_peak=mu_peak, slip_at_mu_peak=s_peak,
+        rms_residual=math.sqrt(sse / n), n_points=n, peak_observed=observed,
+        slip_sign=sign, max_abs_slip=float(np.max(np.abs(x))),
+    )
+
+
+def end_of_linearity_slip(fit: MuSlipFit, tolerance: float = LINEARITY_TOLERANCE) -> float | None:
+    """|s| (a positive fraction) where the fitted mu first falls more than `tolerance` below the initial linear
+    slope: mu(s) = (1 − tolerance)·mu'(0)·s with mu'(0) = c1·c2 − c3 (mu(s)/s decreases monotonically, the curve
+    being concave, so bisection finds the one root). None without a positive initial slope, or when that slip lies
+    beyond the fitted points (max_abs_slip): the curve there is an extrapolation. Burckhardt's exponential bends
+    from s = 0 on (the 10 % point of c1·(1 − exp(−c2·s)) alone is s ≈ 0.21/c2), so on a tire that stays straight
+    longer (a Magic Formula curve) this comes earlier than the tire's own end of linearity."""
+    k = fit.initial_slope
+    if k <= 0 or not 0 < tolerance < 1:
+        return None
+
+    def excess(x: float) -> float:  # > 0 while still within the tolerance
+        return float(_burckhardt(np.array([x]), fit.c1, fit.c2, fit.c3)[0]) - (1.0 - tolerance) * k * x
+
+    hi = fit.max_abs_slip
+    if hi <= 0 or excess(hi) > 0:
+        return None
+    lo = 0.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if excess(mid) > 0:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-9:
+            break
+    return 0.5 * (lo + hi)

@@ -1,0 +1,188 @@
+"""Slip-driven vehicle model: each wheel's slip is commanded (by a scenario's controller), the tire gives the force.
+Pure: no I/O, no clock. Longitudinal dynamics only, per step of at most max_step_s:
+
+    Fz_front_axle = M*g*k_f - M*a*h/L,  Fz_rear_axle = M*g - Fz_front_axle,  split evenly left/right
+        (k_f = vehicle.front_axle_load_share, h = vehicle.cg_height_m, L = vehicle.wheelbase_m; braking, a < 0,
+        loads the front)
+    Fx_i = D*sin(C*atan(B*s_i)),  D = mu*Fz_i                  (the road's TireModel)
+    a = sum(Fx_i)/M = g(a)                                     (Fz depends on a: fixed point, see _solve)
+    V1 = V0 + h*(a0 + a1)/2,  x1 = x0 + h*(V0 + V1)/2           (trapezoid)
+    theta_i = (x + integral(V*s_i dt))/r0_i,  omega_i = V*(1 + s_i)/r0_i   (a locked wheel, s = -1, has omega = 0)
+
+A moving vehicle whose speed reaches 0 stays stopped: slip 0, force 0, a = 0 (within the step it stops in, the
+integrals run to the instant V = 0, by linear interpolation of V).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple, Protocol
+
+from slipdaq import WHEELS
+from slipdaq.config import Config, VehicleConfig
+from slipdaq.sim.vehicle import G_MPS2, ROADS, Road, TireModel, TruthSample, TruthWheel
+
+AITKEN_MIN_DENOMINATOR = 1e-12
+"""Below this |a2 - 2*a1 + a0| the fixed point is taken as reached (no extrapolation)."""
+
+
+class SlipCommand(NamedTuple):
+    slips: list[float]
+    """Commanded slip per wheel, in WHEELS order."""
+    brake_pressed: bool
+    """The driver's brake is applied."""
+
+
+class SlipController(Protocol):
+    """A scenario's driver and wheel-slip control: the slip of each wheel at an instant."""
+
+    @property
+    def initial_speed_mps(self) -> float: ...
+
+    def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
+        """The slips at time_s, given the speed at the step's start and the wheels' loads (WHEELS order)."""
+        ...
+
+
+def axle_loads_n(vehicle: VehicleConfig, accel_mps2: float) -> list[float]:
+    """Fz per wheel (WHEELS order): Fz_front_axle = M*g*k_f - M*a*h/L, the rest on the rear, halves left/right."""
+    mass_kg = vehicle.mass_kg
+    weight_n = mass_kg * G_MPS2
+    front_axle_n = weight_n * vehicle.front_axle_load_share - mass_kg * accel_mps2 * vehicle.cg_height_m / vehicle.wheelbase_m
+    front_axle_n = min(weight_n, max(0.0, front_axle_n))
+    front_n, rear_n = front_axle_n / 2.0, (weight_n - front_axle_n) / 2.0
+    return [front_n if w.startswith("F") else rear_n for w in WHEELS]
+
+
+class DynamicVehicleSim:
+    """The slip-driven model with VehicleSim's interface (advance_to, step, state, angles_rad, time_s)."""
+
+    def __init__(
+        self,
+        config: Config,
+        controller: SlipController,
+        road: Road = "paved",
+        r0_offset_m: float | Mapping[str, float] = 0.0,
+        max_step_s: float = 0.001,
+    ) -> None:
+        if road not in ROADS:
+            raise ValueError(f"unknown road {road!r}: expected paved or sand")
+        self.road, self.controller = road, controller
+        self.tire: TireModel = ROADS[road]
+        self.vehicle = config.vehicle
+        self.mass_kg = config.vehicle.mass_kg
+        self.max_step_s = max_step_s
+        offsets = r0_offset_m if isinstance(r0_offset_m, Mapping) else dict.fromkeys(WHEELS, r0_offset_m)
+        self._r0 = [config.tire.radius_m + float(offsets.get(w, 0.0)) for w in WHEELS]
+        self.r0_m = dict(zip(WHEELS, self._r0))
+        self._static_fz = axle_loads_n(self.vehicle, 0.0)
+        self.cx_n = {w: self.tire.stiffness_n(fz) for w, fz in zip(WHEELS, self._static_fz)}
+        """Initial slope Cx of each wheel's tire curve at its static load."""
+        self._time_s = 0.0
+        self._x_m = 0.0
+        self._v_mps = controller.initial_speed_mps
+        self._a_mps2 = 0.0
+        self._stopped = False
+        self._slip_distance_m = [0.0] * len(WHEELS)
+        """integral(V*s_i dt) per wheel."""
+        self._a_mps2, self._fz, self._slips, self._forces, self._brake = self._solve(0.0, self._v_mps)
+        self._state: TruthSample | None = None
+
+    def _pass(self, time_s: float, speed_mps: float, accel_mps2: float) -> tuple[float, list[float], SlipCommand,
+                                                                                list[float]]:
+        """One pass of a = g(a): Fz(a) -> commanded s_i -> Fx_i(s_i, Fz_i) -> sum(Fx_i)/M."""
+        fz = axle_loads_n(self.vehicle, accel_mps2)
+        command = self.controller.command(time_s, speed_mps, fz)
+        force = self.tire.force_n
+        forces = [force(s, f) for s, f in zip(command.slips, fz)]
+        return math.fsum(forces) / self.mass_kg, fz, command, forces
+
+    def _solve(self, time_s: float, speed_mps: float) -> tuple[float, list[float], list[float], list[float], bool]:
+        """(a, Fz_i, s_i, Fx_i, brake) at time_s. From the last step's a0: a1 = g(a0), a2 = g(a1), Aitken's
+        a* = a0 - (a1 - a0)^2/(a2 - 2*a1 + a0) (exact when g is affine, as with slips fixed in time and the other axle
+        carrying a share of the limiting axle's force), then a final pass at a*. Stopped: s_i = 0, Fx_i = 0, a = 0."""
+        if self._stopped:
+            fz = self._static_fz
+            zeros = [0.0] * len(WHEELS)
+            return 0.0, fz, zeros, zeros, self.controller.command(time_s, 0.0, fz).brake_pressed
+        a0 = self._a_mps2
+        a1 = self._pass(time_s, speed_mps, a0)[0]
+        a2 = self._pass(time_s, speed_mps, a1)[0]
+        denominator = a2 - 2.0 * a1 + a0
+        a_star = a0 - (a1 - a0) ** 2 / denominator if abs(denominator) > AITKEN_MIN_DENOMINATOR else a2
+        accel, fz, command, forces = self._pass(time_s, speed_mps, a_star if math.isfinite(a_star) else a2)
+        return accel, fz, command.slips, forces, command.brake_pressed
+
+    def _substep(self, t1_s: float) -> None:
+        """Advance to t1_s: trapezoid for V, x and integral(V*s dt); a stop within the step ends the motion."""
+        h = t1_s - self._time_s
+        v0, a0, s0 = self._v_mps, self._a_mps2, self._slips
+        accel, fz, slips, forces, brake = self._solve(t1_s, v0)
+        v1 = 0.0 if self._stopped else v0 + 0.5 * h * (a0 + accel)
+        moving_h = h
+        if not self._stopped and v1 <= 0.0 and (v0 > 0.0 or accel < 0.0):
+            moving_h = h * v0 / (v0 - v1) if v0 > 0.0 else 0.0  # V reaches 0 at this share of the step
+            v1, self._stopped = 0.0, True
+            accel, fz, slips, forces, brake = self._solve(t1_s, 0.0)
+        half_h = 0.5 * moving_h
+        self._x_m += half_h * (v0 + v1)
+        self._slip_distance_m = [d + half_h * (v0 * a + v1 * b) for d, a, b in zip(self._slip_distance_m, s0, slips)]
+        self._time_s, self._v_mps, self._a_mps2 = t1_s, v1, accel
+        self._fz, self._slips, self._forces, self._brake = fz, slips, forces, brake
+
+    def advance_to(self, time_s: float) -> None:
+        """Advance the model to time_s (no-op if already there) in equal substeps of at most max_step_s."""
+        span_s = time_s - self._time_s
+        if span_s <= 0.0:
+            return
+        n = max(1, math.ceil(span_s / self.max_step_s - 1e-9))
+        t0 = self._time_s
+        for k in range(1, n):
+            self._substep(t0 + span_s * k / n)
+        self._substep(time_s)
+        self._state = None
+
+    def step(self, dt_s: float) -> TruthSample:
+        """Advance by dt_s and return the truth at the new time."""
+        self.advance_to(self._time_s + dt_s)
+        return self.state
+
+    @property
+    def time_s(self) -> float:
+        return self._time_s
+
+    @property
+    def stopped(self) -> bool:
+        """The vehicle has come to a standstill (and stays there)."""
+        return self._stopped
+
+    def angles_rad(self) -> list[float]:
+        """Cumulative wheel angles in WHEELS order: theta_i = (x + integral(V*s_i dt))/r0_i."""
+        x = self._x_m
+        return [(x + d) / r0 for d, r0 in zip(self._slip_distance_m, self._r0)]
+
+    @property
+    def state(self) -> TruthSample:
+        """The truth at the current time (built on demand)."""
+        if self._state is None:
+            self._state = self._build_state()
+        return self._state
+
+    def _build_state(self) -> TruthSample:
+        v = self._v_mps
+        wheels = {
+            w: TruthWheel(
+                slip=s,
+                omega_radps=v * (1.0 + s) / r0,
+                angle_rad=angle,
+                r0_m=r0,
+                force_n=fx,
+                cx_n=self.cx_n[w],
+                fz_n=fz,
+                mu=fx / fz if fz > 0.0 else 0.0,
+            )
+            for w, s, r0, angle, fx, fz in zip(WHEELS, self._slips, self._r0, self.angles_rad(), self._forces, self._fz)
+        }
+        total_n = math.fsum(self._forces)
+        return TruthSample(self._time_s, v, self._a_mps2, total_n, self._x_m, wheels, brake_pressed=self._brake)
