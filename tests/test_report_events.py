@@ -48,7 +48,8 @@ def test_a_short_cruise_inside_an_acceleration_does_not_split_it() -> None:
 
 
 def test_the_report_line_is_the_consistent_fit_and_a_slip_offset_does_not_move_it() -> None:
-    """Slip on force with an intercept, anchored by the cruise windows: against the truth's stiffness over the run
+    """Slip on force with an intercept (errors in variables, the noise from the cruise windows), anchored by the cruise
+    windows: against the truth's stiffness over the run
     (1 / the slope of true slip on true force), and unmoved by a radius error (every slip offset by 0.4 points),
     which moves the line through the origin by tens of percent."""
     from slipdaq.report.summary import fit_through_origin
@@ -70,7 +71,7 @@ def test_the_report_line_is_the_consistent_fit_and_a_slip_offset_does_not_move_i
         assert truth_cx is not None
         lines = [m.wheels[w].linearity.line for m in log.maneuvers if m.phase == "accelerate"]
         moved = [m.wheels[w].linearity.line for m in log_shifted.maneuvers if m.phase == "accelerate"]
-        assert len(lines) == 3 and all(x is not None and x.method == "slip on force" for x in lines + moved)
+        assert len(lines) == 3 and all(x is not None and x.method == "errors-in-variables" for x in lines + moved)
         for k, (line, other) in enumerate(zip(lines, moved)):
             if k:  # the first acceleration changes radius midway (tire size, then calibrated): its slips move
                 assert line.cx_n == pytest.approx(truth_cx, rel=0.10)

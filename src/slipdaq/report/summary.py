@@ -19,7 +19,9 @@ Linear region and the end of linearity (per wheel and maneuver), the exact rule
        fallback), both with |s| <= S_MAX. The
        slip is the noisy one (GPS), so it is the regressand: its noise adds spread, not bias; Fx = M·a spreads
        widely between cruise and the maneuver and its own noise is small against that spread (docs/method.md,
-       fitted stiffness). s0 takes a radius error out. Without force spread (fewer than 3 points, or a slope not
+       fitted stiffness). With 10 cruise windows or more, their spread is each variable's noise and the fit is
+       errors-in-variables (Deming, fit_slip_on_force): noise in Fx no longer flattens the slope. s0 takes a radius
+       error out. Without force spread (fewer than 3 points, or a slope not
        3 standard errors above 0: one cluster of points):
        Fx = Cx_line·s through the origin over the sign-consistent points (the secant; `cx_line_method` says which).
        With neither, no line and no linearity result.
@@ -50,9 +52,9 @@ Other figures per wheel and maneuver
 The tire's mu-slip curve (per wheel and maneuver; mu_slip.py), from the high-rate slip (/slip/fast) over the
 maneuver's span (its first window's start - SPAN_BEFORE_S to its last window's end + SPAN_AFTER_S):
     mu = Fx_tire / Fz_tire, Fx_tire = M*a split as the estimator splits it (driven wheels; brake_front_share), a the
-    fused acceleration of the high-rate rows; Fz with the load transfer M*a*h/L (vehicle.wheelbase_m, cg_height_m,
-    front_axle_load_share); a Burckhardt curve fitted over the whole slip range: mu_peak and slip_at_mu_peak when
-    the data pass the peak (else none: a peak cannot be read off the linear region).
+    fused acceleration of the high-rate rows from MU_MIN_SPEED_MPS on; Fz with the load transfer M*a*h/L
+    (vehicle.wheelbase_m, cg_height_m, front_axle_load_share); a Burckhardt curve fitted over the whole slip range:
+    mu_peak and slip_at_mu_peak when the data pass the peak (else none: a peak cannot be read off the linear region).
 
 Brake-test figures (per brake maneuver; brake_test.py): the onset from the brake signal on CAN ([brake], nonzero =
 pressed) when the log has one, else from the onset of deceleration; the speed there, the stopping distance to
@@ -91,6 +93,9 @@ SPAN_BEFORE_S = 1.5
 window that the phase classifies as braking)."""
 SPAN_AFTER_S = 3.0
 """... and end this long after its last window (a stop ends below the estimates' minimum speed)."""
+MU_MIN_SPEED_MPS = 3.0
+"""The mu-slip fit takes high-rate rows from this speed on: below it a count's quantisation is a large slip, and
+ABS hands over to locked wheels (2 m/s) before the stop."""
 
 
 def events(phases: Sequence[str | None], times_s: Sequence[float]) -> list[tuple[str | None, list[int]]]:
@@ -201,8 +206,15 @@ MIN_SLOPE_T = 3.0
 """The slip-on-force slope must be this many standard errors above 0."""
 
 
-def fit_slip_on_force(points: Sequence[tuple[float, float]]) -> LineFit | None:
-    """s = s0 + Fx/Cx by least squares (slip the regressand); None for fewer than 3 points or no positive slope."""
+def fit_slip_on_force(points: Sequence[tuple[float, float]],
+                      noise: tuple[float, float] | None = None) -> LineFit | None:
+    """s = s0 + Fx/Cx, slip the regressand; None for fewer than 3 points or no positive slope.
+
+    noise: (var_s, var_F), the variances of the slip's and the force's own noise: a Deming (errors-in-variables) fit
+    with their ratio lambda = var_s/var_F, which noise in Fx does not flatten (ordinary least squares of s on Fx
+    shrinks the slope by var(Fx true)/var(Fx), and so raises Cx):
+        b = (Sss - lambda Sff + sqrt((Sss - lambda Sff)^2 + 4 lambda Sfs^2)) / (2 Sfs)
+    (Sff, Sss, Sfs: sums of squares and products about the means). Without noise: least squares of s on Fx."""
     n = len(points)
     if n < 3:
         return None
@@ -211,13 +223,33 @@ def fit_slip_on_force(points: Sequence[tuple[float, float]]) -> LineFit | None:
     sff = sum((f - f_mean) ** 2 for _, f in points)
     if sff <= 0:
         return None
-    b = sum((f - f_mean) * (s - s_mean) for s, f in points) / sff
+    sfs = sum((f - f_mean) * (s - s_mean) for s, f in points)
+    b = sfs / sff
+    method = "slip on force"
+    if noise is not None and noise[0] > 0 and noise[1] > 0 and sfs > 0:
+        lam = noise[0] / noise[1]
+        sss = sum((s - s_mean) ** 2 for s, _ in points)
+        d = sss - lam * sff
+        b = (d + math.sqrt(d * d + 4.0 * lam * sfs * sfs)) / (2.0 * sfs)
+        method = "errors-in-variables"
     a = s_mean - b * f_mean
     resid = sum((s - a - b * f) ** 2 for s, f in points)
     se_b = math.sqrt(resid / (n - 2) / sff)
     if b <= MIN_SLOPE_T * se_b:  # no force spread beyond the noise (one cluster): no slope to take
         return None
-    return LineFit(1.0 / b, se_b / (b * b), n, a, "slip on force")
+    return LineFit(1.0 / b, se_b / (b * b), n, a, method)
+
+
+MIN_NOISE_ANCHORS = 10
+"""The cruise windows give the slip's and the force's noise (their spread about their means) from this many on."""
+
+
+def anchor_noise(anchors: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """(var_s, var_F) of the cruise windows: there the true force hardly changes, so their spread is the noise of
+    each (an upper bound: a drift of the true value adds to it); None with fewer than MIN_NOISE_ANCHORS."""
+    if len(anchors) < MIN_NOISE_ANCHORS:
+        return None
+    return statistics.variance([s for s, _ in anchors]), statistics.variance([f for _, f in anchors])
 
 
 def analyse_linearity(
@@ -248,8 +280,9 @@ def analyse_linearity(
         fit_pts = [p for p in pts if abs(p[0]) <= fit_max]
         if len(fit_pts) < rule.min_fit_points:
             break
-        line = (fit_slip_on_force([(s, f) for s, f in both if f * sign > 0 and abs(s) <= fit_max]
-                                  + [(s, f) for s, f in anchor if abs(s) <= fit_max]) if anchor else None) \
+        kept_anchors = [(s, f) for s, f in anchor if abs(s) <= fit_max]
+        line = (fit_slip_on_force([(s, f) for s, f in both if f * sign > 0 and abs(s) <= fit_max] + kept_anchors,
+                                  anchor_noise(kept_anchors)) if anchor else None) \
             or fit_through_origin(fit_pts)
         if line is None:
             break
@@ -530,7 +563,7 @@ def _high_rate(m: ManeuverSummary, fast: Sequence[dict[str, Any]], fast_t: np.nd
             fx = np.array([tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share)[w] for x in a])
             fz = normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
             mu = mu_from_force(fx, fz)
-            use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0)
+            use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0) & (v >= MU_MIN_SPEED_MPS)
             points[w] = (slips[w][use], mu[use])
             fit = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
             wheels[w] = dataclasses.replace(wheels[w], mu_slip=fit)
