@@ -24,7 +24,9 @@ REFERENCE_NOISE_MPS = 0.03
 PRIOR_SIGMA_SPEED_MPS = 10.0
 PRIOR_SIGMA_ACCEL_MPS2 = 5.0
 RESET_GAP_S = 1.0
-"""Fixes further apart than this restart the filter at the next fix."""
+"""Fixes further apart than this restart the filter at the next fix (the grid instants between: none)..."""
+RESET_GAP_IMU_S = 3.0
+"""... or this, with an IMU (its samples carry the speed between the fixes of a 1 Hz CAN GNSS module)."""
 
 
 class VehicleSpeedFilter:
@@ -48,7 +50,7 @@ class VehicleSpeedFilter:
     def add_speed(self, fix_time_s: float, speed_mps: float, sigma_mps: float) -> None:
         """A reference speed at its fix time (sigma NaN: REFERENCE_NOISE_MPS)."""
         r = (sigma_mps if sigma_mps == sigma_mps and sigma_mps > 0 else REFERENCE_NOISE_MPS) ** 2
-        if self._x is None or fix_time_s - self._t > RESET_GAP_S:
+        if self._x is None or fix_time_s - self._t > (RESET_GAP_IMU_S if self.has_imu else RESET_GAP_S):
             self._x = (speed_mps, 0.0, PRIOR_SIGMA_SPEED_MPS**2, 0.0, PRIOR_SIGMA_ACCEL_MPS2**2)
             self._t = fix_time_s
             while self._imu and self._imu[0][0] <= fix_time_s:
