@@ -154,49 +154,63 @@ def row_imu() -> list[tuple[str, str, str, str]]:
              f"ratio {i / g:.2f} (target <= 0.5); accel_source imu in {share:.0%} of windows")]
 
 
-def row_abs() -> list[tuple[str, str, str, str]]:
-    cfg = base_config().with_overrides(imu={"message": "IMU_ACCEL", "signal": "AccelX"},
-                                       brake={"message": "BRAKE", "signal": "BrakePressed"},
-                                       estimator={"fast_rate_hz": 50.0})
-    settings = SimSettings(wpt_rate_hz=500.0, can_jitter_s=0.0005, gps_latency_s=0.085, gps_noise_mps=0.03,
-                           seed=SEED, imu_rate_hz=100.0, brake_rate_hz=50.0)
-    out = []
-    for road in ("paved", "sand"):
-        records, truth = drive(cfg, "brake-abs", road, settings, 16.0)
-        ts = truth_series(truth, settings.start_utc_s)
-        got = run(cfg, records, two_pass=True)
-        rms, n = fast_slip_rms_points(got.fast, ts)
-        summary = summarize_log(got.rows, {"config_toml": cfg.to_toml()}, got.diagnostics, path="x", name="x",
-                                labels={}, fast=got.fast, sensors=got.sensors)
-        brakes = [m for m in summary.maneuvers if m.phase == "brake" and m.brake is not None]
-        peak = tire_peak(road)
-        out.append((f"ABS brake 80-0 ({road})", "high-rate slip at 50 Hz (WPT 500 Hz)",
-                    f"{rms:.2f} pts RMS ({n} wheel samples)", "target <= 1.5 pts"))
-        if not brakes:
-            out.append((f"ABS brake 80-0 ({road})", "brake maneuver", "none found", ""))
-            continue
-        m = brakes[0]
-        b = m.brake
-        assert b is not None
-        fits = [ws.mu_slip for ws in m.wheels.values() if ws.mu_slip is not None and ws.mu_slip.mu_peak is not None]
-        if fits:
-            mu_err = max(abs(f.mu_peak / peak.mu_peak - 1) for f in fits if f.mu_peak is not None) * 100
-            s_err = max(abs(f.slip_at_mu_peak - peak.slip_at_mu_peak) for f in fits
-                        if f.slip_at_mu_peak is not None) * 100
-            wheels = ", ".join(w for w, ws in m.wheels.items() if ws.mu_slip and ws.mu_slip.mu_peak is not None)
-            out.append((f"ABS brake 80-0 ({road})", f"mu_peak, slip_at_mu_peak ({wheels}; true {peak.mu_peak:.2f} at "
-                        f"{peak.slip_at_mu_peak * 100:.1f} %)", f"worst {mu_err:.1f} %, {s_err:.2f} pts",
-                        "target <= 5 %, <= 2 pts"))
-        else:
-            out.append((f"ABS brake 80-0 ({road})", "mu_peak", "no wheel passed its peak", ""))
+def maneuver_rows(scenario: str, road: str, *, imu: bool, brake_switch: bool, wpt_rate_hz: float = 500.0,
+                  duration_s: float = 16.0) -> list[tuple[str, str, str, str]]:
+    """High-rate slip, mu-slip peak and (braking) the brake-test figures of one simulated maneuver."""
+    cfg = base_config().with_overrides(estimator={"fast_rate_hz": 50.0})
+    if imu:
+        cfg = cfg.with_overrides(imu={"message": "IMU_ACCEL", "signal": "AccelX"})
+    if brake_switch:
+        cfg = cfg.with_overrides(brake={"message": "BRAKE", "signal": "BrakePressed"})
+    settings = SimSettings(wpt_rate_hz=wpt_rate_hz, can_jitter_s=0.0005, gps_latency_s=0.085, gps_noise_mps=0.03,
+                           seed=SEED, imu_rate_hz=100.0 if imu else 0.0, brake_rate_hz=50.0 if brake_switch else 0.0)
+    label = {"brake-abs": "ABS brake 80-0", "brake-lock": "locked brake 80-0", "launch-spin": "launch with spin"}
+    name = f"{label[scenario]} ({road}{'' if imu else ', no IMU'}{'' if brake_switch or scenario == 'launch-spin' else ', no brake switch'})"
+    records, truth = drive(cfg, scenario, road, settings, duration_s)
+    ts = truth_series(truth, settings.start_utc_s)
+    got = run(cfg, records, two_pass=True)
+    rms, n = fast_slip_rms_points(got.fast, ts)
+    out = [(name, f"high-rate slip at 50 Hz (WPT {wpt_rate_hz:.0f} Hz)", f"{rms:.2f} pts RMS ({n} wheel samples)",
+            "target <= 1.5 pts (ABS)")]
+    summary = summarize_log(got.rows, {"config_toml": cfg.to_toml()}, got.diagnostics, path="x", name="x",
+                            labels={}, fast=got.fast, sensors=got.sensors)
+    phase = "accelerate" if scenario == "launch-spin" else "brake"
+    found = [m for m in summary.maneuvers if m.phase == phase]
+    if not found:
+        return out + [(name, f"{phase} maneuver", "none found", "")]
+    m = found[0]
+    peak = tire_peak(road)
+    fits = {w: ws.mu_slip for w, ws in m.wheels.items() if ws.mu_slip is not None and ws.mu_slip.mu_peak is not None}
+    if fits:
+        mu_err = max(abs(f.mu_peak / peak.mu_peak - 1) for f in fits.values() if f.mu_peak is not None) * 100
+        s_err = max(abs(f.slip_at_mu_peak - peak.slip_at_mu_peak) for f in fits.values()
+                    if f.slip_at_mu_peak is not None) * 100
+        out.append((name, f"mu_peak, slip_at_mu_peak ({', '.join(fits)}; true {peak.mu_peak:.2f} at "
+                    f"{peak.slip_at_mu_peak * 100:.1f} %)", f"worst {mu_err:.1f} %, {s_err:.2f} pts",
+                    "target <= 5 %, <= 2 pts (ABS)"))
+    else:
+        out.append((name, "mu_peak", "no wheel's points pass a peak", ""))
+    b = m.brake
+    if phase == "brake" and b is not None:
         d_true, mfdd_true = stopping_distance_m(ts), mfdd_mps2(ts)
-        out.append((f"ABS brake 80-0 ({road})", "MFDD, stopping distance (brake switch 50 Hz)",
+        out.append((name, f"MFDD, stopping distance (onset: {b.onset_source})",
                     f"MFDD {b.mfdd_mps2:.3f} vs {mfdd_true:.3f} m/s^2 ({(b.mfdd_mps2 / mfdd_true - 1) * 100:+.2f} %); "
                     f"distance {b.stopping_distance_m:.2f} vs {d_true:.2f} m ({b.stopping_distance_m - d_true:+.2f} m)"
                     if b.mfdd_mps2 and b.stopping_distance_m and mfdd_true and d_true else "n/a",
-                    f"target <= 1 %, <= 0.5 m; ABS {b.abs_cycles} cycles at {b.abs_frequency_hz or math.nan:.1f} Hz "
-                    f"(true 7); onset {b.onset_source}"))
+                    f"target <= 1 %, <= 0.5 m; ABS {b.abs_cycles} cycles"
+                    + (f" at {b.abs_frequency_hz:.1f} Hz (true 7)" if b.abs_frequency_hz else "")))
     return out
+
+
+def row_abs() -> list[tuple[str, str, str, str]]:
+    return (maneuver_rows("brake-abs", "paved", imu=True, brake_switch=True)
+            + maneuver_rows("brake-abs", "sand", imu=True, brake_switch=True)
+            + maneuver_rows("brake-abs", "paved", imu=False, brake_switch=False))
+
+
+def row_beyond() -> list[tuple[str, str, str, str]]:
+    return (maneuver_rows("brake-lock", "paved", imu=True, brake_switch=True, wpt_rate_hz=200.0)
+            + maneuver_rows("launch-spin", "sand", imu=True, brake_switch=False, wpt_rate_hz=200.0, duration_s=20.0))
 
 
 def _true_line_cx(m_rows, anchors, ts: dict, w: str, slip_max: float) -> float | None:
@@ -255,7 +269,8 @@ def row_report_line() -> list[tuple[str, str, str, str]]:
 
 
 ROWS: dict[str, Callable[[], list[tuple[str, str, str, str]]]] = {
-    "CAN reference": row_can_reference, "IMU": row_imu, "ABS brake": row_abs, "report line Cx": row_report_line,
+    "CAN reference": row_can_reference, "IMU": row_imu, "ABS brake": row_abs, "lock and spin": row_beyond,
+    "report line Cx": row_report_line,
 }
 
 

@@ -31,6 +31,10 @@ OPPOSITE_SLIP_MAX = 0.01
 """Points whose slip has the other sign than the maneuver's by more than this are dropped (noise about s = 0 is kept)."""
 PEAK_MARGIN = 1.15
 """The peak counts as observed only with points beyond PEAK_MARGIN·s* ..."""
+MIN_PEAK_REGION_POINTS = 10
+"""... and with this many points within PEAK_REGION of s* (a wheel that locks passes its peak in a few hundredths of
+a second: two or three high-rate points there do not place it; an ABS cycles around it)."""
+PEAK_REGION = (0.75, 1.25)
 MIN_PEAK_SIDE_POINTS = 5
 """... at least this many (and at least 5 % of the points) beyond it, and at least this many below s*."""
 PEAK_WINDOW = 1.6
@@ -159,7 +163,7 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     noise about s = 0 stays unbiased) and points of the other sign beyond OPPOSITE_SLIP_MAX are dropped. c2 is
     searched on C2_GRID, then on 200 values between the best one's neighbours; (c1, c3) by least squares, >= 0.
     The peak s* = ln(c1·c2/c3)/c2 counts as observed only with points on both sides of it (MIN_PEAK_SIDE_POINTS
-    below s*, and beyond PEAK_MARGIN·s*); else mu_peak and slip_at_mu_peak are None: the linear region alone
+    below s*, and beyond PEAK_MARGIN·s*) and MIN_PEAK_REGION_POINTS around it; else mu_peak and slip_at_mu_peak are None: the linear region alone
     does not identify a peak (its points fit a family of curves with peaks anywhere beyond them).
     With a peak observed and points beyond peak_window·s*, the fit is repeated on the points up to it until s*
     settles (PEAK_WINDOW_ITERATIONS); the curve is then an extrapolation beyond max_abs_slip. peak_window=None:
@@ -222,7 +226,9 @@ def _fit_points(x: FloatArray, y: FloatArray, sign: float) -> MuSlipFit | None:
         s_star = math.log(c1 * c2 / c3) / c2
         beyond = int(np.count_nonzero(x > PEAK_MARGIN * s_star))
         below = int(np.count_nonzero((x > 0) & (x < s_star)))
-        observed = beyond >= max(MIN_PEAK_SIDE_POINTS, 0.05 * n) and below >= MIN_PEAK_SIDE_POINTS
+        near = int(np.count_nonzero((x >= PEAK_REGION[0] * s_star) & (x <= PEAK_REGION[1] * s_star)))
+        observed = beyond >= max(MIN_PEAK_SIDE_POINTS, 0.05 * n) and below >= MIN_PEAK_SIDE_POINTS \
+            and near >= MIN_PEAK_REGION_POINTS
         if observed:
             s_peak = s_star
             mu_peak = float(_burckhardt(np.array([s_star]), c1, c2, c3)[0])
