@@ -165,7 +165,8 @@ def maneuver_rows(scenario: str, road: str, *, imu: bool, brake_switch: bool, wp
     settings = SimSettings(wpt_rate_hz=wpt_rate_hz, can_jitter_s=0.0005, gps_latency_s=0.085, gps_noise_mps=0.03,
                            seed=SEED, imu_rate_hz=100.0 if imu else 0.0, brake_rate_hz=50.0 if brake_switch else 0.0)
     label = {"brake-abs": "ABS brake 80-0", "brake-lock": "locked brake 80-0", "launch-spin": "launch with spin"}
-    name = f"{label[scenario]} ({road}{'' if imu else ', no IMU'}{'' if brake_switch or scenario == 'launch-spin' else ', no brake switch'})"
+    missing = ("" if imu else ", no IMU") + ("" if brake_switch or scenario == "launch-spin" else ", no brake switch")
+    name = f"{label[scenario]} ({road}{missing})"
     records, truth = drive(cfg, scenario, road, settings, duration_s)
     ts = truth_series(truth, settings.start_utc_s)
     got = run(cfg, records, two_pass=True)

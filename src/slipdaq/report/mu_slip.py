@@ -163,8 +163,9 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     noise about s = 0 stays unbiased) and points of the other sign beyond OPPOSITE_SLIP_MAX are dropped. c2 is
     searched on C2_GRID, then on 200 values between the best one's neighbours; (c1, c3) by least squares, >= 0.
     The peak s* = ln(c1·c2/c3)/c2 counts as observed only with points on both sides of it (MIN_PEAK_SIDE_POINTS
-    below s*, and beyond PEAK_MARGIN·s*) and MIN_PEAK_REGION_POINTS around it; else mu_peak and slip_at_mu_peak are None: the linear region alone
-    does not identify a peak (its points fit a family of curves with peaks anywhere beyond them).
+    below s*, and beyond PEAK_MARGIN·s*) and MIN_PEAK_REGION_POINTS around it; else mu_peak and slip_at_mu_peak
+    are None: the linear region alone does not identify a peak (its points fit a family of curves with peaks
+    anywhere beyond them).
     With a peak observed and points beyond peak_window·s*, the fit is repeated on the points up to it until s*
     settles (PEAK_WINDOW_ITERATIONS); the curve is then an extrapolation beyond max_abs_slip. peak_window=None:
     one fit over every point (the whole-range curve, its peak biased towards the sliding branch).
