@@ -18,6 +18,7 @@ from slipdaq import WHEELS
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
+from slipdaq.logformat.json_codec import dumps, fast_slip_json
 from slipdaq.logformat.schemas import SCHEMAS
 from slipdaq.logformat.topics import TOPIC_FAST_SLIP
 from slipdaq.offline import process, process_to_log
@@ -106,6 +107,7 @@ def test_log_round_trip_schema_and_fast_csv(cfg, drive, rows, tmp_path: Path, ca
             jsonschema.validate(d, schema)
             logged.append(d)
     assert logged == [json.loads(json.dumps(r.as_row())) for r in rows]
+    assert all(fast_slip_json(r) == dumps(r.as_row()) for r in rows)  # written directly: byte for byte json.dumps
     out = tmp_path / "fast.csv"
     assert main(["export", str(log), "--fast-csv", str(out)]) == 0
     with open(out, newline="") as f:

@@ -6,7 +6,8 @@ against the vehicle speed (vehicle_speed.py):
 An ABS cycle (5-15 Hz) is resolved: at 500 wheel frames per second the line spans 20 ms.
 
 A grid instant is released once every wheel that reports has FAST_LINE_HALF + 1 samples at or after it (so its line
-no longer depends on when it is computed), or WHEEL_WAIT_S of reference time has passed (that wheel: no slip).
+no longer depends on when it is computed), or WHEEL_WAIT_S of reference time has passed (that wheel: no slip). A line
+whose samples have a gap over max(MIN_GAP_S, GAP_INTERVALS x the mean interval) gives no slip (windows.py's rule).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
-from slipdaq.estimator.windows import TWO_PI, has_gap
+from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 from slipdaq.records import FastSlip, FastWheel
 
 FAST_LINE_HALF = 5
@@ -41,28 +42,19 @@ class FastSlipRows:
         if not pending:
             return []
         need = FAST_LINE_HALF + 1
+        # an instant t has `need` samples of a ring at or after it when t <= the need-th last sample's time
+        ready_until = min((float(r.times[-need]) if len(r) >= need else -math.inf for r in rings if len(r)),
+                          default=math.inf)
         n = 0
         for t, _, _ in pending:
-            if now_s - t <= WHEEL_WAIT_S and any(len(r) and r.count_from(t) < need for r in rings):
+            if t > ready_until and now_s - t <= WHEEL_WAIT_S:
                 break
             n += 1
         if n == 0:
             return []
         rows = [pending.popleft() for _ in range(n)]
         times = np.array([r[0] for r in rows])
-        wheel_speeds: list[list[float | None]] = []
-        for ring, r0 in zip(rings, r0_m):
-            lines = ring.local_lines(times, FAST_LINE_HALF) if len(ring) else None
-            if lines is None:
-                wheel_speeds.append([None] * n)
-                continue
-            slopes = lines[1].tolist()
-            span = FAST_LINE_HALF * ring.mean_interval()
-            speeds: list[float | None] = []
-            for t, slope in zip(times.tolist(), slopes):
-                ok = ring.count_from(t) >= need and ring.first_time <= t - span and not has_gap(ring, t - span, t + span)
-                speeds.append(TWO_PI * r0 * slope if ok else None)
-            wheel_speeds.append(speeds)
+        wheel_speeds = [self._wheel_speeds(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
         source = "imu" if self.speed.has_imu else "gps"
         out = []
         for k, (t, v, a) in enumerate(rows):
@@ -73,3 +65,22 @@ class FastSlipRows:
                 wheels[w] = FastWheel(slip, ws)
             out.append(FastSlip(t, v, a, source, wheels))
         return out
+
+    @staticmethod
+    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+        """omega*r0 at each time: 2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
+        or after it, without the line's samples before it, or with a gap in them (windows.py's rule)."""
+        half = FAST_LINE_HALF
+        n = len(ring)
+        if n < 2 * half + 1:
+            return [None] * len(times)
+        lines = ring.local_lines(times, half)
+        assert lines is not None
+        t = ring.times
+        first = np.searchsorted(t, times)
+        c = np.clip(first, half, n - half - 1)  # the line's centre sample, as local_lines takes it
+        k = np.add.outer(c - half, np.arange(2 * half))  # the intervals between the line's samples
+        longest = (t[k + 1] - t[k]).max(axis=1)
+        ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()))
+        speeds = TWO_PI * r0_m * lines[1]
+        return [float(x) if good else None for x, good in zip(speeds.tolist(), ok.tolist())]

@@ -7,7 +7,7 @@ import json
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.records import ESTIMATE_COLUMNS, CanFrame, Estimate, GpsFix, NmeaLine, WheelSample
+from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, CanFrame, ColumnGroup, GpsFix, NmeaLine, WheelSample
 
 
 def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:
@@ -56,7 +56,7 @@ def dumps(payload: dict[str, Any]) -> bytes:
 _JSON_TEXT = {t: json.dumps(t) for t in (
     "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
     "calibrating", "other_wheels", "tire_size", "configured", "stored", "RMC", "VTG", "UBX", "ok", "uncalibrated",
-    "disturbed")}
+    "disturbed", "imu", "CAN")}
 
 
 def _jval(x: object) -> str:
@@ -71,32 +71,41 @@ def _json_key(name: str) -> str:
     return json.dumps(name) + ":"
 
 
-_ESTIMATE_KEYS = [None if g.per_wheel else [(_json_key(c.name), c.attribute) for c in g.columns]
-                  for g in ESTIMATE_COLUMNS]
-_WHEEL_KEYS: dict[str, list[list[tuple[str, str]]]] = {}
+class ColumnsJson:
+    """The JSON of a record declared as column groups (records.ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS): equal to
+    dumps(record.as_row()), written directly (the keys encoded once)."""
+
+    def __init__(self, groups: tuple[ColumnGroup, ...]) -> None:
+        self.groups = groups
+        self._scalar = [None if g.per_wheel else [(_json_key(c.name), c.attribute) for c in g.columns]
+                        for g in groups]
+        self._wheel: dict[str, list[list[tuple[str, str]]]] = {}
+
+    def _wheel_keys(self, wheel: str) -> list[list[tuple[str, str]]]:
+        """Per column group: (JSON key and colon, attribute) of this wheel's columns."""
+        keys = self._wheel.get(wheel)
+        if keys is None:
+            keys = self._wheel[wheel] = [[(_json_key(c.key(wheel)), c.attribute) for c in g.columns] if g.per_wheel
+                                         else [] for g in self.groups]
+        return keys
+
+    def __call__(self, record: Any) -> bytes:
+        j = _jval
+        wheels = [(self._wheel_keys(w), we) for w, we in record.wheels.items()]
+        parts: list[str] = []
+        for g, scalar in enumerate(self._scalar):
+            if scalar is not None:
+                parts += [k + j(getattr(record, a)) for k, a in scalar]
+            else:
+                for keys, we in wheels:
+                    parts += [k + j(getattr(we, a)) for k, a in keys[g]]
+        return ("{" + ",".join(parts) + "}").encode()
 
 
-def _wheel_keys(wheel: str) -> list[list[tuple[str, str]]]:
-    """Per column group of ESTIMATE_COLUMNS: (JSON key and colon, attribute) of this wheel's columns."""
-    keys = _WHEEL_KEYS.get(wheel)
-    if keys is None:
-        keys = _WHEEL_KEYS[wheel] = [[(_json_key(c.key(wheel)), c.attribute) for c in g.columns] if g.per_wheel
-                                     else [] for g in ESTIMATE_COLUMNS]
-    return keys
-
-
-def estimate_json(e: Estimate) -> bytes:
-    """/estimate payload: equal to dumps(e.as_row()) (ESTIMATE_COLUMNS, in order)."""
-    j = _jval
-    wheels = [(_wheel_keys(w), we) for w, we in e.wheels.items()]
-    parts: list[str] = []
-    for g, scalar in enumerate(_ESTIMATE_KEYS):
-        if scalar is not None:
-            parts += [k + j(getattr(e, a)) for k, a in scalar]
-        else:
-            for keys, we in wheels:
-                parts += [k + j(getattr(we, a)) for k, a in keys[g]]
-    return ("{" + ",".join(parts) + "}").encode()
+estimate_json = ColumnsJson(ESTIMATE_COLUMNS)
+"""/estimate payload: equal to dumps(e.as_row())."""
+fast_slip_json = ColumnsJson(FAST_SLIP_COLUMNS)
+"""/slip/fast payload: equal to dumps(row.as_row())."""
 
 
 def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:

@@ -21,7 +21,7 @@ import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.logformat import cdr
-from slipdaq.logformat.json_codec import dumps, estimate_json, fix_json, nmea_line_json
+from slipdaq.logformat.json_codec import dumps, estimate_json, fast_slip_json, fix_json, nmea_line_json
 from slipdaq.logformat.rotation import RotationPolicy
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
@@ -417,7 +417,7 @@ class McapLogSink(Sink):
         self._write(TOPIC_ESTIMATE, log_time_s, estimate_json(estimate))
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self._write(TOPIC_FAST_SLIP, log_time_s, dumps(row.as_row()))
+        self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json(row))
 
     def on_sensor(self, sample: SensorSample) -> None:
         self._write(TOPIC_SENSORS, sample.time_s, dumps(dataclasses.asdict(sample)))
