@@ -127,7 +127,7 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         + (f"  {saved}\n" if saved else "") +
         f"next:\n"
         f"  slipdaq replay {result.log_path} -o replayed.mcap\n"
-        f"  slipdaq export {result.log_path} --csv estimates.csv\n"
+        f"  slipdaq export {result.log_path} --csv estimates.csv --fast-csv fast.csv\n"
         f"  slipdaq report {result.log_path} -o report",
         file=out, flush=True,
     )
