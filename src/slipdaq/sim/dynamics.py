@@ -21,7 +21,7 @@ from typing import NamedTuple, Protocol
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, VehicleConfig
-from slipdaq.sim.vehicle import G_MPS2, ROADS, Road, TireModel, TruthSample, TruthWheel
+from slipdaq.sim.vehicle import G_MPS2, ROADS, Road, SteppedModel, TireModel, TruthSample, TruthWheel
 
 AITKEN_MIN_DENOMINATOR = 1e-12
 """Below this |a2 - 2*a1 + a0| the fixed point is taken as reached (no extrapolation)."""
@@ -55,7 +55,7 @@ def axle_loads_n(vehicle: VehicleConfig, accel_mps2: float) -> list[float]:
     return [front_n if w.startswith("F") else rear_n for w in WHEELS]
 
 
-class DynamicVehicleSim:
+class DynamicVehicleSim(SteppedModel):
     """The slip-driven model with VehicleSim's interface (advance_to, step, state, angles_rad, time_s)."""
 
     def __init__(
@@ -131,43 +131,10 @@ class DynamicVehicleSim:
         self._time_s, self._v_mps, self._a_mps2 = t1_s, v1, accel
         self._fz, self._slips, self._forces, self._brake = fz, slips, forces, brake
 
-    def advance_to(self, time_s: float) -> None:
-        """Advance the model to time_s (no-op if already there) in equal substeps of at most max_step_s."""
-        span_s = time_s - self._time_s
-        if span_s <= 0.0:
-            return
-        n = max(1, math.ceil(span_s / self.max_step_s - 1e-9))
-        t0 = self._time_s
-        for k in range(1, n):
-            self._substep(t0 + span_s * k / n)
-        self._substep(time_s)
-        self._state = None
-
-    def step(self, dt_s: float) -> TruthSample:
-        """Advance by dt_s and return the truth at the new time."""
-        self.advance_to(self._time_s + dt_s)
-        return self.state
-
-    @property
-    def time_s(self) -> float:
-        return self._time_s
-
     @property
     def stopped(self) -> bool:
         """The vehicle has come to a standstill (and stays there)."""
         return self._stopped
-
-    def angles_rad(self) -> list[float]:
-        """Cumulative wheel angles in WHEELS order: theta_i = (x + integral(V*s_i dt))/r0_i."""
-        x = self._x_m
-        return [(x + d) / r0 for d, r0 in zip(self._slip_distance_m, self._r0)]
-
-    @property
-    def state(self) -> TruthSample:
-        """The truth at the current time (built on demand)."""
-        if self._state is None:
-            self._state = self._build_state()
-        return self._state
 
     def _build_state(self) -> TruthSample:
         v = self._v_mps

@@ -18,7 +18,7 @@ from slipdaq import WHEELS
 from slipdaq.config import Config, VehicleConfig
 from slipdaq.sim import ProfileScenario, Scenario, SlipScenario
 from slipdaq.sim.dynamics import DynamicVehicleSim, SlipCommand, SlipController
-from slipdaq.sim.vehicle import CRUISE_BEFORE_BRAKE_S, ROADS, STANDSTILL_S, Road, TireModel, VehicleSim
+from slipdaq.sim.vehicle import CRUISE_BEFORE_BRAKE_S, ROADS, STANDSTILL_S, Road, SteppedModel, TireModel, VehicleSim
 
 BRAKE_TEST_SPEED_MPS = 80.0 / 3.6
 """Cruise speed before the brake-abs and brake-lock stops (80 km/h)."""
@@ -191,7 +191,7 @@ def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleCon
 def vehicle_model(
     config: Config, scenario: Scenario, road: Road, r0_offset_m: float | Mapping[str, float] = 0.0,
     max_step_s: float = 0.001,
-) -> VehicleSim | DynamicVehicleSim:
+) -> SteppedModel:
     """The kinematic model for a profile scenario (accelerate, brake, cycle), the slip-driven one otherwise."""
     if scenario in get_args(ProfileScenario):
         return VehicleSim(config, scenario, road, r0_offset_m, max_step_s=max_step_s)  # type: ignore[arg-type]  # checked just above

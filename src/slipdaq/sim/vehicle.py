@@ -227,7 +227,59 @@ def force_shares(driven_axle: str, brake_front_share: float) -> tuple[dict[str, 
     return drive, brake
 
 
-class VehicleSim:
+class SteppedModel:
+    """What the emitter needs of a vehicle model (emit.generate): advance_to(time) in equal substeps of at most
+    max_step_s (a subclass's _substep integrates one), the wheel angles theta_i = (x + integral(V*s_i dt))/r0_i, and
+    the truth at the current time (its _build_state)."""
+
+    max_step_s: float
+    _time_s: float
+    _x_m: float
+    _slip_distance_m: list[float]
+    _r0: list[float]
+    _state: TruthSample | None
+
+    def _substep(self, t1_s: float) -> None:
+        raise NotImplementedError
+
+    def _build_state(self) -> TruthSample:
+        raise NotImplementedError
+
+    def advance_to(self, time_s: float) -> None:
+        """Advance the model to time_s (no-op if already there) in equal substeps of at most max_step_s."""
+        span_s = time_s - self._time_s
+        if span_s <= 0.0:
+            return
+        n = max(1, math.ceil(span_s / self.max_step_s - 1e-9))
+        t0 = self._time_s
+        for k in range(1, n):
+            self._substep(t0 + span_s * k / n)
+        self._substep(time_s)
+        self._state = None
+
+    def step(self, dt_s: float) -> TruthSample:
+        """Advance by dt_s and return the truth at the new time."""
+        self.advance_to(self._time_s + dt_s)
+        return self.state
+
+    @property
+    def time_s(self) -> float:
+        return self._time_s
+
+    def angles_rad(self) -> list[float]:
+        """Cumulative wheel angles in WHEELS order: theta_i = (x + integral(V*s_i dt))/r0_i."""
+        x = self._x_m
+        return [(x + d) / r0 for d, r0 in zip(self._slip_distance_m, self._r0)]
+
+    @property
+    def state(self) -> TruthSample:
+        """The truth at the current time (built on demand)."""
+        if self._state is None:
+            self._state = self._build_state()
+        return self._state
+
+
+class VehicleSim(SteppedModel):
     """Deterministic vehicle model: step(dt_s) advances the profile and integrates the wheel angles.
 
     Each advance is split into equal substeps of at most max_step_s for the trapezoid integral of V*s.
@@ -293,38 +345,6 @@ class VehicleSim:
         ]
         self._time_s, self._x_m, self._v_mps, self._a_mps2, self._slips = t1_s, x, v, a, slips
 
-    def advance_to(self, time_s: float) -> None:
-        """Advance the model to time_s (no-op if already there) in equal substeps of at most max_step_s."""
-        span_s = time_s - self._time_s
-        if span_s <= 0.0:
-            return
-        n = max(1, math.ceil(span_s / self.max_step_s - 1e-9))
-        t0 = self._time_s
-        for k in range(1, n):
-            self._substep(t0 + span_s * k / n)
-        self._substep(time_s)
-        self._state = None
-
-    def step(self, dt_s: float) -> TruthSample:
-        """Advance by dt_s and return the truth at the new time."""
-        self.advance_to(self._time_s + dt_s)
-        return self.state
-
-    @property
-    def time_s(self) -> float:
-        return self._time_s
-
-    def angles_rad(self) -> list[float]:
-        """Cumulative wheel angles in WHEELS order: theta_i = (x + integral(V*s_i dt))/r0_i."""
-        x = self._x_m
-        return [(x + d) / r0 for d, r0 in zip(self._slip_distance_m, self._r0)]
-
-    @property
-    def state(self) -> TruthSample:
-        """The truth at the current time (built on demand)."""
-        if self._state is None:
-            self._state = self._build_state()
-        return self._state
 
     def _build_state(self) -> TruthSample:
         fx = self.mass_kg * self._a_mps2
