@@ -93,6 +93,7 @@ def test_the_pipeline_fuses_them(capture, cfg) -> None:
     v = np.array([r["speed_mps"] for r in rows.fast])
     fixes = [s for s in rows.sensors if s["kind"] == "reference_speed"]
     ref = np.interp(t, [f["time_s"] for f in fixes], [f["value"] for f in fixes])
-    # the 1 Hz speed, carried between its fixes by the IMU: its mean (-0.2 m/s^2 over a drive that ends where it
-    # started) is a mounting pitch and a bias the filter does not estimate (docs/method.md), 0.2 m/s after 1 s
-    assert np.median(np.abs(v - ref)) < 0.5
+    # the 1 Hz speed, carried between its fixes by the IMU, whose bias (a mounting pitch: the module's mean is
+    # -0.2 m/s^2 here) the filter estimates against the fixes' own speed changes (0.37 m/s without; 0.10 on the
+    # session's 10-minute file, where the estimate has settled)
+    assert np.median(np.abs(v - ref)) < 0.3
