@@ -241,3 +241,30 @@ def test_brake_onset_without_a_brake_signal(base: Config) -> None:
     assert b.onset_s == pytest.approx(brake_onset_time_s(ts), abs=0.05)
     assert b.stopping_distance_m == pytest.approx(stopping_distance_m(ts), abs=1.0)
     assert b.abs_cycles == 0  # locked wheels do not cycle
+
+
+# ---- the demo with the sensors on python-can's virtual bus -------------------------------------------------------
+
+def test_demo_brake_abs_runs_live_with_the_sensors(tmp_path: Path) -> None:
+    """`slipdaq demo --scenario brake-abs`: the simulator's IMU and brake switch on the virtual bus beside WPT frames
+    at 500 Hz, the daemon decodes and logs them, the windows take Fx from the IMU and the high-rate slip follows
+    the ABS cycles."""
+    import asyncio
+
+    from slipdaq.demo import run_demo_async
+    from slipdaq.logformat.reader import iter_fast_slip
+
+    with open(tmp_path / "status.txt", "w") as status:
+        result, err, cfg = asyncio.run(run_demo_async(8.0, "brake-abs", "paved", tmp_path, status_stream=status,
+                                                      status_every_s=2.0))
+    assert cfg.imu.message == "IMU_ACCEL" and cfg.brake.message == "BRAKE"
+    kinds = [s["kind"] for s in iter_sensors(result.log_path)]
+    assert kinds.count("imu_accel") > 500 and kinds.count("brake") > 250 and "reference_speed" not in kinds
+    rows = list(iter_estimates(result.log_path))
+    moving = [r for r in rows if r["speed_mps"] > 5 and r["force_n"] is not None]
+    assert moving and sum(r["accel_source"] == "imu" for r in moving) >= 0.9 * len(moving)
+    fast = list(iter_fast_slip(result.log_path))
+    assert len(fast) > 500
+    rear = [r["slip_RL"] for r in fast if r["slip_RL"] is not None]
+    assert min(rear) < -0.15 and max(rear) > -0.02  # beyond the tire's peak (11.6 %) and back: ABS cycles
+    assert err.samples > 0 and err.rms_points < 0.5
