@@ -268,3 +268,47 @@ def test_demo_brake_abs_runs_live_with_the_sensors(tmp_path: Path) -> None:
     rear = [r["slip_RL"] for r in fast if r["slip_RL"] is not None]
     assert min(rear) < -0.15 and max(rear) > -0.02  # beyond the tire's peak (11.6 %) and back: ABS cycles
     assert err.samples > 0 and err.rms_points < 0.5
+
+
+def test_run_with_the_reference_on_can_reads_no_serial_port(base: Config, tmp_path: Path) -> None:
+    """The live daemon with [gps] source = "can" on python-can's virtual bus: no serial port opened (gps.port names
+    none that exists), every fix from the CAN reference, estimates from it."""
+    import asyncio
+    import os
+    import time
+    from dataclasses import replace as dc_replace
+
+    import can
+
+    from slipdaq.daemon import run_daemon
+    from slipdaq.sim.realtime import play
+
+    channel = f"slipdaq-test-ref-{os.getpid()}"
+    cfg = base.with_overrides(can={"interface": "virtual", "channel": channel},
+                              gps=CAN_REFERENCE | {"port": str(tmp_path / "no-such-port"), "latency_s": 0.02})
+    log = tmp_path / "run.mcap"
+    settings = SimSettings(gps_rate_hz=0.0, ref_speed_rate_hz=100.0, ref_speed_latency_s=0.02, seed=4)
+
+    async def main() -> None:
+        with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus, \
+                can.Bus(interface="virtual", channel=channel) as daemon_bus:
+            async def drive() -> None:
+                while not log.exists():
+                    await asyncio.sleep(0.02)
+                run = dc_replace(settings, start_utc_s=time.time() + 0.1)
+                await play(generate(cfg, "cycle", "paved", run, 7.0), bus=sim_bus, nmea_write=lambda b: None,
+                           start_wall_s=run.start_utc_s, stamp_frames=True)
+
+            async with asyncio.TaskGroup() as tg:
+                task = tg.create_task(drive())
+                result = await run_daemon(cfg, daemon_bus, log, duration_s=7.5, status_stream=open(os.devnull, "w"))
+                task.cancel()
+            assert result.nmea_lines == 0 and result.estimates > 40
+
+    asyncio.run(main())
+    fixes = [d for _t, _x, d in iter_topic(log, (TOPIC_GPS,))]
+    assert len(fixes) > 500 and {f["sentence"] for f in fixes} == {"CAN"}
+    events = [d for _t, _x, d in iter_topic(log, ("/diagnostics/events",))]
+    assert not [e for e in events if e["source"] == "gps"]  # no serial GPS: nothing disconnected
+    rows = list(iter_estimates(log))
+    assert any(r["slip_FL"] is not None for r in rows)

@@ -141,14 +141,15 @@ async def run_daemon(
               f"can.receive_buffer_bytes asks {config.can.receive_buffer_bytes} (SO_RCVBUFFORCE needs "
               f"CAP_NET_ADMIN, else net.core.rmem_max caps it): bursts may be dropped", file=sys.stderr, flush=True)
     # the view's callables are looked up when it draws, after the sources below exist
+    serial_gps = config.gps.source == "serial"  # else the reference speed comes on CAN: no serial port to read
     status = StatusSink(SourceStatus(
         can=can_name,
-        gps_port=config.gps.port,
-        gps_connected=lambda: gps_source.connected,
+        gps_port=config.gps.port if serial_gps else f"CAN {config.gps.message}.{config.gps.signal}",
+        gps_connected=lambda: gps_source.connected if gps_source is not None else True,
         log_path=lambda: str(sink.path),
         log_size_bytes=lambda: sink.size_bytes,
         can_reader_errors=lambda: can_source.reader_errors,
-        gps_status=lambda: gps_source.status(),
+        gps_status=(lambda: gps_source.status() if gps_source is not None else {}) if serial_gps else None,
         log_status=lambda: sink.log_status(),
     ))
     meta = can_meta | (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
@@ -159,8 +160,9 @@ async def run_daemon(
                               keep_reading=lambda: pipeline.waiting_for_wheels())
     # the port may carry UBX frames among NMEA lines whatever gps.velocity says: they are framed, logged and decoded
     import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
-    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events)
-    sink.extra += [can_source.status, gps_source.status]
+    gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events) \
+        if serial_gps else None
+    sink.extra += [can_source.status] + ([gps_source.status] if gps_source is not None else [])
     pipeline = Pipeline(config, [sink, status], calibration=calibration)
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -185,7 +187,8 @@ async def run_daemon(
     try:
         async with asyncio.TaskGroup() as tg:
             tg.create_task(can_source.run(pipeline.process, pipeline.process_can_batch), name="can")
-            tg.create_task(gps_source.run(process_gps), name="gps")
+            if gps_source is not None:
+                tg.create_task(gps_source.run(process_gps), name="gps")
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")
             tg.create_task(watch_steps(clock, events), name="clock")
