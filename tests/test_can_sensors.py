@@ -312,3 +312,24 @@ def test_run_with_the_reference_on_can_reads_no_serial_port(base: Config, tmp_pa
     assert not [e for e in events if e["source"] == "gps"]  # no serial GPS: nothing disconnected
     rows = list(iter_estimates(log))
     assert any(r["slip_FL"] is not None for r in rows)
+
+
+def test_a_stored_latency_belongs_to_its_reference(base: Config, tmp_path: Path) -> None:
+    """The latency a serial-GPS run stored is not used by a run whose reference is on CAN (another sensor, another
+    latency), and stays in the file for the next serial run; the CAN run's own goes in with its reference."""
+    from slipdaq.calibration import Learned, for_run, load_calibration, merged, save_calibration
+
+    path = tmp_path / "calibration.toml"
+    save_calibration(path, merged(None, Learned(latency=(0.085, 0.002, "utc"), r0={"FL": (0.3, 1e-4)}), base, "a"))
+    assert load_calibration(path).latency.reference == "serial"  # type: ignore[union-attr]
+    can_cfg = base.with_overrides(gps=CAN_REFERENCE)
+    run = for_run(path, can_cfg)
+    assert run.start is not None and run.start.latency is None and run.start.r0["FL"].radius_m == 0.3
+    assert "not used" in run.note
+    run.finish(Learned(), can_cfg, "b")  # it learned no latency: the serial one stays
+    assert load_calibration(path).latency.latency_s == 0.085  # type: ignore[union-attr]
+    run.finish(Learned(latency=(0.02, 0.001, "wheels")), can_cfg, "c")
+    stored = load_calibration(path).latency
+    assert stored is not None and stored.latency_s == 0.02 and stored.reference == "can:REF_SPEED.Speed"
+    assert for_run(path, base).start.latency is None  # type: ignore[union-attr]  # and back: serial does not take it
+    assert for_run(path, can_cfg).start.latency.latency_s == 0.02  # type: ignore[union-attr]

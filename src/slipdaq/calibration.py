@@ -7,7 +7,8 @@ learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, 
 
     format = 1
     [vehicle]    name, tire, tire_set
-    [latency]    latency_s, sigma_s, method ("wheels" or "utc"), learned_at, learned_from
+    [latency]    latency_s, sigma_s, method ("wheels" or "utc"), reference ("serial" or "can:MSG.SIGNAL": the
+                 reference speed it belongs to; a run with another does not use it), learned_at, learned_from
     [host_clock] offset_s (host clock minus UTC, when the fixes carried UTC), learned_at, learned_from
     [r0.FL]      radius_m, se_m, learned_at, learned_from         (one table per wheel)
     [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
@@ -53,6 +54,13 @@ class StoredLatency(Provenance):
     latency_s: float = Field(ge=0, lt=5)
     sigma_s: float | None = Field(None, ge=0)
     method: Literal["wheels", "utc"] = "wheels"
+    reference: str = "serial"
+    """The reference speed it is the latency of (reference_of): a run with another one does not use it."""
+
+
+def reference_of(config: Config) -> str:
+    """The reference speed's identity: "serial" (the GNSS receiver on gps.port), or "can:MESSAGE.SIGNAL"."""
+    return "serial" if config.gps.source == "serial" else f"can:{config.gps.message}.{config.gps.signal}"
 
 
 class StoredClock(Provenance):
@@ -169,7 +177,8 @@ def merged(stored: Calibration | None, learned: Learned, config: Config, learned
     latency = base.latency
     if learned.latency is not None:
         value, sigma, method = learned.latency
-        latency = StoredLatency.model_validate({"latency_s": value, "sigma_s": sigma, "method": method} | prov)
+        latency = StoredLatency.model_validate({"latency_s": value, "sigma_s": sigma, "method": method,
+                                                "reference": reference_of(config)} | prov)
     clock = base.host_clock if learned.host_clock_offset_s is None \
         else StoredClock(offset_s=learned.host_clock_offset_s, **prov)
     r0: dict[str, StoredRadius] = {str(w): v for w, v in base.r0.items()}
@@ -257,7 +266,16 @@ def for_run(path: Path | None, config: Config) -> RunCalibration:
     if why:
         return RunCalibration(None, None, f"calibration: {path} neither used nor written over: {why} (give another "
                                           f"with --calibration, or `slipdaq calibration reset {path}`)")
-    return RunCalibration(cal, path, f"calibration: starting from {path} ({summary(cal)})")
+    start = usable(cal, config)
+    other = "" if start is cal else f"; its GPS latency is {cal.latency.reference}'s, not used" if cal.latency else ""
+    return RunCalibration(start, path, f"calibration: starting from {path} ({summary(start)}{other})", base=cal)
+
+
+def usable(cal: Calibration, config: Config) -> Calibration:
+    """cal without a latency stored for another reference speed (reference_of): that one stays in the file."""
+    if cal.latency is None or cal.latency.reference == reference_of(config):
+        return cal
+    return cal.model_copy(update={"latency": None})
 
 
 def for_replay(logged: Calibration | None, path: Path, config: Config) -> RunCalibration:
