@@ -206,34 +206,38 @@ MIN_SLOPE_T = 3.0
 """The slip-on-force slope must be this many standard errors above 0."""
 
 
-def fit_slip_on_force(points: Sequence[tuple[float, float]],
-                      noise: tuple[float, float] | None = None) -> LineFit | None:
+def fit_slip_on_force(points: Sequence[tuple[float, float]], noise: tuple[float, float] | None = None,
+                      weights: Sequence[float] | None = None) -> LineFit | None:
     """s = s0 + Fx/Cx, slip the regressand; None for fewer than 3 points or no positive slope.
 
-    noise: (var_s, var_F), the variances of the slip's and the force's own noise: a Deming (errors-in-variables) fit
-    with their ratio lambda = var_s/var_F, which noise in Fx does not flatten (ordinary least squares of s on Fx
-    shrinks the slope by var(Fx true)/var(Fx), and so raises Cx):
+    weights: per point (default 1): the slip's noise variance is var_s/w (a GPS speed noise in m/s makes a slip noise
+    in proportion to 1/V, so w ~ V^2). noise: (var_s, var_F), the variances of the slip's (at weight 1) and the
+    force's own noise: a Deming (errors-in-variables) fit with their ratio lambda = var_s/var_F, which noise in Fx
+    does not flatten (least squares of s on Fx shrinks the slope by var(Fx true)/var(Fx), and so raises Cx):
         b = (Sss - lambda Sff + sqrt((Sss - lambda Sff)^2 + 4 lambda Sfs^2)) / (2 Sfs)
-    (Sff, Sss, Sfs: sums of squares and products about the means). Without noise: least squares of s on Fx."""
+    (Sff, Sss, Sfs: weighted sums of squares and products about the weighted means). Without noise: weighted least
+    squares of s on Fx."""
     n = len(points)
     if n < 3:
         return None
-    f_mean = sum(f for _, f in points) / n
-    s_mean = sum(s for s, _ in points) / n
-    sff = sum((f - f_mean) ** 2 for _, f in points)
+    w = [1.0] * n if weights is None else list(weights)
+    sw = sum(w)
+    f_mean = sum(wi * f for wi, (_, f) in zip(w, points)) / sw
+    s_mean = sum(wi * s for wi, (s, _) in zip(w, points)) / sw
+    sff = sum(wi * (f - f_mean) ** 2 for wi, (_, f) in zip(w, points))
     if sff <= 0:
         return None
-    sfs = sum((f - f_mean) * (s - s_mean) for s, f in points)
+    sfs = sum(wi * (f - f_mean) * (s - s_mean) for wi, (s, f) in zip(w, points))
     b = sfs / sff
     method = "slip on force"
     if noise is not None and noise[0] > 0 and noise[1] > 0 and sfs > 0:
         lam = noise[0] / noise[1]
-        sss = sum((s - s_mean) ** 2 for s, _ in points)
+        sss = sum(wi * (s - s_mean) ** 2 for wi, (s, _) in zip(w, points))
         d = sss - lam * sff
         b = (d + math.sqrt(d * d + 4.0 * lam * sfs * sfs)) / (2.0 * sfs)
         method = "errors-in-variables"
     a = s_mean - b * f_mean
-    resid = sum((s - a - b * f) ** 2 for s, f in points)
+    resid = sum(wi * (s - a - b * f) ** 2 for wi, (s, f) in zip(w, points))
     se_b = math.sqrt(resid / (n - 2) / sff)
     if b <= MIN_SLOPE_T * se_b:  # no force spread beyond the noise (one cluster): no slope to take
         return None
@@ -244,23 +248,41 @@ MIN_NOISE_ANCHORS = 10
 """The cruise windows give the slip's and the force's noise (their spread about their means) from this many on."""
 
 
-def anchor_noise(anchors: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
-    """(var_s, var_F) of the cruise windows: there the true force hardly changes, so their spread is the noise of
-    each (an upper bound: a drift of the true value adds to it); None with fewer than MIN_NOISE_ANCHORS."""
-    if len(anchors) < MIN_NOISE_ANCHORS:
+def anchor_noise(anchors: Sequence[tuple[float, float]], weights: Sequence[float] | None = None
+                 ) -> tuple[float, float] | None:
+    """(var_s at weight 1, var_F) of the cruise windows: there the true force hardly changes, so their spread is the
+    noise of each (an upper bound: a drift of the true value adds to it); None with fewer than MIN_NOISE_ANCHORS."""
+    n = len(anchors)
+    if n < MIN_NOISE_ANCHORS:
         return None
-    return statistics.variance([s for s, _ in anchors]), statistics.variance([f for _, f in anchors])
+    w = [1.0] * n if weights is None else list(weights)
+    s_mean = sum(wi * s for wi, (s, _) in zip(w, anchors)) / sum(w)
+    var_s = sum(wi * (s - s_mean) ** 2 for wi, (s, _) in zip(w, anchors)) / (n - 1)
+    return var_s, statistics.variance([f for _, f in anchors])
+
+
+def speed_weights(speeds: Sequence[float], reference_mps: float) -> list[float]:
+    """(V/V_ref)^2: the inverse of a window's slip noise variance (GPS speed noise / V), relative to V_ref."""
+    return [(max(v, 0.5) / max(reference_mps, 0.5)) ** 2 for v in speeds]
 
 
 def analyse_linearity(
     slips: Sequence[float | None], forces: Sequence[float | None], rule: LinearityRule = LinearityRule(),
-    anchors: Sequence[tuple[float | None, float | None]] = (),
+    anchors: Sequence[tuple[float | None, float | None]] = (), speeds: Sequence[float | None] | None = None,
+    anchor_speeds: Sequence[float | None] | None = None,
 ) -> Linearity:
     """The linear region of one wheel's force–slip points (rule in the module docstring); anchors: (slip, force) of
-    the log's cruise windows."""
-    both = [(s, f) for s, f in zip(slips, forces) if s is not None and f is not None]
-    sign = 1.0 if sum(f for _, f in both) >= 0 else -1.0
-    anchor = [(s, f) for s, f in anchors if s is not None and f is not None]
+    the log's cruise windows; speeds, anchor_speeds: the windows' speeds (the line's weights, speed_weights)."""
+    spd = list(speeds) if speeds is not None else [None] * len(slips)
+    aspd = list(anchor_speeds) if anchor_speeds is not None else [None] * len(anchors)
+    weighted = all(v is not None for s, f, v in zip(slips, forces, spd) if s is not None and f is not None) and \
+        all(v is not None for (s, f), v in zip(anchors, aspd) if s is not None and f is not None)
+    # (slip, force, speed); the speed 1.0 for all when some is missing (unweighted)
+    both = [(s, f, float(v) if weighted and v is not None else 1.0) for s, f, v in zip(slips, forces, spd)
+            if s is not None and f is not None]
+    sign = 1.0 if sum(f for _, f, _ in both) >= 0 else -1.0
+    anchor = [(s, f, float(v) if weighted and v is not None else 1.0) for (s, f), v in zip(anchors, aspd)
+              if s is not None and f is not None]
     pts = sorted(
         ((s, f) for s, f in zip(slips, forces)
          if s is not None and f is not None and abs(s) >= rule.slip_min and s * f > 0),
@@ -280,9 +302,13 @@ def analyse_linearity(
         fit_pts = [p for p in pts if abs(p[0]) <= fit_max]
         if len(fit_pts) < rule.min_fit_points:
             break
-        kept_anchors = [(s, f) for s, f in anchor if abs(s) <= fit_max]
-        line = (fit_slip_on_force([(s, f) for s, f in both if f * sign > 0 and abs(s) <= fit_max] + kept_anchors,
-                                  anchor_noise(kept_anchors)) if anchor else None) \
+        kept_anchors = [p for p in anchor if abs(p[0]) <= fit_max]
+        fit_both = [p for p in both if p[1] * sign > 0 and abs(p[0]) <= fit_max] + kept_anchors
+        v_ref = statistics.median(p[2] for p in kept_anchors) if kept_anchors else 1.0
+        line = (fit_slip_on_force([(s, f) for s, f, _ in fit_both],
+                                  anchor_noise([(s, f) for s, f, _ in kept_anchors],
+                                               speed_weights([p[2] for p in kept_anchors], v_ref)),
+                                  speed_weights([p[2] for p in fit_both], v_ref)) if anchor else None) \
             or fit_through_origin(fit_pts)
         if line is None:
             break
@@ -449,7 +475,8 @@ def summarize_wheel(
     slips = [r.get(f"slip_{wheel}") for r in rows]
     defined = [s for s in slips if s is not None]
     lin = analyse_linearity(slips, [r.get(f"force_{wheel}_n") for r in rows], rule,
-                            [(r.get(f"slip_{wheel}"), r.get(f"force_{wheel}_n")) for r in anchors])
+                            [(r.get(f"slip_{wheel}"), r.get(f"force_{wheel}_n")) for r in anchors],
+                            [r.get("speed_mps") for r in rows], [r.get("speed_mps") for r in anchors])
     peak_cx = peak_binned(
         [(r[f"slip_{wheel}"], r[f"cx_{wheel}_n"]) for r in rows
          if r.get(f"cx_{wheel}_n") is not None and r.get(f"slip_{wheel}") is not None], rule)
