@@ -17,7 +17,7 @@ from slipdaq.offline import Rows, process
 from slipdaq.records import CanFrame, CanFrameBatch
 
 DATA = Path(__file__).resolve().parent / "data" / "css-electronics"
-MF4 = DATA / "00000005-60FEB5A8.MF4"
+MF4 = DATA / "3BA199E2" / "00000164" / "00000005-60FEB5A8.MF4"
 DBC = DATA / "canmod-gps.dbc"
 asammdf = pytest.importorskip("asammdf")
 

@@ -151,12 +151,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_label(p)
     _add_calibration(p, "the log directory")
 
-    p = sub.add_parser("import", help="CAN log + NMEA log -> a slipdaq MCAP log",
-                       description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc) and an NMEA "
-                       "log with lines `(EPOCH_SECONDS) $SENTENCE` in the same clock (bare sentences accepted) into a "
-                       "slipdaq log, estimates included, like a live one." + OUTPUT_RULES)
-    p.add_argument("--can", required=True, metavar="LOG", help="CAN log file")
-    p.add_argument("--nmea", required=True, metavar="LOG", help="NMEA log file")
+    p = sub.add_parser("import", help="CAN log (or MF4 files) + NMEA log -> a slipdaq MCAP log",
+                       description="Turn a CAN log python-can reads (candump -L .log, .asc, .blf, .trc, .mf4), or the "
+                       "MF4 files of a session (--mf4), and an NMEA log with lines `(EPOCH_SECONDS) $SENTENCE` in the "
+                       "same clock (bare sentences accepted) into a slipdaq log, estimates included, like a live one. "
+                       "Every frame is kept as it was (ID, IDE, DLC, data, bus channel, direction, FD flags). With "
+                       "[gps] source = \"can\" in the config the reference speed comes from the CAN frames and --nmea "
+                       "is not needed." + OUTPUT_RULES)
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--can", metavar="LOG", help="CAN log file (any format python-can reads, .mf4 included)")
+    src.add_argument("--mf4", nargs="+", metavar="FILE",
+                     help="ASAM MDF4 bus logs (CANedge, Vector: both CAN bus-logging layouts) read with asammdf; "
+                     "the files of one session are joined in time order. Needs `pip install slipdaq[mdf]`")
+    p.add_argument("--nmea", metavar="LOG", help="NMEA log file; not needed when the config takes the reference "
+                   "speed from CAN ([gps] source = \"can\": a CANmod.gps or a CANedge's GNSS in the same file)")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
     _add_allow_empty(p, "a CAN log without frames, or an NMEA log without lines or without one fix")
@@ -178,16 +186,27 @@ def build_parser() -> argparse.ArgumentParser:
                    "smoothed over the whole run (non-causal) in place of the speed as it came, so the first "
                    "acceleration is as good as the last. Without it, replay gives the live run's estimates, bit for bit")
 
-    p = sub.add_parser("export", help="estimates of a log -> CSV",
+    p = sub.add_parser("export", help="estimates of a log -> CSV, MF4, Parquet",
                        description="--csv: one row per estimate: time_s, speed_mps, accel_mps2, force_n, then for "
                        "each wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n (then the extra columns of the "
                        "README). --fast-csv: one row per instant of the high-rate slip (estimator.fast_rate_hz, "
                        "/slip/fast): time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR (slip a fraction; empty "
-                       "below the minimum speed). Empty cell = undefined." + OUTPUT_RULES)
+                       "below the minimum speed). Empty cell = undefined. --mf4: ASAM MDF 4.10 (asammdf): group "
+                       "'estimates' with one channel per --csv column (same names, units, a comment each; NaN = "
+                       "empty cell, texts through a value-to-text conversion), group 'wheel speeds' (/slip/fast: "
+                       "wheel_speed_W_mps, fast_speed_mps, fast_slip_W), group 'GPS' (/gps/fix: gps_speed_mps, "
+                       "gps_valid); the log's labels and config in the header comment. --parquet: one row per "
+                       "estimate, the --csv columns (null = empty cell), then `log` (the log's name without "
+                       ".mcap) and label_KEY per label. Values equal the CSV's bit for bit. Any of them at once, "
+                       "each its own file: all are written or none." + OUTPUT_RULES)
     p.add_argument("log", metavar="LOG.mcap")
     p.add_argument("--csv", metavar="OUT.csv", help="the windowed estimates")
     p.add_argument("--fast-csv", metavar="OUT.csv", help="the high-rate slip")
-    _add_allow_empty(p, "a log without estimates (the CSV is then its header only)")
+    p.add_argument("--mf4", metavar="OUT.mf4", help="the estimates, the high-rate wheel speeds and the GPS speed as "
+                   "MF4 (needs asammdf: pip install 'slipdaq[mdf]')")
+    p.add_argument("--parquet", metavar="OUT.parquet", help="the estimates as Parquet, with the log's name and labels "
+                   "(needs pyarrow: pip install 'slipdaq[fleet]')")
+    _add_allow_empty(p, "a log without estimates (the CSV is then its header only, the MF4 and Parquet without rows)")
 
     p = sub.add_parser("report", help="plots and tables of the slip study from one or more logs",
                        description="For each log and each maneuver phase in it (accelerate, cruise, brake): per "
@@ -285,25 +304,46 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_import(args: argparse.Namespace) -> int:
     from slipdaq.offline import process_to_log
-    from slipdaq.sources.files import iter_can_log, iter_nmea_log, merge_by_time
+    from slipdaq.sources.files import iter_can_logs, iter_nmea_log, merge_by_time
 
     cfg = _config(args.config)
-    records = merge_by_time(iter_can_log(args.can), iter_nmea_log(args.nmea))
-    meta = {"import_can": str(args.can), "import_nmea": str(args.nmea)} | _labels_meta(args)
+    can_logs = args.mf4 if args.mf4 else [args.can]
+    if args.mf4:
+        _require_mdf()
+    if args.nmea is None and cfg.gps.source != "can":
+        raise OutputError("import: give --nmea LOG, or a config whose reference speed comes from CAN "
+                          "([gps] source = \"can\")")
+    streams = [iter_can_logs(can_logs)] + ([iter_nmea_log(args.nmea)] if args.nmea else [])
+    records = merge_by_time(*streams)
+    meta = {"import_can": " ".join(map(str, can_logs)), "import_nmea": str(args.nmea or "")} | _labels_meta(args)
     cal = _run_calibration(args, cfg, Path(args.output).resolve().parent)
-    with atomic_output(args.output, inputs=[args.can, args.nmea, *_config_files(cfg)]) as tmp:
+    inputs = [*can_logs, *([args.nmea] if args.nmea else []), *_config_files(cfg)]
+    with atomic_output(args.output, inputs=inputs) as tmp:
         p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import", calibration=cal.start)
         d = p.diagnostics()
-        _require(d.can_frames, f"{args.can}: no CAN frames in it", args)
-        _require(d.nmea_lines + d.ubx_frames, f"{args.nmea}: no NMEA lines in it", args)
-        why = ", ".join(f"{reason} {n}" for reason, n in d.dropped_sentences.items() if n)
-        _require(d.gps_fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
-                 f"({d.bad_sentences} bad sentences{'; dropped: ' + why if why else ''})", args)
+        _require(d.can_frames, f"{' '.join(map(str, can_logs))}: no CAN frames in it", args)
+        if args.nmea:
+            _require(d.nmea_lines + d.ubx_frames, f"{args.nmea}: no NMEA lines in it", args)
+            why = ", ".join(f"{reason} {n}" for reason, n in d.dropped_sentences.items() if n)
+            _require(p.fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
+                     f"({d.bad_sentences} bad sentences{'; dropped: ' + why if why else ''})", args)
+        else:
+            _require(p.fixes, f"{' '.join(map(str, can_logs))}: no reference speed in it: no frame of "
+                     f"{cfg.gps.message}.{cfg.gps.signal} ([gps] message and signal; their DBC in can.dbc)", args)
     ubx = f" ({d.ubx_frames} UBX frames)" if d.ubx_frames else ""
-    print(f"imported {d.can_frames} CAN frames and {d.nmea_lines} NMEA lines{ubx} -> {args.output} "
+    gps = f"{d.nmea_lines} NMEA lines{ubx}" if args.nmea else f"{p.fixes} reference-speed frames"
+    print(f"imported {d.can_frames} CAN frames and {gps} -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
     _save_calibration(cal, p.estimator.learned(), cfg, str(args.output))
     return EXIT_OK
+
+
+def _require_mdf() -> None:
+    """asammdf, for python-can's MF4 reader (the `mdf` extra)."""
+    try:
+        import asammdf  # noqa: F401
+    except ImportError:
+        raise OutputError("--mf4 needs asammdf: pip install 'slipdaq[mdf]'") from None
 
 
 def _unfinished_note(path: str, scanned: object) -> None:

@@ -1,4 +1,6 @@
-"""Import sources: CAN log files (any format python-can reads) and timestamped NMEA logs.
+"""Import sources: CAN log files (any format python-can reads: candump, ASC, BLF, TRC, CSV, and ASAM MDF4 through
+python-can's MF4 reader with asammdf) and timestamped NMEA logs. Several CAN logs of one session (a CANedge splits a
+session into numbered MF4 files) are joined in time order.
 
 NMEA log lines are `(EPOCH_SECONDS) $SENTENCE` in the CAN log's clock; bare `$SENTENCE` lines are
 accepted too and take the time of the sentence itself (RMC date + time, or a UBX NAV-PVT's UTC time), else of the
@@ -11,7 +13,7 @@ from __future__ import annotations
 
 import heapq
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from itertools import chain
 from pathlib import Path
@@ -46,6 +48,29 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
     with reader:
         for msg in guarded(p, reader):
             yield to_frame(msg)
+
+
+def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame]:
+    """The frames of several CAN logs of one session, file after file in the order of their first frame's time (the
+    files' own names need not sort); a file that starts before the previous one ended is refused (not one session)."""
+    if len(paths) == 1:
+        yield from iter_can_log(paths[0])
+        return
+    firsts: list[tuple[float, int, str | Path]] = []
+    for i, p in enumerate(paths):
+        first = next(iter_can_log(p), None)
+        if first is None:
+            raise ImportError_(f"{p}: no CAN frames in it")
+        firsts.append((first.timestamp_s, i, p))
+    last_t, last_p = float("-inf"), None
+    for t0, _, p in sorted(firsts, key=lambda x: (x[0], x[1])):
+        if t0 < last_t:
+            raise ImportError_(f"{p}: starts at {t0:.6f}, before {last_p} ends ({last_t:.6f}): the files are not "
+                               f"one session's consecutive parts")
+        for frame in iter_can_log(p):
+            last_t = max(last_t, frame.timestamp_s)
+            yield frame
+        last_p = p
 
 
 def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
