@@ -23,6 +23,27 @@ OUTPUT_RULES = (" An output path that is one of the inputs is refused (exit 2). 
                 "name and renamed into place when complete: a failure leaves no partial output and an existing file "
                 "as it was. An input that cannot be read: one line naming the file and where, exit 1.")
 
+BATCH_HELP = """\
+Each log is one task on Dask: re-run two-pass from its raw records (as `replay --two-pass`; the logged
+estimates for a log without raw records), summarized and plotted (as `report`). Default: a local cluster
+of --workers processes on this machine, nothing to start; --scheduler: an existing Dask cluster (start
+`dask scheduler` on one host and `dask worker tcp://HOST:8786` on each machine; every worker must read
+the logs at the same paths, e.g. a shared file system; this process writes DIR). Needs the fleet extra:
+pip install -e ".[fleet]".
+
+Output in DIR:
+  estimates/NAME-KEY.parquet  one file per log: its estimates (the CSV's columns), `log` and `label_KEY`
+  cache/NAME-KEY.pickle       the log's summary and plots, for re-runs
+  report/                     index.html (plots, comparison across logs by labels), summary.csv and
+                              summary.json (one row per log, maneuver and wheel), the PNGs
+NAME is the log's file stem; KEY hashes the log's size and mtime, its stored config, DBC, calibration
+and labels, and slipdaq's version. A re-run skips a log whose files with its current KEY exist (the
+report is written again from the cache); a new output of a NAME removes the older one.
+
+Progress: one line per finished log on stderr (with a progress bar on a terminal). A log that fails is
+reported with its error and the others go on. Exit status: 0 every log succeeded, 1 one or more failed
+(each listed at the end), 2 bad usage."""
+
 
 def _add_config(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="F", help="TOML config (default: ./slipdaq.toml, else the packaged example)")
@@ -36,6 +57,16 @@ def _label(text: str) -> str:
     except LabelError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
     return text
+
+
+def _positive(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number of at least 1")
+    return n
 
 
 def _add_label(p: argparse.ArgumentParser) -> None:
@@ -223,6 +254,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use the estimates as logged (default: each log is post-processed two-pass, as "
                    "`replay --two-pass` does, from its raw records, in memory; the logs are not changed)")
 
+    p = sub.add_parser("batch", help="many logs on Dask: Parquet dataset, fleet summary table, comparison report",
+                       description=BATCH_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("logs", nargs="+", metavar="LOG.mcap")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster of this scheduler, e.g. "
+                       "tcp://HOST:8786 (default: a local cluster on this machine, no server to start)")
+    where.add_argument("--workers", type=_positive, metavar="N",
+                       help="worker processes of the local cluster, one thread each (default: this machine's cores)")
+    p.add_argument("--group-by", action="append", metavar="KEY",
+                   help="compare logs grouped by this label (repeatable; default: every label but maneuver)")
+
     p = sub.add_parser("calibration", help="show or reset a calibration file",
                        description="The calibration file keeps what runs learned about one vehicle and tire set (r0 "
                        "per wheel, GPS latency, fitted Cx per tire, the host clock's offset from UTC), each with when "
@@ -406,29 +449,22 @@ def cmd_calibration(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, read_metadata
-    from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.sinks.csv_export import ALL_COLUMNS, FAST_COLUMNS, write_csv
-    from slipdaq.sources.read_errors import guarded
+    import contextlib
 
-    if not args.csv and not args.fast_csv:
-        raise OutputError("export: give --csv OUT.csv (the estimates), --fast-csv OUT.csv (the high-rate slip), or both")
-    if args.csv and args.fast_csv and Path(args.csv).resolve() == Path(args.fast_csv).resolve():
-        raise OutputError(f"export: --csv and --fast-csv name the same file {args.csv}")
-    read_metadata(args.log)
-    scanned = ScanResult(Path(args.log))
-    jobs = [(args.csv, iter_estimates, ALL_COLUMNS, "estimates"),
-            (args.fast_csv, iter_fast_slip, FAST_COLUMNS, "high-rate slip rows")]
-    for out, rows, columns, what in jobs:
-        if not out:
-            continue
-        with atomic_output(out, inputs=[args.log]) as tmp:
-            n = write_csv(guarded(args.log, rows(args.log, scanned)), tmp, columns)
-            _require(n, f"{args.log}: no {what} in it to export" + (
-                " (a log recorded with estimator.fast_rate_hz = 0, or before there was one: `slipdaq replay` it)"
-                if rows is iter_fast_slip else ""), args)
-        print(f"{n} {what} -> {out}")
-    _unfinished_note(args.log, scanned)
+    from slipdaq.export import FORMATS, LogStreams, check_outputs
+
+    outputs = {name: getattr(args, name) for name in FORMATS if getattr(args, name)}
+    check_outputs(outputs, args.log)
+    log = LogStreams(args.log)
+    done = []
+    with contextlib.ExitStack() as outs:  # each output renamed into place only when every one is complete
+        for name, out in outputs.items():
+            fmt = FORMATS[name]
+            n = fmt.write(log, outs.enter_context(atomic_output(out, inputs=[args.log])))
+            _require(n, f"{args.log}: no {fmt.what} in it to export{fmt.empty_note}", args)
+            done.append(f"{n} {fmt.what} -> {out}")
+    print("\n".join(done))
+    _unfinished_note(args.log, log.scanned)
     return EXIT_OK
 
 
@@ -456,10 +492,26 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    from slipdaq.fleet import FleetError, failure, run_batch
+
+    try:
+        res = run_batch(args.logs, args.output, scheduler=args.scheduler, workers=args.workers, group_by=args.group_by)
+    except FleetError as e:
+        print(f"slipdaq: batch: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    report = f"; report {res.report}" if res.report else "; no report (no log succeeded)"
+    print(f"batch: {len(res.done)} processed, {len(res.skipped)} up to date, {len(res.failed)} failed -> "
+          f"{res.out_dir / 'estimates'}{report}")
+    for r in res.failed:
+        print(f"slipdaq: batch: failed: {failure(r)}", file=sys.stderr)
+    return EXIT_FAIL if res.failed else EXIT_OK
+
+
 COMMANDS = {
     "run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo, "import": cmd_import,
     "replay": cmd_replay, "export": cmd_export, "report": cmd_report, "recover": cmd_recover,
-    "calibration": cmd_calibration,
+    "calibration": cmd_calibration, "batch": cmd_batch,
 }
 
 

@@ -43,9 +43,11 @@ def _column(c: Column) -> dict[str, Any]:
 
 
 def columns_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, Any]:
-    """The JSON Schema of a flat record declared as column groups (records.ESTIMATE_COLUMNS), for WHEELS."""
-    return _obj(title, {c.key(w) if g.per_wheel else c.name: _column(c) for g in groups
-                        for w in (WHEELS if g.per_wheel else ("",)) for c in g.columns})
+    """The JSON Schema of a flat record declared as column groups (records.ESTIMATE_COLUMNS), for WHEELS; each
+    property with its column's description."""
+    return _obj(title, {c.key(w) if g.per_wheel else c.name: _column(c) | ({"description": c.describe(w)}
+                                                                           if c.description else {})
+                        for g in groups for w in (WHEELS if g.per_wheel else ("",)) for c in g.columns})
 
 
 def _per_wheel(title: str) -> dict[str, Any]:

@@ -1,4 +1,5 @@
 """`slipdaq report`: read logs, summarize (summary.py), draw (plots.py), write index.html and the tables (write.py).
+make_report reads and summarizes; write_report writes the report of summarized logs (also `slipdaq batch`'s).
 
 Output layout in DIR:
     index.html, summary.json, summary.csv
@@ -9,7 +10,7 @@ Output layout in DIR:
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -78,13 +79,35 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
     return data
 
 
-def _slug(name: str, taken: set[str]) -> str:
+def unique_name(name: str, taken: set[str]) -> str:
+    """A file-safe name for a log (from its file stem) that is not in `taken` nor one of TABLES; added to `taken`."""
     base = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "log"
     slug, n = base, 2
     while slug in taken or slug in TABLES:
         slug, n = f"{base}-{n}", n + 1
     taken.add(slug)
     return slug
+
+
+PlotMaker = Callable[[LogSummary, Path], dict[str, dict[str, Path]]]
+"""Draws (or places) the plots of one log in a directory: {maneuver key: {plot stem: path}}."""
+
+
+def _sayer(progress: TextIO | None) -> Callable[[str], None]:
+    return (lambda msg: print(f"report: {msg}", file=progress, flush=True)) if progress else (lambda msg: None)
+
+
+def plot_log(log: LogSummary, out_dir: Path, say: Callable[[str], None] = lambda msg: None) -> dict[str, dict[str, Path]]:
+    """The plots of every maneuver of one log in out_dir (plots.plot_maneuver): {maneuver key: {plot stem: path}}."""
+    from slipdaq.report import plots
+
+    made: dict[str, dict[str, Path]] = {}
+    for m in log.maneuvers:
+        made[m.key] = plots.plot_maneuver(log, m, out_dir)
+        say(f"{log.name}: {m.title}: {len(made[m.key])} plots")
+    if not log.maneuvers:
+        say(f"{log.name}: no maneuver with a defined slip")
+    return made
 
 
 def make_report(
@@ -95,36 +118,44 @@ def make_report(
     progress: TextIO | None = None,
     two_pass: bool = False,
 ) -> ReportResult:
-    """Every log read first (a bad one fails before anything is written), then the plots and the tables, built in a
-    temporary directory in DIR and moved into place when all are done (outputs.atomic_tree): a report that fails
-    leaves DIR as it was."""
-    from slipdaq.report import plots, write
-
-    out = Path(out_dir)
-    say = (lambda msg: print(f"report: {msg}", file=progress, flush=True)) if progress else (lambda msg: None)
+    """Every log read first (a bad one fails before anything is written), summarized, then written (write_report)."""
+    say = _sayer(progress)
     data = []
     for p in log_paths:
         d = read_log(p, two_pass)
         say(f"read {p}: {len(d.rows)} estimates ({d.metadata['report_estimates']})")
         data.append(d)
-    with atomic_tree(out, inputs=log_paths, last=TABLES) as build:
-        taken: set[str] = set()
-        logs: list[LogSummary] = []
+    taken: set[str] = set()
+    logs = [summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=unique_name(d.path.stem, taken),
+                          labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
+            for d in data]
+    return write_report(logs, out_dir, inputs=log_paths, progress=progress)
+
+
+def write_report(
+    logs: Sequence[LogSummary],
+    out_dir: str | Path,
+    *,
+    inputs: Sequence[str | Path] = (),
+    progress: TextIO | None = None,
+    plot: PlotMaker | None = None,
+) -> ReportResult:
+    """The report of summarized logs (unique names) in out_dir: per log its plots in DIR/<name>/ (`plot`, default
+    plot_log), the comparison plots, the tables, index.html last; built in a temporary directory in DIR and moved
+    into place when all are done (outputs.atomic_tree): a report that fails leaves DIR as it was."""
+    from slipdaq.report import plots, write
+
+    out = Path(out_dir)
+    say = _sayer(progress)
+    logs = list(logs)
+    with atomic_tree(out, inputs=inputs, last=TABLES) as build:
         plot_paths: dict[str, dict[str, dict[str, str]]] = {}
         pngs: list[Path] = []
-        for d in data:
-            name = _slug(d.path.stem, taken)
-            log = summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=name,
-                                labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
-            logs.append(log)
-            plot_paths[name] = {}
-            for m in log.maneuvers:
-                made = plots.plot_maneuver(log, m, build / name)
-                plot_paths[name][m.key] = {k: p.relative_to(build).as_posix() for k, p in made.items()}
-                pngs += (out / p.relative_to(build) for p in made.values())
-                say(f"{name}: {m.title}: {len(made)} plots")
-            if not log.maneuvers:
-                say(f"{name}: no maneuver with a defined slip")
+        for log in logs:
+            made = plot(log, build / log.name) if plot else plot_log(log, build / log.name, say)
+            plot_paths[log.name] = {k: {s: p.relative_to(build).as_posix() for s, p in v.items()}
+                                    for k, v in made.items()}
+            pngs += (out / p.relative_to(build) for v in made.values() for p in v.values())
         comparisons = compare(logs) if len(logs) > 1 else []
         compare_plots: dict[str, str] = {}
         for c in comparisons:

@@ -1,0 +1,100 @@
+"""`slipdaq export`: a log's estimates, high-rate slip and GPS into other formats, one writer per format behind one
+interface (a registry by name, as python-can's by suffix): csv, fast_csv, mf4, parquet. A writer takes the log's
+streams (LogStreams, read on demand) and a path, and returns how many rows it wrote."""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic, read_metadata
+from slipdaq.logformat.salvage import ScanResult
+from slipdaq.logformat.topics import TOPIC_GPS
+from slipdaq.outputs import OutputError, refuse_inputs, same_file
+from slipdaq.sources.read_errors import guarded
+
+
+class LogStreams:
+    """What a writer takes of a log: its metadata and, each time asked, its estimates, /slip/fast rows and fixes."""
+
+    def __init__(self, log: str | Path) -> None:
+        self.log = Path(log)
+        self.metadata = read_metadata(log)
+        self.scanned = ScanResult(self.log)
+
+    def estimates(self) -> Iterator[dict[str, Any]]:
+        return guarded(self.log, iter_estimates(self.log, self.scanned))
+
+    def fast_rows(self) -> Iterator[dict[str, Any]]:
+        return guarded(self.log, iter_fast_slip(self.log, self.scanned))
+
+    def fixes(self) -> Iterator[dict[str, Any]]:
+        return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_GPS,), self.scanned)))
+
+
+def _csv(log: LogStreams, path: Path) -> int:
+    from slipdaq.sinks.csv_export import ALL_COLUMNS, write_csv
+
+    return write_csv(log.estimates(), path, ALL_COLUMNS)
+
+
+def _fast_csv(log: LogStreams, path: Path) -> int:
+    from slipdaq.sinks.csv_export import FAST_COLUMNS, write_csv
+
+    return write_csv(log.fast_rows(), path, FAST_COLUMNS)
+
+
+def _mf4(log: LogStreams, path: Path) -> int:
+    from slipdaq.sinks.mf4_export import write_mf4
+
+    return write_mf4(log.estimates(), path, fast_rows=log.fast_rows(), fixes=log.fixes(), metadata=log.metadata,
+                     log_name=log.log.name)
+
+
+def _parquet(log: LogStreams, path: Path) -> int:
+    from slipdaq.report.labels import labels_of
+    from slipdaq.sinks.parquet_export import write_parquet
+
+    return write_parquet(log.estimates(), path, log_name=log.log.stem, labels=labels_of(log.metadata))
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    flag: str
+    what: str
+    """What a row is, for messages ("estimates")."""
+    write: Callable[[LogStreams, Path], int]
+    needs: tuple[str, str] | None = None
+    """(module, extra) it needs installed."""
+    empty_note: str = ""
+    """Said when the log has no rows for it."""
+
+
+FORMATS: dict[str, ExportFormat] = {
+    "csv": ExportFormat("--csv", "estimates", _csv),
+    "fast_csv": ExportFormat("--fast-csv", "high-rate slip rows", _fast_csv, empty_note=(
+        " (a log recorded with estimator.fast_rate_hz = 0, or before there was one: `slipdaq replay` it)")),
+    "mf4": ExportFormat("--mf4", "estimates", _mf4, needs=("asammdf", "mdf")),
+    "parquet": ExportFormat("--parquet", "estimates", _parquet, needs=("pyarrow", "fleet")),
+}
+"""By the CLI option's name (its dest)."""
+
+
+def check_outputs(outputs: dict[str, str], log: str | Path) -> None:
+    """OutputError (usage) for no output, two outputs naming one file, an output that is the log, a format whose
+    library is not installed; before anything is read or written."""
+    if not outputs:
+        raise OutputError("export: give " + ", ".join(f.flag for f in FORMATS.values()) + " (any of them at once)")
+    named = [(FORMATS[k].flag, out) for k, out in outputs.items()]
+    for i, (flag, out) in enumerate(named):
+        for other, earlier in named[:i]:
+            if same_file(out, earlier):
+                raise OutputError(f"export: {other} and {flag} name the same file {out}")
+    refuse_inputs(list(outputs.values()), [log])
+    for k, out in outputs.items():
+        needs = FORMATS[k].needs
+        if needs is not None and importlib.util.find_spec(needs[0]) is None:
+            raise OutputError(f"export {out}: needs {needs[0]}: pip install 'slipdaq[{needs[1]}]'")

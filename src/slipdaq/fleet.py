@@ -1,0 +1,373 @@
+"""`slipdaq batch`: many logs on Dask, one task per log; this module only orchestrates.
+
+A task (process_log) re-runs one log two-pass and summarizes it (report.build.read_log, report.summary.summarize_log),
+draws its plots (report.build.plot_log) and its estimates as Parquet (sinks.parquet_export.write_parquet), each into
+a temporary directory on the worker, and returns them as bytes in a LogResult, or the error text. This process
+writes everything: only the logs need to be readable by the workers (at the same path), not DIR.
+
+Output layout in DIR:
+    estimates/<name>-<key>.parquet   the Parquet dataset: one file per log (the estimate rows, `log`, `label_<KEY>`)
+    cache/<name>-<key>.pickle        the LogResult without its Parquet bytes (summary and PNGs): what a re-run needs
+    report/                          report.build.write_report over every log: index.html, summary.csv, summary.json,
+                                     <name>/*.png, compare-*.png
+
+<name> is the log's file stem made file-safe and unique in the run (report.build.unique_name); <key> hashes the
+log's size and mtime, its stored metadata (the config, the DBC, the calibration it started from, its labels), the
+name and slipdaq's version. Skip rule: a log whose Parquet and cache files with its current key exist is not
+processed again; its summary and plots are read from the cache file. A new output of a name removes the older files
+of that name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import io
+import json
+import os
+import pickle
+import re
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import slipdaq
+from slipdaq.outputs import atomic_output, refuse_inputs
+from slipdaq.report.summary import LogSummary
+
+CACHE_FORMAT = 1
+"""Part of the key: a change of the cache file's contents makes every output stale."""
+ESTIMATES, CACHE, REPORT = "estimates", "cache", "report"
+PlotBytes = dict[str, dict[str, tuple[str, bytes]]]
+"""maneuver key -> plot stem -> (file name, PNG bytes)."""
+
+
+class FleetError(Exception):
+    """Dask missing, or the cluster cannot be reached (one line)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    path: str
+    """As given (in messages and the report)."""
+    name: str
+    key: str
+    file: str
+    """Absolute, as the workers open it."""
+
+    @property
+    def stem(self) -> str:
+        return f"{self.name}-{self.key}"
+
+
+@dataclass(frozen=True)
+class LogResult:
+    """What a task returns (small and picklable): the summary, the plots and the Parquet bytes, or the error."""
+
+    path: str
+    name: str
+    key: str
+    summary: LogSummary | None = None
+    plots: PlotBytes = field(default_factory=dict)
+    parquet: bytes = b""
+    rows: int = 0
+    seconds: float = 0.0
+    error: str | None = None
+
+
+@dataclass
+class BatchResult:
+    out_dir: Path
+    done: list[LogResult]
+    """Processed in this run, in the order of the logs."""
+    skipped: list[LogResult]
+    """Up to date: read from the cache."""
+    failed: list[LogResult]
+    report: Path | None
+    """index.html; None when no log succeeded."""
+
+
+def log_key(path: str | Path, name: str) -> str:
+    """The hash in a log's output names (16 hex digits)."""
+    from slipdaq.logformat.reader import read_metadata
+
+    st = os.stat(path)
+    ident = {"format": CACHE_FORMAT, "version": slipdaq.__version__, "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+             "metadata": read_metadata(path), "name": name}
+    return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def failure(r: LogResult) -> str:
+    """'LOG: error' (the log named once)."""
+    err = r.error or ""
+    return err if err.startswith((r.path, os.path.abspath(r.path))) else f"{r.path}: {err}"
+
+
+def _error_text(e: BaseException) -> str:
+    from slipdaq.config import ConfigError
+    from slipdaq.sources.read_errors import InputError
+
+    if isinstance(e, (InputError, ConfigError, OSError)) and str(e):
+        return str(e)
+    return f"{type(e).__name__}: {e}"
+
+
+def process_log(job: Job) -> LogResult:
+    """The task: one log two-pass, its summary, plots and Parquet bytes; any error as text (never raises)."""
+    from slipdaq.report.build import plot_log, read_log
+    from slipdaq.report.labels import labels_of
+    from slipdaq.report.summary import summarize_log
+    from slipdaq.sinks.parquet_export import write_parquet
+
+    t0 = time.perf_counter()
+    try:
+        data = read_log(job.file, two_pass=True, progress=io.StringIO())
+        labels = labels_of(data.metadata)
+        summary = summarize_log(data.rows, data.metadata, data.diagnostics, path=job.path, name=job.name,
+                                labels=labels, fast=data.fast, sensors=data.sensors)
+        with tempfile.TemporaryDirectory(prefix="slipdaq-batch-") as tmp:
+            made = plot_log(summary, Path(tmp) / "plots")
+            plots = {k: {s: (p.name, p.read_bytes()) for s, p in v.items()} for k, v in made.items()}
+            pq = Path(tmp) / "estimates.parquet"
+            n = write_parquet(data.rows, pq, log_name=job.name, labels=labels)
+            blob = pq.read_bytes()
+    except Exception as e:  # reported with its log; the other logs go on
+        return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=_error_text(e))
+    return LogResult(job.path, job.name, job.key, summary, plots, blob, n, time.perf_counter() - t0)
+
+
+# ---- DIR: the dataset, the cache, the report --------------------------------------------------------------------
+
+def _paths(out: Path, job: Job | LogResult) -> tuple[Path, Path]:
+    stem = f"{job.name}-{job.key}"
+    return out / ESTIMATES / f"{stem}.parquet", out / CACHE / f"{stem}.pickle"
+
+
+def load_cached(out: Path, job: Job) -> LogResult | None:
+    """The LogResult of an up-to-date log (its Parquet and cache files with its key exist), else None."""
+    parquet, cache = _paths(out, job)
+    if not parquet.is_file() or not cache.is_file():
+        return None
+    try:
+        with cache.open("rb") as f:
+            got = pickle.load(f)
+    except Exception:  # a cache file this version cannot read: process the log again
+        return None
+    if not isinstance(got, LogResult) or got.key != job.key or got.summary is None:
+        return None
+    return dataclasses.replace(got, path=job.path)
+
+
+def save(out: Path, result: LogResult, inputs: Sequence[str]) -> Path:
+    """The Parquet file, then the cache file (each written whole, then renamed), then the older files of the name
+    removed; returns the Parquet file's path."""
+    parquet, cache = _paths(out, result)
+    with atomic_output(parquet, inputs=inputs) as tmp:
+        tmp.write_bytes(result.parquet)
+    with atomic_output(cache, inputs=inputs) as tmp:
+        tmp.write_bytes(pickle.dumps(dataclasses.replace(result, parquet=b""), protocol=pickle.HIGHEST_PROTOCOL))
+    older = re.compile(re.escape(result.name) + r"-[0-9a-f]{16}\.(parquet|pickle)")
+    for p in (*parquet.parent.iterdir(), *cache.parent.iterdir()):
+        if older.fullmatch(p.name) and p not in (parquet, cache):
+            p.unlink(missing_ok=True)
+    return parquet
+
+
+def inputs_inside(directory: Path, inputs: Sequence[str]) -> list[str]:
+    """The inputs that a file written under `directory` could be: inside it once resolved, or a hard link of a file
+    in it. Only these go to the outputs' checks (outputs.refuse_inputs compares every output with every input)."""
+    d = directory.resolve()
+    inodes = {(st.st_dev, st.st_ino) for f in d.rglob("*") if f.is_file() for st in (f.stat(),)} if d.is_dir() else set()
+    found = []
+    for i in inputs:
+        r = Path(i).resolve()
+        with contextlib.suppress(OSError):
+            if r.is_relative_to(d) or (r.stat().st_dev, r.stat().st_ino) in inodes:
+                found.append(i)
+    return found
+
+
+def _placer(out: Path, results: dict[str, LogResult]) -> Callable[[LogSummary, Path], dict[str, dict[str, Path]]]:
+    """report.build.PlotMaker writing a log's PNGs as its task rendered them, read back from its cache file (they are
+    not kept in memory meanwhile)."""
+    def place(log: LogSummary, out_dir: Path) -> dict[str, dict[str, Path]]:
+        with _paths(out, results[log.name])[1].open("rb") as f:
+            plots: PlotBytes = pickle.load(f).plots
+        made: dict[str, dict[str, Path]] = {}
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for key, by_stem in plots.items():
+            made[key] = {}
+            for stem, (file, png) in by_stem.items():
+                (out_dir / file).write_bytes(png)
+                made[key][stem] = out_dir / file
+        return made
+    return place
+
+
+# ---- the cluster and the run --------------------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def connect(scheduler: str | None, workers: int | None) -> Iterator[Any]:
+    """A dask.distributed Client: of the scheduler at `scheduler`, else of a local cluster of `workers` processes
+    (default: this machine's cores), one thread each, no dashboard; closed (the local cluster stopped) at the end."""
+    try:
+        import pyarrow  # noqa: F401  (the tasks need it)
+        from distributed import Client, LocalCluster
+    except ImportError as e:
+        raise FleetError(f"needs the fleet extra (Dask distributed, pyarrow): pip install -e \".[fleet]\" ({e})") \
+            from None
+    import logging
+
+    quiet = logging.getLogger("distributed")
+    saved = quiet.level
+    if logging.getLogger().getEffectiveLevel() > logging.INFO:  # not -v: Dask's own messages only when errors
+        quiet.setLevel(logging.ERROR)
+    try:
+        with _client(Client, LocalCluster, scheduler, workers) as client:
+            yield client
+    finally:
+        quiet.setLevel(saved)
+
+
+@contextlib.contextmanager
+def _client(client_cls: Any, cluster_cls: Any, scheduler: str | None, workers: int | None) -> Iterator[Any]:
+    import logging
+
+    if scheduler:
+        try:
+            client = client_cls(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as e:
+            raise FleetError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
+        with client:
+            yield client
+        return
+    n = workers or os.cpu_count() or 1
+    with cluster_cls(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                     silence_logs=logging.ERROR) as cluster, client_cls(cluster) as client:
+        yield client
+
+
+class _Progress:
+    """One line per finished log on the stream, above a progress bar when the stream is a terminal."""
+
+    def __init__(self, stream: TextIO, total: int) -> None:
+        self.stream, self.total, self.count = stream, total, 0
+        self._bar: Any = None
+        self._stack = contextlib.ExitStack()
+        if stream.isatty():
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._bar = self._stack.enter_context(Progress(
+                TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                console=Console(file=stream), transient=True))
+            self._task = self._bar.add_task("batch", total=total)
+
+    def line(self, text: str) -> None:
+        self.count += 1
+        msg = f"batch: [{self.count}/{self.total}] {text}"
+        if self._bar is not None:
+            self._bar.console.print(msg, markup=False, highlight=False)
+            self._bar.update(self._task, completed=self.count)
+        else:
+            print(msg, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        self._stack.close()
+
+
+def _ok_line(r: LogResult, out: Path, cached: bool) -> str:
+    parquet = _paths(out, r)[0]
+    n = sum(len(v) for v in r.plots.values())
+    maneuvers = len(r.summary.maneuvers) if r.summary else 0
+    what = "up to date" if cached else f"{r.rows} estimates, {maneuvers} maneuvers, {n} plots ({r.seconds:.1f} s)"
+    return f"{r.path}: {what} -> {parquet}"
+
+
+def _jobs(logs: Sequence[str | Path]) -> tuple[list[Job], list[LogResult]]:
+    """A job per log (duplicates dropped), and the failures of logs whose key cannot be made (not readable)."""
+    from slipdaq.report.build import unique_name
+
+    taken: set[str] = set()
+    seen: set[Path] = set()
+    jobs: list[Job] = []
+    failed: list[LogResult] = []
+    for log in logs:
+        if Path(log).resolve() in seen:
+            continue
+        seen.add(Path(log).resolve())
+        name = unique_name(Path(log).stem, taken)
+        try:
+            jobs.append(Job(str(log), name, log_key(log, name), os.path.abspath(log)))
+        except Exception as e:
+            failed.append(LogResult(str(log), name, "", error=_error_text(e)))
+    return jobs, failed
+
+
+def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str | None = None,
+              workers: int | None = None, group_by: Sequence[str] | None = None,
+              stream: TextIO | None = None) -> BatchResult:
+    """Every log that is not up to date as one Dask task; each result saved as it comes; then the report over every
+    log that succeeded (processed or up to date). A log that fails is in `failed` with its error."""
+    from slipdaq.report.build import write_report
+    from slipdaq.report.summary import group_of
+
+    out = Path(out_dir)
+    refuse_inputs([out], [str(p) for p in logs])
+    inputs = inputs_inside(out, [str(p) for p in logs])
+    stream = stream or sys.stderr
+    progress = _Progress(stream, len(dict.fromkeys(Path(p).resolve() for p in logs)))
+    try:
+        jobs, failed = _jobs(logs)
+        for r in failed:
+            progress.line(f"FAILED {failure(r)}")
+        results: dict[str, LogResult] = {}
+        todo: list[Job] = []
+        for job in jobs:
+            cached = load_cached(out, job)
+            if cached is None:
+                todo.append(job)
+                continue
+            results[job.name] = dataclasses.replace(cached, plots={})
+            progress.line(_ok_line(cached, out, cached=True))
+        skipped = set(results)
+        if todo:
+            with connect(scheduler, workers) as client:
+                from distributed import as_completed
+
+                if scheduler and not client.scheduler_info().get("workers"):
+                    print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
+                          file=stream, flush=True)
+                futures = {client.submit(process_log, job, key=f"slipdaq-batch-{job.stem}", pure=False): job
+                           for job in todo}
+                for fut in as_completed(futures):
+                    job = futures[fut]
+                    try:
+                        r = fut.result()
+                    except Exception as e:  # the worker died (KilledWorker), the task was lost, ...
+                        r = LogResult(job.path, job.name, job.key, error=_error_text(e))
+                    fut.release()
+                    if r.error is None:
+                        save(out, r, inputs)
+                        results[job.name] = dataclasses.replace(r, parquet=b"", plots={})
+                        progress.line(_ok_line(r, out, cached=False))
+                    else:
+                        failed.append(r)
+                        progress.line(f"FAILED {failure(r)}")
+    finally:
+        progress.close()
+    order = [j.name for j in jobs if j.name in results]
+    summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
+                 for n in order if (s := results[n].summary) is not None]
+    index = None
+    if summaries:
+        index = write_report(summaries, out / REPORT, inputs=inputs, plot=_placer(out, results)).index
+    rank = {str(log): i for i, log in enumerate(logs)}
+    failed.sort(key=lambda r: rank.get(r.path, 0))
+    return BatchResult(out, [results[n] for n in order if n not in skipped], [results[n] for n in order if n in skipped],
+                       failed, index)
