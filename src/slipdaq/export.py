@@ -14,6 +14,7 @@ from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic,
 from slipdaq.logformat.salvage import ScanResult
 from slipdaq.logformat.topics import TOPIC_GPS
 from slipdaq.outputs import OutputError, refuse_inputs, same_file
+from slipdaq.report.labels import labels_of
 from slipdaq.sources.read_errors import guarded
 
 
@@ -23,6 +24,7 @@ class LogStreams:
     def __init__(self, log: str | Path) -> None:
         self.log = Path(log)
         self.metadata = read_metadata(log)
+        self.labels = labels_of(self.metadata)
         self.scanned = ScanResult(self.log)
 
     def estimates(self) -> Iterator[dict[str, Any]]:
@@ -51,14 +53,13 @@ def _mf4(log: LogStreams, path: Path) -> int:
     from slipdaq.sinks.mf4_export import write_mf4
 
     return write_mf4(log.estimates(), path, fast_rows=log.fast_rows(), fixes=log.fixes(), metadata=log.metadata,
-                     log_name=log.log.name)
+                     log_name=log.log.name, labels=log.labels)
 
 
 def _parquet(log: LogStreams, path: Path) -> int:
-    from slipdaq.report.labels import labels_of
     from slipdaq.sinks.parquet_export import write_parquet
 
-    return write_parquet(log.estimates(), path, log_name=log.log.stem, labels=labels_of(log.metadata))
+    return write_parquet(log.estimates(), path, log_name=log.log.stem, labels=log.labels)
 
 
 @dataclass(frozen=True)

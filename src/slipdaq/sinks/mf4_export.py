@@ -25,7 +25,6 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column
-from slipdaq.report.labels import labels_of
 
 GROUP_ESTIMATES, GROUP_WHEELS, GROUP_GPS = "estimates", "wheel speeds", "GPS"
 MDF_VERSION = "4.10"
@@ -86,9 +85,10 @@ def _xml_safe(text: str) -> str:
     return "\n".join(line.strip() for line in _XML_BAD.sub("\ufffd", text).splitlines())
 
 
-def header_text(metadata: Mapping[str, str], t0_s: float, log_name: str = "") -> str:
+def header_text(metadata: Mapping[str, str], t0_s: float, log_name: str = "",
+                labels: Mapping[str, str] | None = None) -> str:
     """The header comment's text: where the file comes from, t0, the log's labels and its config TOML."""
-    labels = labels_of(dict(metadata))
+    labels = labels or {}
     lines = [f"slipdaq export of {log_name or 'a log'} (slipdaq {metadata.get('version', '?')}, "
              f"mode {metadata.get('mode', '?')})",
              f"t0_s = {t0_s!r}: the time origin, seconds in the log's clock (UTC for live runs); each group's master "
@@ -101,9 +101,11 @@ def header_text(metadata: Mapping[str, str], t0_s: float, log_name: str = "") ->
 
 
 def write_mf4(rows: Iterable[Mapping[str, Any]], path: str | Path, *, fast_rows: Iterable[Mapping[str, Any]],
-              fixes: Iterable[Mapping[str, Any]], metadata: Mapping[str, str], log_name: str = "") -> int:
-    """Write the estimate rows, the /slip/fast rows and the /gps/fix records (the log's JSON dicts) and the log's
-    metadata to an MF4 file at path (written as named: no suffix added); returns the number of estimates."""
+              fixes: Iterable[Mapping[str, Any]], metadata: Mapping[str, str], log_name: str = "",
+              labels: Mapping[str, str] | None = None) -> int:
+    """Write the estimate rows, the /slip/fast rows and the /gps/fix records (the log's JSON dicts), the log's
+    metadata and labels to an MF4 file at path (written as named: no suffix added); returns the number of
+    estimates."""
     from asammdf import MDF, Signal
 
     columns = _columns()
@@ -154,7 +156,7 @@ def write_mf4(rows: Iterable[Mapping[str, Any]], path: str | Path, *, fast_rows:
     mdf = MDF(version=MDF_VERSION)
     try:
         mdf.header.start_time = dt.datetime.fromtimestamp(t0_s, dt.UTC)
-        mdf.header.comment = header_text(metadata, t0_s, log_name)
+        mdf.header.comment = header_text(metadata, t0_s, log_name, labels)
         mdf.append(signals, acq_name=GROUP_ESTIMATES, comment="one channel per CSV column (export --csv)")
         mdf.append(wheel_signals, acq_name=GROUP_WHEELS, comment="the high-rate wheel speeds and slip (/slip/fast)")
         mdf.append(gps_signals, acq_name=GROUP_GPS, comment="the GPS fixes' speed (/gps/fix)")
