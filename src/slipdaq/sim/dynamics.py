@@ -21,7 +21,7 @@ from typing import NamedTuple, Protocol
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, VehicleConfig
-from slipdaq.sim.vehicle import G_MPS2, ROADS, Road, SteppedModel, TireModel, TruthSample, TruthWheel
+from slipdaq.sim.vehicle import G_MPS2, Road, SteppedModel, TruthSample, TruthWheel
 
 AITKEN_MIN_DENOMINATOR = 1e-12
 """Below this |a2 - 2*a1 + a0| the fixed point is taken as reached (no extrapolation)."""
@@ -66,28 +66,16 @@ class DynamicVehicleSim(SteppedModel):
         r0_offset_m: float | Mapping[str, float] = 0.0,
         max_step_s: float = 0.001,
     ) -> None:
-        if road not in ROADS:
-            raise ValueError(f"unknown road {road!r}: expected paved or sand")
-        self.road, self.controller = road, controller
-        self.tire: TireModel = ROADS[road]
+        self._setup(config, road, r0_offset_m, max_step_s)
+        self.controller = controller
         self.vehicle = config.vehicle
-        self.mass_kg = config.vehicle.mass_kg
-        self.max_step_s = max_step_s
-        offsets = r0_offset_m if isinstance(r0_offset_m, Mapping) else dict.fromkeys(WHEELS, r0_offset_m)
-        self._r0 = [config.tire.radius_m + float(offsets.get(w, 0.0)) for w in WHEELS]
-        self.r0_m = dict(zip(WHEELS, self._r0))
         self._static_fz = axle_loads_n(self.vehicle, 0.0)
         self.cx_n = {w: self.tire.stiffness_n(fz) for w, fz in zip(WHEELS, self._static_fz)}
         """Initial slope Cx of each wheel's tire curve at its static load."""
-        self._time_s = 0.0
-        self._x_m = 0.0
         self._v_mps = controller.initial_speed_mps
-        self._a_mps2 = 0.0
+        self._a_mps2 = 0.0  # _solve's first guess
         self._stopped = False
-        self._slip_distance_m = [0.0] * len(WHEELS)
-        """integral(V*s_i dt) per wheel."""
         self._a_mps2, self._fz, self._slips, self._forces, self._brake = self._solve(0.0, self._v_mps)
-        self._state: TruthSample | None = None
 
     def _pass(self, time_s: float, speed_mps: float, accel_mps2: float) -> tuple[float, list[float], SlipCommand,
                                                                                 list[float]]:

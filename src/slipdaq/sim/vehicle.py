@@ -239,6 +239,24 @@ class SteppedModel:
     _r0: list[float]
     _state: TruthSample | None
 
+    def _setup(self, config: Config, road: Road, r0_offset_m: float | Mapping[str, float], max_step_s: float) -> None:
+        """What every model starts with: the road's tire, the mass, each wheel's r0 (the tire's radius plus its
+        offset), time, distance and integral(V*s_i dt) at 0."""
+        if road not in ROADS:
+            raise ValueError(f"unknown road {road!r}: expected paved or sand")
+        self.road = road
+        self.tire = ROADS[road]
+        self.mass_kg = config.vehicle.mass_kg
+        self.max_step_s = max_step_s
+        offsets = r0_offset_m if isinstance(r0_offset_m, Mapping) else dict.fromkeys(WHEELS, r0_offset_m)
+        self.r0_m = {w: config.tire.radius_m + float(offsets.get(w, 0.0)) for w in WHEELS}
+        self._r0 = [self.r0_m[w] for w in WHEELS]
+        self._time_s = 0.0
+        self._x_m = 0.0
+        self._slip_distance_m = [0.0] * len(WHEELS)
+        """integral(V*s_i dt) per wheel."""
+        self._state = None
+
     def _substep(self, t1_s: float) -> None:
         raise NotImplementedError
 
@@ -294,31 +312,20 @@ class VehicleSim(SteppedModel):
         r0_offset_m: float | Mapping[str, float] = 0.0,
         max_step_s: float = 0.001,
     ) -> None:
-        if road not in ROADS:
-            raise ValueError(f"unknown road {road!r}: expected paved or sand")
-        self.scenario, self.road = scenario, road
-        self.tire = ROADS[road]
+        self._setup(config, road, r0_offset_m, max_step_s)
+        self.scenario = scenario
         self.profile = speed_profile(scenario, road)
-        self.mass_kg = config.vehicle.mass_kg
-        self.max_step_s = max_step_s
-        offsets = r0_offset_m if isinstance(r0_offset_m, Mapping) else dict.fromkeys(WHEELS, r0_offset_m)
-        self.r0_m = {w: config.tire.radius_m + float(offsets.get(w, 0.0)) for w in WHEELS}
         self.fz_n = static_loads_n(self.mass_kg)
         self.cx_n = {w: self.tire.stiffness_n(self.fz_n[w]) for w in WHEELS}
         drive, brake = force_shares(config.vehicle.driven_axle, config.vehicle.brake_front_share)
         self._drive = [drive[w] for w in WHEELS]
         self._brake = [brake[w] for w in WHEELS]
         self._fz = [self.fz_n[w] for w in WHEELS]
-        self._r0 = [self.r0_m[w] for w in WHEELS]
         self._drive_cases = self._load_cases(self._drive, self._fz)
         self._brake_cases = self._load_cases(self._brake, self._fz)
         self._zero_slips = [0.0] * len(WHEELS)
-        self._time_s = 0.0
         self._x_m, self._v_mps, self._a_mps2 = self.profile.at(0.0)
         self._slips = self._slips_for(self.mass_kg * self._a_mps2)
-        self._slip_distance_m = [0.0] * len(WHEELS)
-        """integral(V*s_i dt) per wheel."""
-        self._state: TruthSample | None = None
 
     @staticmethod
     def _load_cases(shares: list[float], fz_n: list[float]) -> tuple[list[tuple[float, float]], list[int]]:
