@@ -9,7 +9,7 @@ import re
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import ClassVar, Literal, TypeVar
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -147,34 +147,35 @@ class GpsConfig(_Section):
         return v
 
 
-class ImuConfig(_Section):
-    """The longitudinal acceleration from an inertial sensor on CAN (positive forward, after `sign`)."""
+class _CanSignalSection(_Section):
+    """A sensor signal on CAN by its DBC names: both message and signal, or neither (no such sensor)."""
 
-    message: str | None = Field(None, min_length=1, description="the DBC message; unset: no IMU (GPS speed differences)")
+    section: ClassVar[str]
+    message: str | None = Field(None, min_length=1)
     signal: str | None = Field(None, min_length=1)
+
+    @model_validator(mode="after")
+    def _both(self) -> _CanSignalSection:
+        if (self.message is None) != (self.signal is None):
+            raise ValueError(f"give both {self.section}.message and {self.section}.signal, or neither")
+        return self
+
+
+class ImuConfig(_CanSignalSection):
+    """The longitudinal acceleration from an inertial sensor on CAN (positive forward, after `sign`); unset: the GPS
+    speed differences."""
+
+    section: ClassVar[str] = "imu"
     unit: Literal["m/s^2", "g"] | None = None
     """The signal's unit (default: the DBC's)."""
     sign: Literal[1, -1] = 1
     """-1 for a sensor mounted backwards."""
 
-    @model_validator(mode="after")
-    def _both(self) -> ImuConfig:
-        if (self.message is None) != (self.signal is None):
-            raise ValueError("give both imu.message and imu.signal, or neither")
-        return self
 
-
-class BrakeConfig(_Section):
+class BrakeConfig(_CanSignalSection):
     """A brake signal on CAN (a pedal switch, or a pressure: nonzero = pressed), for the brake onset."""
 
-    message: str | None = Field(None, min_length=1)
-    signal: str | None = Field(None, min_length=1)
-
-    @model_validator(mode="after")
-    def _both(self) -> BrakeConfig:
-        if (self.message is None) != (self.signal is None):
-            raise ValueError("give both brake.message and brake.signal, or neither")
-        return self
+    section: ClassVar[str] = "brake"
 
 
 class EstimatorConfig(_Section):

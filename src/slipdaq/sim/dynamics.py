@@ -21,7 +21,7 @@ from typing import NamedTuple, Protocol
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, VehicleConfig
-from slipdaq.sim.vehicle import G_MPS2, Road, SteppedModel, TruthSample, TruthWheel
+from slipdaq.sim.vehicle import G_MPS2, Road, SteppedModel, TruthSample
 
 AITKEN_MIN_DENOMINATOR = 1e-12
 """Below this |a2 - 2*a1 + a0| the fixed point is taken as reached (no extrapolation)."""
@@ -125,19 +125,7 @@ class DynamicVehicleSim(SteppedModel):
         return self._stopped
 
     def _build_state(self) -> TruthSample:
-        v = self._v_mps
-        wheels = {
-            w: TruthWheel(
-                slip=s,
-                omega_radps=v * (1.0 + s) / r0,
-                angle_rad=angle,
-                r0_m=r0,
-                force_n=fx,
-                cx_n=self.cx_n[w],
-                fz_n=fz,
-                mu=fx / fz if fz > 0.0 else 0.0,
-            )
-            for w, s, r0, angle, fx, fz in zip(WHEELS, self._slips, self._r0, self.angles_rad(), self._forces, self._fz)
-        }
+        wheels = self._truth_wheels(self._forces, self._fz)
         total_n = math.fsum(self._forces)
-        return TruthSample(self._time_s, v, self._a_mps2, total_n, self._x_m, wheels, brake_pressed=self._brake)
+        return TruthSample(self._time_s, self._v_mps, self._a_mps2, total_n, self._x_m, wheels,
+                           brake_pressed=self._brake)

@@ -238,6 +238,9 @@ class SteppedModel:
     _slip_distance_m: list[float]
     _r0: list[float]
     _state: TruthSample | None
+    _v_mps: float
+    _slips: list[float]
+    cx_n: dict[str, float]
 
     def _setup(self, config: Config, road: Road, r0_offset_m: float | Mapping[str, float], max_step_s: float) -> None:
         """What every model starts with: the road's tire, the mass, each wheel's r0 (the tire's radius plus its
@@ -256,6 +259,15 @@ class SteppedModel:
         self._slip_distance_m = [0.0] * len(WHEELS)
         """integral(V*s_i dt) per wheel."""
         self._state = None
+
+    def _truth_wheels(self, forces_n: list[float], fz_n: list[float]) -> dict[str, TruthWheel]:
+        """Each wheel's truth now: omega_i = V*(1 + s_i)/r0_i, its angle, force, load and mu = Fx_i/Fz_i (0 unloaded)."""
+        v = self._v_mps
+        return {
+            w: TruthWheel(slip=s, omega_radps=v * (1.0 + s) / r0, angle_rad=angle, r0_m=r0, force_n=fx,
+                          cx_n=self.cx_n[w], fz_n=fz, mu=fx / fz if fz > 0.0 else 0.0)
+            for w, s, r0, angle, fx, fz in zip(WHEELS, self._slips, self._r0, self.angles_rad(), forces_n, fz_n)
+        }
 
     def _substep(self, t1_s: float) -> None:
         raise NotImplementedError
@@ -357,17 +369,5 @@ class VehicleSim(SteppedModel):
         fx = self.mass_kg * self._a_mps2
         shares = self._drive if fx >= 0 else self._brake
         v = self._v_mps
-        wheels = {
-            w: TruthWheel(
-                slip=s,
-                omega_radps=v * (1.0 + s) / r0,
-                angle_rad=angle,
-                r0_m=r0,
-                force_n=fx * k,
-                cx_n=self.cx_n[w],
-                fz_n=fz,
-                mu=fx * k / fz,
-            )
-            for w, s, r0, angle, k, fz in zip(WHEELS, self._slips, self._r0, self.angles_rad(), shares, self._fz)
-        }
+        wheels = self._truth_wheels([fx * k for k in shares], self._fz)
         return TruthSample(self._time_s, v, self._a_mps2, fx, self._x_m, wheels, brake_pressed=fx < 0.0)
