@@ -264,10 +264,12 @@ class Pipeline:
         self.can_frames += n
         error = (batch.flags & FLAG_ERROR) != 0
         self.error_frames += int(np.count_nonzero(error))
-        sensed = self.sensors.decode(batch) if self.sensors else []
         unknown = ~error & (which < 0)
-        if sensed:
-            unknown[self.sensors.sensor_frames(batch)] = False
+        sensed: list[tuple[int, SensorSample]] = []
+        if self.sensors:
+            frames = self.sensors.sensor_frames(batch)
+            unknown[frames] = False
+            sensed = self.sensors.decode(batch, frames)
         self.unknown_frames += int(np.count_nonzero(unknown))
         # the sinks get the frames and samples up to the frame that released an estimate (or carried a sensor's
         # value), then the estimate (the value): the order of frames one by one

@@ -110,10 +110,11 @@ class SignalDecoder:
             sel = sel[ext == want]
         return sel
 
-    def decode(self, batch: CanFrameBatch) -> list[tuple[int, SensorSample]]:
-        """(frame index in the batch, sample) of the batch's configured signals, in frame order."""
+    def decode(self, batch: CanFrameBatch, frames: np.ndarray | None = None) -> list[tuple[int, SensorSample]]:
+        """(frame index in the batch, sample) of the batch's configured signals, in frame order; frames:
+        sensor_frames(batch), when the caller has it already."""
         out: list[tuple[int, SensorSample]] = []
-        for i in self.sensor_frames(batch).tolist():
+        for i in (self.sensor_frames(batch) if frames is None else frames).tolist():
             msg, reads = self._reads[int(batch.arbitration_id[i])]
             try:
                 values = msg.decode_simple(batch.payload(i), decode_choices=False, scaling=True)

@@ -586,8 +586,9 @@ def _high_rate(m: ManeuverSummary, fast: Sequence[dict[str, Any]], fast_t: np.nd
     if m.phase != "cruise":
         sign = 1.0 if m.phase == "accelerate" else -1.0
         mass = vehicle.mass_kg
+        split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
         for w in WHEELS:
-            fx = np.array([tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share)[w] for x in a])
+            fx = np.array([f[w] for f in split])
             fz = normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
             mu = mu_from_force(fx, fz)
             use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0) & (v >= MU_MIN_SPEED_MPS)
