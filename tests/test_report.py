@@ -25,11 +25,13 @@ from slipdaq.cli import build_parser, main
 from slipdaq.config import load_config
 from slipdaq.demo import run_demo_async
 from slipdaq.logformat.reader import read_metadata
+from slipdaq.maneuver import fallback
+from slipdaq.maneuver.events import debounce
+from slipdaq.maneuver.linearity import analyse_linearity
 from slipdaq.offline import process_to_log
-from slipdaq.report import fallback
 from slipdaq.report.labels import LabelError, labels_metadata, labels_of, parse_labels
 from slipdaq.report.plots import FIG_H_PX, FIG_W_PX, PLOTS
-from slipdaq.report.summary import analyse_linearity, debounce, group_of, summarize_log
+from slipdaq.report.summary import group_of, summarize_log
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.vehicle import ACCEL_MPS2, DECEL_MPS2, ROADS, force_shares, static_loads_n
 

@@ -6,8 +6,9 @@ import pytest
 
 from conftest import CONFIG
 from slipdaq.config import load_config
+from slipdaq.maneuver.events import MERGE_GAP_S, events
 from slipdaq.pipeline import Pipeline
-from slipdaq.report.summary import MERGE_GAP_S, events, summarize_log
+from slipdaq.report.summary import summarize_log
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sinks import CollectingSink
 
@@ -52,7 +53,7 @@ def test_the_report_line_is_the_consistent_fit_and_a_slip_offset_does_not_move_i
     windows: against the truth's stiffness over the run
     (1 / the slope of true slip on true force), and unmoved by a radius error (every slip offset by 0.4 points),
     which moves the line through the origin by tens of percent."""
-    from slipdaq.report.summary import fit_through_origin
+    from slipdaq.maneuver.linearity import fit_through_origin
     from slipdaq.sim.truth import linear_stiffness_truth, truth_series
 
     cfg = load_config(CONFIG)

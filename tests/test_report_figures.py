@@ -1,5 +1,5 @@
-"""The report's mu–slip curve (report/mu_slip.py) against tires of known truth, and the brake-test figures
-(report/brake_test.py) against synthetic, physically consistent brake runs with analytic answers."""
+"""The report's mu–slip curve (maneuver/mu_slip.py) against tires of known truth, and the brake-test figures
+(maneuver/brake_test.py) against synthetic, physically consistent brake runs with analytic answers."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from slipdaq import WHEELS
-from slipdaq.report.brake_test import AbsCycling, BrakeFigures, abs_cycling, brake_figures, brake_onset_s
-from slipdaq.report.mu_slip import G_MPS2, MuSlipFit, end_of_linearity_slip, fit_mu_slip, mu_from_force, normal_loads_n
+from slipdaq.maneuver.brake_test import AbsCycling, BrakeFigures, abs_cycling, brake_figures, brake_onset_s
+from slipdaq.maneuver.mu_slip import G_MPS2, MuSlipFit, end_of_linearity_slip, fit_mu_slip, mu_from_force, normal_loads_n
 
 # ---------------------------------------------------------------- mu–slip
 

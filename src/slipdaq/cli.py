@@ -233,6 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", metavar="LOG.mcap")
     p.add_argument("--csv", metavar="OUT.csv", help="the windowed estimates")
     p.add_argument("--fast-csv", metavar="OUT.csv", help="the high-rate slip")
+    p.add_argument("--maneuvers-csv", metavar="OUT.csv", help="one row per maneuver (/maneuver): index, kind, "
+                   "times, speeds, target, valid and why not ('; '-joined), the brake figures, time to speed, then "
+                   "per wheel W mean_slip_W, max_abs_slip_W, cx_line_n_W, mu_peak_W, slip_at_mu_peak_W")
     p.add_argument("--mf4", metavar="OUT.mf4", help="the estimates, the high-rate wheel speeds and the GPS speed as "
                    "MF4 (needs asammdf: pip install 'slipdaq[mdf]')")
     p.add_argument("--parquet", metavar="OUT.parquet", help="the estimates as Parquet, with the log's name and labels "

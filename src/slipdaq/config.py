@@ -204,6 +204,52 @@ class CalibrationConfig(_Section):
     in the log directory."""
 
 
+class TestConfig(_Section):
+    """The test day's targets: a maneuver's validity (maneuver.record.judge)."""
+
+    target_speeds_kmh: list[float] = Field([], description="the maneuvers' target speeds; empty: speed not judged")
+    speed_tolerance_kmh: float = Field(2.0, ge=0, description="how far a brake speed may lie from a target")
+
+    @field_validator("target_speeds_kmh")
+    @classmethod
+    def _positive(cls, v: list[float]) -> list[float]:
+        if any(not (0 < x < 1000) for x in v):
+            raise ValueError("target speeds must be between 0 and 1000 km/h")
+        return v
+
+
+DEFAULT_LIVE_HOST = "127.0.0.1"
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """`[HOST:]PORT` -> (host, port): HOST defaults to 127.0.0.1 (this machine only), an IPv6 address in brackets
+    ([::1]:8765); PORT 0 to 65535 (0: any free port). ValueError naming what is wrong."""
+    host, sep, port = text.strip().rpartition(":")
+    if not sep:
+        host = ""
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    elif ":" in host:
+        raise ValueError(f"{text!r}: write an IPv6 address in brackets, e.g. [::1]:8765")
+    if not (port.isascii() and port.isdigit()) or not 0 <= int(port) <= 65535:
+        raise ValueError(f"{text!r}: expected [HOST:]PORT, PORT a number from 0 to 65535")
+    if any(c.isspace() for c in host):
+        raise ValueError(f"{text!r}: the host has a space in it")
+    return host or DEFAULT_LIVE_HOST, int(port)
+
+
+class LiveConfig(_Section):
+    foxglove: str | None = Field(None, description="[HOST:]PORT: serve the run live to Foxglove over WebSocket "
+                                 "(host default 127.0.0.1, port 0 any free port); unset: no server")
+
+    @field_validator("foxglove")
+    @classmethod
+    def _address(cls, v: str | None) -> str | None:
+        if v is not None:
+            parse_host_port(v)
+        return v
+
+
 class Config(_Section):
     wheels: dict[Literal["FL", "FR", "RL", "RR"], WheelSourceConfig] = {}
     """Per-wheel sources; a wheel not named here reads the WPT default (WPT_<W>.PulseCount, Seq)."""
@@ -217,6 +263,8 @@ class Config(_Section):
     estimator: EstimatorConfig = EstimatorConfig()
     log: LogConfig = LogConfig()
     calibration: CalibrationConfig = CalibrationConfig()
+    live: LiveConfig = LiveConfig()
+    test: TestConfig = TestConfig()
 
     source_path: Path | None = Field(None, exclude=True)
     """The file this config was read from (None for one made in code)."""

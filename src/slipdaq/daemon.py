@@ -21,11 +21,12 @@ from slipdaq import compiled
 from slipdaq.calibration import Calibration, Learned, to_toml
 from slipdaq.config import Config, ConfigError
 from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
+from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import RawRecord, SourceEvent, channel_name
 from slipdaq.sinks import EventFanout
 from slipdaq.sinks.mcap_log import McapLogSink
-from slipdaq.sinks.status import SourceStatus, StatusSink, show
+from slipdaq.sinks.status import SourceStatus, StatusSink, print_maneuvers, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 from slipdaq.sources.clock import SteadyClock, watch_steps
 from slipdaq.sources.serial_gps import SerialGpsSource
@@ -50,6 +51,8 @@ class RunResult:
     """Set when the log could not be written to the end (disk full): what failed."""
     learned: Learned = field(default_factory=Learned)
     """What the estimator measured in this run (for the calibration file)."""
+    maneuvers: list[Maneuver] = field(default_factory=list)
+    """The run's maneuvers (/maneuver), in order."""
 
 
 def open_bus(config: Config, **overrides: object) -> can.BusABC:
@@ -199,9 +202,12 @@ async def run_daemon(
             loop.remove_signal_handler(sig)
         pipeline.finish()
         sink.close()
+        stream = status_stream or sys.stdout
+        if not stream.isatty():  # the maneuvers decided since the view's last look (the last one at the end)
+            print_maneuvers(status, stream)
     d = pipeline.diagnostics()
     return RunResult(
         log_path, d.can_frames, d.nmea_lines, d.estimates, sum(d.lost_frames.values()), d.bad_sentences,
         loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
-        learned=pipeline.estimator.learned(),
+        learned=pipeline.estimator.learned(), maneuvers=list(status.maneuvers),
     )

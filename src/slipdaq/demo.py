@@ -23,6 +23,7 @@ from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
 from slipdaq.sim.vehicle import TruthSample
 from slipdaq.simulate import BRAKE_RATE_HZ, IMU_RATE_HZ, PtyGps
+from slipdaq.sinks.maneuver_text import maneuver_line
 
 SENSOR_SCENARIOS: tuple[str, ...] = get_args(SlipScenario)
 """Scenarios whose demo adds the IMU and the brake switch on CAN (sensors.dbc)."""
@@ -122,12 +123,14 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  CAN:        {result.can_frames} frames ({rate:.0f} frames/s), {result.lost_frames} lost\n"
         f"  NMEA:       {result.nmea_lines} lines, {result.bad_sentences} bad\n"
         f"  estimates:  {result.estimates}\n"
+        f"  maneuvers:  {len(result.maneuvers)}" + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
+        + "\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
         + (f"  {saved}\n" if saved else "") +
         f"next:\n"
         f"  slipdaq replay {result.log_path} -o replayed.mcap\n"
-        f"  slipdaq export {result.log_path} --csv estimates.csv --fast-csv fast.csv\n"
+        f"  slipdaq export {result.log_path} --csv estimates.csv --fast-csv fast.csv --maneuvers-csv maneuvers.csv\n"
         f"  slipdaq report {result.log_path} -o report",
         file=out, flush=True,
     )

@@ -1,5 +1,5 @@
 """`slipdaq export`: a log's estimates, high-rate slip and GPS into other formats, one writer per format behind one
-interface (a registry by name, as python-can's by suffix): csv, fast_csv, mf4, parquet. A writer takes the log's
+interface (a registry by name, as python-can's by suffix): csv, fast_csv, maneuvers_csv, mf4, parquet. A writer takes the log's
 streams (LogStreams, read on demand) and a path, and returns how many rows it wrote."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 
 from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic, read_metadata
 from slipdaq.logformat.salvage import ScanResult
-from slipdaq.logformat.topics import TOPIC_GPS
+from slipdaq.logformat.topics import TOPIC_GPS, TOPIC_MANEUVER
 from slipdaq.outputs import OutputError, refuse_inputs, same_file
 from slipdaq.report.labels import labels_of
 from slipdaq.sources.read_errors import guarded
@@ -36,6 +36,9 @@ class LogStreams:
     def fixes(self) -> Iterator[dict[str, Any]]:
         return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_GPS,), self.scanned)))
 
+    def maneuvers(self) -> Iterator[dict[str, Any]]:
+        return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_MANEUVER,), self.scanned)))
+
 
 def _csv(log: LogStreams, path: Path) -> int:
     from slipdaq.sinks.csv_export import ALL_COLUMNS, write_csv
@@ -47,6 +50,12 @@ def _fast_csv(log: LogStreams, path: Path) -> int:
     from slipdaq.sinks.csv_export import FAST_COLUMNS, write_csv
 
     return write_csv(log.fast_rows(), path, FAST_COLUMNS)
+
+
+def _maneuvers_csv(log: LogStreams, path: Path) -> int:
+    from slipdaq.sinks.csv_export import MANEUVER_CSV_COLUMNS, write_csv
+
+    return write_csv(log.maneuvers(), path, MANEUVER_CSV_COLUMNS)
 
 
 def _mf4(log: LogStreams, path: Path) -> int:
@@ -78,6 +87,9 @@ FORMATS: dict[str, ExportFormat] = {
     "csv": ExportFormat("--csv", "estimates", _csv),
     "fast_csv": ExportFormat("--fast-csv", "high-rate slip rows", _fast_csv, empty_note=(
         " (a log recorded with estimator.fast_rate_hz = 0, or before there was one: `slipdaq replay` it)")),
+    "maneuvers_csv": ExportFormat("--maneuvers-csv", "maneuvers", _maneuvers_csv, empty_note=(
+        " (no accelerate or brake maneuver ended in it, or a log recorded before they were logged: `slipdaq replay` "
+        "it)")),
     "mf4": ExportFormat("--mf4", "estimates", _mf4, needs=("asammdf", "mdf")),
     "parquet": ExportFormat("--parquet", "estimates", _parquet, needs=("pyarrow", "fleet")),
 }

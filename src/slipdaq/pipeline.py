@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from slipdaq import WHEELS
 from slipdaq.calibration import Calibration
 from slipdaq.config import Config
 from slipdaq.decode.can_signals import SignalDecoder
@@ -22,6 +23,8 @@ from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
+from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
 from slipdaq.records import (
     FLAG_ERROR,
     CanFrame,
@@ -109,6 +112,9 @@ class Pipeline:
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
         self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen)
+        self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS)
+        """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
+        self.maneuver_count = 0
         self._gps_speeds = gps_speeds
         self.fixes = 0
         """GPS fixes of the protocol gps.velocity names, so far."""
@@ -151,11 +157,16 @@ class Pipeline:
             for row in self.estimator.take_fast():
                 for s in self.sinks:
                     s.on_fast_slip(row, log_time_s)
+                self.maneuvers.add_fast(row.time_s, row)
+            if self.maneuvers.decided:
+                self._maneuvers(log_time_s)
 
     def _sensor(self, sample: SensorSample) -> None:
         for s in self.sinks:
             s.on_sensor(sample)
-        if sample.kind == "imu_accel":
+        if sample.kind == "brake":
+            self.maneuvers.add_brake(sample.time_s, sample.value)
+        elif sample.kind == "imu_accel":
             self.estimator.add_imu(sample.time_s, sample.value)
         elif sample.kind == "reference_speed":
             self._fix(GpsFix(sample.time_s, sample.value, None, sample.valid, sentence="CAN",
@@ -307,6 +318,17 @@ class Pipeline:
         self.estimates += 1
         for s in self.sinks:
             s.on_estimate(e, log_time_s)
+        self.maneuvers.add_estimate(e.as_row())
+        if self.maneuvers.decided:
+            self._maneuvers(log_time_s)
+
+    def _maneuvers(self, log_time_s: float, final: bool = False) -> None:
+        """The maneuvers decided now, as /maneuver records, to every sink at this log time."""
+        for m in self.maneuvers.finish() if final else self.maneuvers.take():
+            self.maneuver_count += 1
+            record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
+            for s in self.sinks:
+                s.on_maneuver(record, log_time_s)
 
     def _tick(self, t: float) -> None:
         """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""
@@ -340,8 +362,10 @@ class Pipeline:
         self.finish()
 
     def finish(self) -> None:
-        """A last diagnostics snapshot, so that the log ends with the final counters."""
+        """The maneuver still open decided, and a last diagnostics snapshot, so that the log ends with the final
+        counters."""
         if self.last_time_s is not None:
+            self._maneuvers(self.last_time_s, final=True)
             self.emit_diagnostics()
 
     def diagnostics(self) -> Diagnostics:

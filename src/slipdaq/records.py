@@ -442,7 +442,8 @@ class Column:
     name: str
     attribute: str
     kind: str
-    """'number', 'number?' (or undefined: null, an empty CSV cell), 'text', or 'enum'."""
+    """'number', 'number?' (or undefined: null, an empty CSV cell), 'integer', 'integer?', 'bool', 'text', 'texts' (a
+    list of texts), or 'enum'."""
     values: tuple[str, ...] = ()
     """enum: the values it takes."""
     description: str = ""

@@ -16,11 +16,13 @@ from slipdaq.logformat.topics import (
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
     TOPIC_GPS,
+    TOPIC_MANEUVER,
     TOPIC_NMEA,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
 )
+from slipdaq.maneuver.record import MANEUVER_COLUMNS
 from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup, GpsFix, SensorSample, SourceEvent
 
 _NUM = {"type": "number"}
@@ -35,7 +37,10 @@ def _obj(title: str, props: dict[str, Any], optional: tuple[str, ...] = ()) -> d
             "required": [k for k in props if k not in optional]}
 
 
-_COLUMN_KINDS: dict[str, dict[str, Any]] = {"number": _NUM, "number?": _NUM_OR_NULL, "text": {"type": "string"}}
+_COLUMN_KINDS: dict[str, dict[str, Any]] = {
+    "number": _NUM, "number?": _NUM_OR_NULL, "integer": _INT, "integer?": _INT_OR_NULL, "bool": {"type": "boolean"},
+    "text": {"type": "string"}, "texts": {"type": "array", "items": {"type": "string"}},
+}
 
 
 def _column(c: Column) -> dict[str, Any]:
@@ -124,5 +129,6 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_EVENTS: dataclass_schema("slipdaq.SourceEvent", SourceEvent),
     TOPIC_FAST_SLIP: columns_schema("slipdaq.FastSlip", FAST_SLIP_COLUMNS),
     TOPIC_SENSORS: dataclass_schema("slipdaq.SensorSample", SensorSample),
+    TOPIC_MANEUVER: columns_schema("slipdaq.Maneuver", MANEUVER_COLUMNS),
 }
 """The JSON topics (all but BATCH_SCHEMAS), in the order their channels are registered."""

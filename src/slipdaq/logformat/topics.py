@@ -14,6 +14,7 @@ TOPIC_GPS = "/gps/fix"
 TOPIC_ESTIMATE = "/estimate"
 TOPIC_FAST_SLIP = "/slip/fast"
 TOPIC_SENSORS = "/can/sensors"
+TOPIC_MANEUVER = "/maneuver"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_EVENTS = "/diagnostics/events"
 RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX)

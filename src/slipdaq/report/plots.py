@@ -22,7 +22,8 @@ from matplotlib.lines import Line2D
 from matplotlib.typing import LineStyleType
 
 from slipdaq import WHEELS
-from slipdaq.report.summary import LogSummary, ManeuverSummary
+from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.report.summary import LogSummary
 
 FIG_W_PX, FIG_H_PX, DPI = 800, 600, 100
 WHEEL_STYLE: dict[str, dict[str, str]] = {

@@ -13,9 +13,11 @@ from typing import Any
 
 import slipdaq
 from slipdaq import WHEELS
+from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.report.labels import format_labels
 from slipdaq.report.plots import PLOTS, WHEEL_STYLE
-from slipdaq.report.summary import COLUMNS, Comparison, LogSummary, ManeuverSummary
+from slipdaq.report.summary import COLUMNS, Comparison, LogSummary
+from slipdaq.sinks.maneuver_text import axle_slip_pct, figures_text, verdict
 
 RULE_TEXT = (
     "Fx = Cx·s is fitted through the origin (least squares) over the force–slip points with "
@@ -63,6 +65,7 @@ def write_json(
             {
                 "log": log.name, "path": log.path, "labels": log.labels, "group": log.group, "mode": log.mode,
                 "estimates": log.estimates, "lost_frames": log.lost_frames, "bad_sentences": log.bad_sentences,
+                "maneuver_records": [{k: _json_value(v) for k, v in r.as_row().items()} for r in log.records],
                 "maneuvers": [
                     {"maneuver": m.title, "phase": m.phase, "t_start_s": m.t_start_s, "t_end_s": m.t_end_s,
                      "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.key, {}),
@@ -227,12 +230,29 @@ def write_html(
         out.append(f'<p class="note">{escape(log.path)} — group {escape(log.group)}, {log.estimates} estimates</p>')
         if not log.maneuvers:
             out.append('<p class="note">No maneuver with a defined slip in this log.</p>')
+        if log.records:
+            out.append(_records_table(log))
         for m in log.maneuvers:
             out.append(f"<h3>{escape(m.title)}</h3>")
             out.append(_maneuver_table(log, m))
             out.append(_images(plots.get(log.name, {}).get(m.key, {})))
     out.append("</body></html>\n")
     path.write_text("\n".join(out), encoding="utf-8")
+
+
+def _records_table(log: LogSummary) -> str:
+    """The log's accelerate and brake maneuvers as the live /maneuver records give them, in time order."""
+    out = ['<table class="records"><tr><th>#</th><th class=l>kind</th><th>from km/h</th><th>to km/h</th>'
+           "<th>target km/h</th><th class=l>result</th><th>slip front %</th><th>slip rear %</th>"
+           "<th class=l>valid</th></tr>"]
+    for r in log.records:
+        ax = axle_slip_pct(r)
+        out.append(f"<tr><td>{r.index}</td><td class=l>{escape(r.kind)}</td><td>{_f(r.speed_from_kmh)}</td>"
+                   f"<td>{_f(r.speed_to_kmh)}</td><td>{_f(r.target_speed_kmh, digits=0)}</td>"
+                   f"<td class=l>{escape(figures_text(r))}</td><td>{_f(ax['front'])}</td><td>{_f(ax['rear'])}</td>"
+                   f"<td class=l>{escape(verdict(r))}</td></tr>")
+    out.append("</table>")
+    return "\n".join(out)
 
 
 def _anchor(name: str) -> str:

@@ -10,7 +10,7 @@ realtime  -- plays the generated events on a python-can bus and a serial/pty wri
 
 from typing import Literal, get_args
 
-ProfileScenario = Literal["accelerate", "brake", "cycle"]
+ProfileScenario = Literal["accelerate", "brake", "cycle", "test-day"]
 """Scenarios of the kinematic model (a prescribed speed profile, slip from the inverse tire curve)."""
 SlipScenario = Literal["brake-abs", "brake-lock", "launch-spin"]
 """Scenarios of the slip-driven model (slip commanded per wheel, tire forces beyond the linear region)."""

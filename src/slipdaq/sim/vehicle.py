@@ -34,6 +34,10 @@ CRUISE_SPEED_MPS = 25.0
 CYCLE_SPEED_MPS = 60.0 / 3.6
 STANDSTILL_S = 2.0
 CRUISE_BEFORE_BRAKE_S = 3.0
+TEST_DAY_SPEEDS_MPS = (60.0 / 3.6, 33.0 / 3.6)
+"""test-day: 0–60, 60–0, 0–33, 33–0 km/h, each run to its speed, held 3 s, braked to a stop ..."""
+TEST_DAY_STANDSTILL_S = 4.0
+"""... and a stop this long after each."""
 
 
 @dataclass(frozen=True)
@@ -180,7 +184,13 @@ def speed_profile(scenario: Scenario, road: Road) -> SpeedProfile:
             .change_speed(0.0, decel)
             .repeat()
         )
-    raise ValueError(f"unknown scenario {scenario!r}: expected accelerate, brake or cycle")
+    if scenario == "test-day":
+        profile = SpeedProfile(0.0).hold(STANDSTILL_S)
+        for target_mps in TEST_DAY_SPEEDS_MPS:
+            profile.change_speed(target_mps, accel).hold(CRUISE_BEFORE_BRAKE_S).change_speed(0.0, decel).hold(
+                TEST_DAY_STANDSTILL_S)
+        return profile.forever()
+    raise ValueError(f"unknown scenario {scenario!r}: expected accelerate, brake, cycle or test-day")
 
 
 @dataclass(frozen=True, slots=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from slipdaq import WHEELS
+from slipdaq.maneuver.record import Maneuver
 from slipdaq.records import (
     CanFrameBatch,
     Estimate,
@@ -51,6 +52,9 @@ class Sink:
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
         """One high-rate slip row, at the log time of the record that released it."""
 
+    def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+        """One maneuver's results, at the log time it was decided (its end and its span's high-rate rows came)."""
+
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         """The pipeline's counters, once a second of log time and at the end."""
 
@@ -80,6 +84,7 @@ class CollectingSink(Sink):
         self.fast: list[FastSlip] = []
         self.sensors: list[SensorSample] = []
         self.diagnostics: list[dict[str, object]] = []
+        self.maneuvers: list[Maneuver] = []
 
     def on_raw(self, record: RawRecord) -> None:
         self.raw.append(record)
@@ -101,3 +106,6 @@ class CollectingSink(Sink):
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics.append(diagnostics)
+
+    def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+        self.maneuvers.append(maneuver)

@@ -1,5 +1,5 @@
-"""CSV export: one row per estimate (or per high-rate slip row), in the public column order; an empty cell where a
-value is undefined."""
+"""CSV export: one row per estimate (or per high-rate slip row, or per maneuver), in the public column order; an
+empty cell where a value is undefined."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.maneuver.record import MANEUVER_COLUMNS
 from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, column_names
 
 COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="contract")
@@ -18,11 +19,18 @@ EXTRA_COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="ext
 ALL_COLUMNS = COLUMNS + EXTRA_COLUMNS
 FAST_COLUMNS: tuple[str, ...] = column_names(FAST_SLIP_COLUMNS, WHEELS, csv="contract")
 """`export --fast-csv`: time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR."""
+MANEUVER_CSV_COLUMNS: tuple[str, ...] = column_names(MANEUVER_COLUMNS, WHEELS, csv="contract")
+"""`export --maneuvers-csv`: the /maneuver record's fields, the per-wheel ones flattened (mean_slip_FL, ...)."""
 
 
 def _cell(v: Any) -> str:
+    """Empty for undefined; floats as repr (exact); true/false; a list of texts joined by '; '."""
     if v is None:
         return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, list):
+        return "; ".join(str(x) for x in v)
     return repr(float(v)) if isinstance(v, float) else str(v)
 
 

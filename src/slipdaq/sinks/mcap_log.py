@@ -32,12 +32,14 @@ from slipdaq.logformat.topics import (
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
     TOPIC_GPS,
+    TOPIC_MANEUVER,
     TOPIC_NMEA,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
 )
 from slipdaq.logformat.writer import RETRY_AFTER_FAILURE_S, LogWriter
+from slipdaq.maneuver.record import Maneuver
 from slipdaq.records import (
     SAMPLE_HAS_COUNT,
     SAMPLE_HAS_SEQ,
@@ -418,6 +420,9 @@ class McapLogSink(Sink):
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
         self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json(row))
+
+    def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+        self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))
 
     def on_sensor(self, sample: SensorSample) -> None:
         self._write(TOPIC_SENSORS, sample.time_s, dumps(dataclasses.asdict(sample)))

@@ -20,6 +20,7 @@ from rich.text import Text
 
 from slipdaq import WHEELS
 from slipdaq.decode.can_errors import error_classes
+from slipdaq.maneuver.record import Maneuver
 from slipdaq.records import (
     FLAG_ERROR,
     FLAG_EXTENDED,
@@ -33,6 +34,7 @@ from slipdaq.records import (
     WheelSampleBatch,
 )
 from slipdaq.sinks import Sink
+from slipdaq.sinks.maneuver_text import maneuver_line, maneuver_table
 
 
 @dataclass
@@ -73,6 +75,10 @@ class StatusSink(Sink):
     """Error frames by class (bus_off, restarted, controller, rx_overflow, ...)."""
     events: list[SourceEvent] = field(default_factory=list)
     """The latest source and log events (GPS unplugged and back, disk full, ...), newest last."""
+    maneuvers: list[Maneuver] = field(default_factory=list)
+    """The day's maneuvers so far (/maneuver), oldest first."""
+    maneuvers_printed: int = 0
+    """How many of them the status stream has printed (one line each)."""
 
     def on_raw(self, record: RawRecord) -> None:
         if isinstance(record, CanFrame):
@@ -109,6 +115,9 @@ class StatusSink(Sink):
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self.estimate = estimate
+
+    def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+        self.maneuvers.append(maneuver)
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics = diagnostics
@@ -190,7 +199,7 @@ def render(s: StatusSink, rates: _Rates) -> Group:
              + (f"  {log_problem}" if log_problem else ""), style="bold red" if log_problem else ""),
     ]
     lines += [Text(f"event {_event_text(ev)}", style="dim") for ev in s.events]
-    return Group(wheels, *lines)
+    return Group(wheels, *lines, *([maneuver_table(s.maneuvers)] if s.maneuvers else []))
 
 
 def estimate_quality(e: Estimate | None) -> str:
@@ -277,7 +286,18 @@ async def show(s: StatusSink, stream: TextIO | None = None, line_every_s: float 
                 rates.update(s)
                 live.update(render(s, rates))
     else:
+        next_line = time.monotonic() + line_every_s
         while True:
-            await asyncio.sleep(line_every_s)
-            rates.update(s)
-            print(status_line(s, rates), file=stream, flush=True)
+            await asyncio.sleep(0.25)
+            print_maneuvers(s, stream)
+            if time.monotonic() >= next_line:
+                next_line += line_every_s
+                rates.update(s)
+                print(status_line(s, rates), file=stream, flush=True)
+
+
+def print_maneuvers(s: StatusSink, stream: TextIO) -> None:
+    """One line for each maneuver not printed yet."""
+    for m in s.maneuvers[s.maneuvers_printed:]:
+        print(maneuver_line(m), file=stream, flush=True)
+    s.maneuvers_printed = len(s.maneuvers)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from slipdaq.estimator.slip import STANDSTILL_SPEED_MPS, phase_of
+from slipdaq.estimator.phase import STANDSTILL_SPEED_MPS, phase_of
 
 
 def derive_phases(rows: Sequence[dict[str, Any]]) -> list[str | None]:

@@ -1,0 +1,149 @@
+"""Maneuvers decided online, as each ends: estimate rows, high-rate rows and brake-signal samples in (in the order
+of processing), `ManeuverSummary`s out. Pure (no clock, no I/O); the pipeline runs it live and in replay, the report
+over a log's rows, so both decide the same maneuvers with the same figures.
+
+An event is closed by the rule of `events.closed_events` over the rows not yet in a closed event; a closed
+accelerate or brake event of at least MIN_MANEUVER_ROWS rows with a defined slip is then summarized
+(`figures.summarize_maneuver`) once a high-rate row past its span's end has come (all of its span is then in), or at
+`finish`. Its anchors (the linearity rule's cruise windows) are the cruise rows known when it closed: those of
+the cruise events before it and those after it so far (the cruise that closed it).
+Rows older than any open event's span are let go, so a long run keeps little.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+from slipdaq import WHEELS
+from slipdaq.config import Config, VehicleConfig
+from slipdaq.maneuver.events import MIN_MANEUVER_ROWS, MIN_RUN_ROWS, close_events
+from slipdaq.maneuver.figures import BRAKE_SIGNAL_BEFORE_S, SPAN_BEFORE_S, ManeuverSummary, span_s, summarize_maneuver
+from slipdaq.maneuver.linearity import LinearityRule
+
+ANCHOR_KEYS = ("speed_mps",) + tuple(k for w in WHEELS for k in (f"slip_{w}", f"force_{w}_n"))
+"""What the linearity rule takes of a cruise row."""
+KEEP_S = SPAN_BEFORE_S + BRAKE_SIGNAL_BEFORE_S + 15.0
+"""High-rate rows and brake samples are kept this long before the oldest open row (a window is at most 10 s)."""
+
+
+def _anchor(row: dict[str, Any]) -> dict[str, Any]:
+    return {k: row.get(k) for k in ANCHOR_KEYS}
+
+
+def _has_slip(rows: list[dict[str, Any]]) -> bool:
+    return any(r.get(f"slip_{w}") is not None for r in rows for w in WHEELS)
+
+
+class ManeuverDetector:
+    """phases: the rows' own `phase` (default) or given per row (old logs: `fallback.derive_phases`)."""
+
+    def __init__(self, config: Config | None, *, phases: tuple[str, ...] = ("accelerate", "cruise", "brake"),
+                 rule: LinearityRule | None = None, lost_frames: Mapping[str, int] | None = None) -> None:
+        """phases: which events become maneuvers (the report takes cruise too); lost_frames: per wheel, for the
+        report's tables."""
+        rule = rule or LinearityRule()
+        if config is not None:  # the bounds the estimator used for Cx
+            rule = LinearityRule(**{**rule.__dict__, "slip_min": config.estimator.cx_slip_min,
+                                    "slip_max": config.estimator.cx_slip_max})
+        self.rule = rule
+        self.vehicle = config.vehicle if config is not None else VehicleConfig()
+        self.cfg_latency_s = None if config is None else (config.latency_fixed_s or 0.0)  # "auto": 0
+        self.phases = phases
+        self.fast_rows = config is None or config.estimator.fast_rate_hz > 0
+        """High-rate rows come (a maneuver waits for those past its span); else the estimates' time decides."""
+        self.lost_frames = dict(lost_frames or {})
+        self.t0_s: float | None = None
+        """Time of the first estimate: maneuver times count from it."""
+        self._rows: list[dict[str, Any]] = []
+        self._phase: list[str | None] = []
+        self._times: list[float] = []
+        self._await_seal = False
+        """An open accelerate or brake event long enough for a maneuver: a cruise after it closes it in time."""
+        self._anchors: list[dict[str, Any]] = []
+        self._queue: deque[tuple[str, list[dict[str, Any]], list[dict[str, Any]], float, float]] = deque()
+        """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
+        self._fast: deque[tuple[float, Any]] = deque()
+        self._fast_last_s = float("-inf")
+        self._brake: deque[tuple[float, float]] = deque()
+        self.decided: list[ManeuverSummary] = []
+        """Summarized maneuvers not taken yet (take())."""
+
+    def add_estimate(self, row: dict[str, Any], phase: str | None = None) -> None:
+        """One estimate row (Estimate.as_row()); phase: its phase when the row has none of its own."""
+        if self.t0_s is None:
+            self.t0_s = row["time_s"]
+        p = row.get("phase") if phase is None else phase
+        prev = self._phase[-1] if self._phase else None
+        self._rows.append(row)
+        self._phase.append(p)
+        self._times.append(row["time_s"])
+        run = 1
+        while run <= MIN_RUN_ROWS and run < len(self._phase) and self._phase[-1 - run] == p:
+            run += 1
+        if p != prev or run == MIN_RUN_ROWS or (self._await_seal and p == "cruise"):
+            self._close(*close_events(self._phase, self._times))
+        self._decide()
+
+    def add_fast(self, time_s: float, row: Any) -> None:
+        """One high-rate row (a FastSlip, or its row as a dict) at its time."""
+        self._fast.append((time_s, row))
+        self._fast_last_s = time_s
+        self._decide()
+
+    def add_brake(self, time_s: float, value: float) -> None:
+        """One sample of the brake signal (nonzero: pressed)."""
+        self._brake.append((time_s, value))
+
+    def take(self) -> list[ManeuverSummary]:
+        out, self.decided = self.decided, []
+        return out
+
+    def finish(self) -> list[ManeuverSummary]:
+        """Every event still open closed and summarized with what has come (the end of a log)."""
+        if self._rows:
+            self._close(*close_events(self._phase, self._times, final=True))
+        self._decide(final=True)
+        return self.take()
+
+    # ---- internals ----
+    def _close(self, found: list[tuple[str | None, list[int]]], closed: int) -> None:
+        self._await_seal = any(p in ("accelerate", "brake") and len(idx) >= MIN_MANEUVER_ROWS
+                               for p, idx in found[closed:])
+        if not closed:
+            return
+        rows = self._rows
+        for k, (p, idx) in enumerate(found[:closed]):
+            ev = [rows[i] for i in idx]
+            if p == "cruise":
+                self._anchors.extend(_anchor(r) for r in ev)
+            if p in self.phases and len(ev) >= MIN_MANEUVER_ROWS and _has_slip(ev):
+                t_from, t_to = span_s(str(p), ev)
+                after = [_anchor(rows[i]) for q, later in found[k + 1:] if q == "cruise" for i in later]
+                anchors = self._anchors + after if p != "cruise" else []
+                self._queue.append((str(p), ev, anchors, t_from, t_to))
+        last = found[closed - 1][1][-1] + 1
+        del self._rows[:last], self._phase[:last], self._times[:last]
+
+    def _decide(self, final: bool = False) -> None:
+        last_s = self._fast_last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
+        while self._queue and (final or last_s > self._queue[0][4]):
+            p, ev, anchors, t_from, t_to = self._queue.popleft()
+            fast = [r if isinstance(r, dict) else r.as_row() for t, r in self._fast if t_from <= t <= t_to]
+            brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
+            assert self.t0_s is not None
+            self.decided.append(summarize_maneuver(
+                p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
+                anchors=anchors, fast=fast, brake=brake,
+                vehicle=self.vehicle, lost_frames=self.lost_frames))
+        self._prune()
+
+    def _prune(self) -> None:
+        """High-rate rows and brake samples that no open or queued event's span can reach any more."""
+        oldest = self._queue[0][3] if self._queue else (self._times[0] - 1.0 if self._times else self._fast_last_s)
+        keep_from = oldest - KEEP_S
+        while self._fast and self._fast[0][0] < keep_from:
+            self._fast.popleft()
+        while self._brake and self._brake[0][0] < keep_from:
+            self._brake.popleft()

@@ -1,0 +1,224 @@
+"""One maneuver's figures from its estimate rows and the high-rate rows over its span. Pure: rows in, dataclasses out;
+the one definition for the live `/maneuver` record and the report.
+
+Per wheel and maneuver
+    mean and largest |slip| of the windows; the linear region and its line (linearity.py) against the cruise
+    windows known when it closed (detector); mean Re: mean of `re_W_m`; r0: the reference radius `r0_W_m`; peak Cx: the
+    largest median |`cx_W_n`| (the estimator's windowed Fx/s) over the same 1 % slip bins of at least 5 values, with
+    that bin's median slip (a single window's Fx/s at low slip is too noisy to take its maximum); fitted Cx and its
+    confidence: the online `cx_fit_W_n` / `cx_fit_W_conf` of the maneuver's row with the highest confidence when the
+    rows have them, else Cx_line with confidence max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the relative half width
+    of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
+    common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
+
+The tire's mu-slip curve (per wheel and maneuver; mu_slip.py), from the high-rate slip (/slip/fast) over the
+maneuver's span (`span_s`: its first window's start - SPAN_BEFORE_S to its last window's end, + SPAN_AFTER_S braking):
+    mu = Fx_tire / Fz_tire, Fx_tire = M*a split as the estimator splits it (driven wheels; brake_front_share), a the
+    fused acceleration of the high-rate rows from MU_MIN_SPEED_MPS on; Fz with the load transfer M*a*h/L
+    (vehicle.wheelbase_m, cg_height_m, front_axle_load_share); a Burckhardt curve fitted over the whole slip range:
+    mu_peak and slip_at_mu_peak when the data pass the peak (else none: a peak cannot be read off the linear region).
+
+Brake-test figures (per brake maneuver; brake_test.py): the onset from the brake signal on CAN ([brake], nonzero =
+pressed) when the log has one, else from the onset of deceleration; the speed there, the stopping distance to
+standstill, corrected to the nominal speed (ISO 21994), the MFDD (ECE R13-H) and the ABS cycles of the high-rate slip.
+
+Start and end: an acceleration from standstill starts at its launch, the last high-rate instant at standstill (fused
+speed <= brake_test.STANDSTILL_MPS) before the span's top speed; a stop ends where the speed fell to standstill
+(brake_test); speed_from_kmh / speed_to_kmh are the fused speed there (else the windows' speeds).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from slipdaq import WHEELS
+from slipdaq.config import VehicleConfig
+from slipdaq.estimator.force import tire_forces
+from slipdaq.maneuver import fallback
+from slipdaq.maneuver.brake_test import STANDSTILL_MPS, BrakeFigures, brake_figures
+from slipdaq.maneuver.events import maneuver_title
+from slipdaq.maneuver.linearity import Linearity, LinearityRule, analyse_linearity, peak_binned
+from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n
+
+SPAN_BEFORE_S = 1.5
+"""The high-rate rows of a maneuver start this long before its first window (a brake's onset precedes the first
+window that the phase classifies as braking)."""
+SPAN_AFTER_S = 1.5
+"""... and, braking, end this long after its last window (a stop ends below the estimates' minimum speed)."""
+MU_MIN_SPEED_MPS = 3.0
+"""The mu-slip fit takes high-rate rows from this speed on: below it a count's quantisation is a large slip, and
+ABS hands over to locked wheels (2 m/s) before the stop."""
+BRAKE_SIGNAL_BEFORE_S = 5.0
+"""The brake signal's samples are taken from this long before the span (the released sample before the press)."""
+
+
+@dataclass(frozen=True)
+class WheelSummary:
+    wheel: str
+    slip_samples: int
+    mean_slip: float | None
+    max_abs_slip: float | None
+    linearity: Linearity
+    mean_re_m: float | None
+    r0_m: float | None
+    peak_cx_n: float | None
+    peak_cx_slip: float | None
+    cx_fit_n: float | None
+    cx_fit_conf: float | None
+    cx_fit_source: str
+    lost_frames: int | None
+    mu_slip: MuSlipFit | None = None
+    """The tire's mu-slip curve over the maneuver (high-rate slip), or None without enough points."""
+
+
+@dataclass(frozen=True)
+class ManeuverSummary:
+    phase: str
+    title: str
+    key: str
+    """Unique in its log: the phase, or the phase and its number ("accelerate-2") when the log has several."""
+    rows: tuple[dict[str, Any], ...] = field(repr=False, compare=False)
+    t_start_s: float
+    """Seconds since the log's first estimate."""
+    t_end_s: float
+    speed_from_kmh: float
+    speed_to_kmh: float
+    gps_latency_s: float | None
+    gps_latency_source: str
+    wheels: dict[str, WheelSummary]
+    fast: tuple[dict[str, Any], ...] = field(default=(), repr=False, compare=False)
+    """The high-rate slip rows over the maneuver's span."""
+    mu_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
+    """Per wheel: (slip, mu) of the high-rate rows the mu-slip fit used."""
+    brake: BrakeFigures | None = None
+    launch_s: float | None = None
+    """Accelerating: the last high-rate instant at standstill before the top speed (None: a rolling start)."""
+    top_speed_s: float | None = None
+    """Accelerating: the first high-rate instant at the span's top speed."""
+    speed_at: tuple[np.ndarray, np.ndarray] = field(default=(np.empty(0), np.empty(0)), repr=False, compare=False)
+    """(time_s, fused speed) of the span's high-rate rows (time to a target speed)."""
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def summarize_wheel(
+    rows: Sequence[dict[str, Any]], wheel: str, rule: LinearityRule, lost_frames: int | None,
+    anchors: Sequence[dict[str, Any]] = (),
+) -> WheelSummary:
+    """anchors: the cruise rows known when it closed (linearity rule step 2)."""
+    slips = [r.get(f"slip_{wheel}") for r in rows]
+    defined = [s for s in slips if s is not None]
+    lin = analyse_linearity(slips, [r.get(f"force_{wheel}_n") for r in rows], rule,
+                            [(r.get(f"slip_{wheel}"), r.get(f"force_{wheel}_n")) for r in anchors],
+                            [r.get("speed_mps") for r in rows], [r.get("speed_mps") for r in anchors])
+    peak_cx = peak_binned(
+        [(r[f"slip_{wheel}"], r[f"cx_{wheel}_n"]) for r in rows
+         if r.get(f"cx_{wheel}_n") is not None and r.get(f"slip_{wheel}") is not None], rule)
+    r0s = [r[f"r0_{wheel}_m"] for r in rows if r.get(f"r0_{wheel}_m") is not None]
+    line_cx = lin.line.cx_n if lin.line else None
+    line_conf = lin.line.confidence if lin.line else None
+    cx_fit, cx_conf, source = fallback.fitted_cx(rows, wheel, line_cx, line_conf)
+    return WheelSummary(
+        wheel=wheel,
+        slip_samples=len(defined),
+        mean_slip=_mean(defined),
+        max_abs_slip=max((abs(s) for s in defined), default=None),
+        linearity=lin,
+        mean_re_m=_mean([r[f"re_{wheel}_m"] for r in rows if r.get(f"re_{wheel}_m") is not None]),
+        r0_m=statistics.median(r0s) if r0s else None,
+        peak_cx_n=peak_cx[0],
+        peak_cx_slip=peak_cx[1],
+        cx_fit_n=cx_fit,
+        cx_fit_conf=cx_conf,
+        cx_fit_source=source,
+        lost_frames=lost_frames,
+    )
+
+
+
+
+def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
+    """(from, to): the time span of a maneuver's high-rate rows (module docstring)."""
+    half = 0.5 * float(rows[0].get("window_s") or 0.5)
+    return (rows[0]["time_s"] - half - SPAN_BEFORE_S,
+            rows[-1]["time_s"] + half + (SPAN_AFTER_S if phase == "brake" else 0.0))
+
+
+def summarize_maneuver(
+    phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
+    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[dict[str, Any]] = (),
+    brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
+    lost_frames: dict[str, int] | None = None,
+) -> ManeuverSummary:
+    """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed; fast: the
+    high-rate rows over its span (`span_s`); brake: (time, value) of the brake signal from BRAKE_SIGNAL_BEFORE_S
+    before the span to its end."""
+    prow = tuple(rows)
+    title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
+    lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
+    if lat:
+        srcs = [r["latency_source"] for r in prow if r.get("latency_source")]
+        latency: float | None = float(statistics.median(lat))
+        lat_src = f"estimates ({statistics.mode(srcs)})" if srcs else "estimates"
+    else:
+        latency, lat_src = cfg_latency_s, "config"
+    lost = lost_frames or {}
+    m = ManeuverSummary(
+        phase=phase, title=title, key=phase, rows=prow,
+        t_start_s=prow[0]["time_s"] - t0_s, t_end_s=prow[-1]["time_s"] - t0_s,
+        speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
+        wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
+    )
+    return _high_rate(m, tuple(fast), brake, vehicle or VehicleConfig()) if len(fast) >= 3 else m
+
+
+def _high_rate(m: ManeuverSummary, span: tuple[dict[str, Any], ...], brake: Sequence[tuple[float, float]],
+               vehicle: VehicleConfig) -> ManeuverSummary:
+    """The maneuver with its high-rate rows, each wheel's mu-slip fit and, braking, its brake-test figures;
+    accelerating, its launch."""
+    t = np.array([r["time_s"] for r in span], dtype=np.float64)
+    v = np.array([r["speed_mps"] for r in span], dtype=np.float64)
+    a = np.array([r["accel_mps2"] for r in span], dtype=np.float64)
+    slips = {w: np.array([math.nan if r.get(f"slip_{w}") is None else r[f"slip_{w}"] for r in span]) for w in WHEELS}
+    wheels = dict(m.wheels)
+    points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if m.phase != "cruise":
+        sign = 1.0 if m.phase == "accelerate" else -1.0
+        mass = vehicle.mass_kg
+        split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
+        for w in WHEELS:
+            fx = np.array([f[w] for f in split])
+            fz = normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
+            mu = mu_from_force(fx, fz)
+            use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0) & (v >= MU_MIN_SPEED_MPS)
+            points[w] = (slips[w][use], mu[use])
+            fit: MuSlipFit | None = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
+            wheels[w] = dataclasses.replace(wheels[w], mu_slip=fit)
+    figures = None
+    launch = top = None
+    if m.phase == "brake":
+        t_from = float(t[0]) - BRAKE_SIGNAL_BEFORE_S
+        bt = [x for x, _ in brake if t_from <= x <= t[-1]]
+        bv = [y for x, y in brake if t_from <= x <= t[-1]]
+        figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips)
+    elif m.phase == "accelerate":
+        k_top = int(np.argmax(v))
+        top = float(t[k_top])
+        still = np.flatnonzero(v[:k_top + 1] <= STANDSTILL_MPS)
+        launch = float(t[still[-1]]) if still.size else None
+    v_from, v_to = m.speed_from_kmh, m.speed_to_kmh
+    if launch is not None:  # from standstill: the speed there, not the first window's mean
+        v_from = min(v_from, float(np.interp(launch, t, v)) * 3.6)
+    if figures is not None and figures.stop_s is not None:
+        v_to = min(v_to, float(np.interp(figures.stop_s, t, v)) * 3.6)
+    return dataclasses.replace(m, wheels=wheels, fast=span, mu_points=points, brake=figures, launch_s=launch,
+                               top_speed_s=top, speed_at=(t, v), speed_from_kmh=v_from, speed_to_kmh=v_to)

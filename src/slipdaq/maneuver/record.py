@@ -1,0 +1,186 @@
+"""The `/maneuver` record: one per accelerate or brake maneuver as it ends, with its validity against the test day's
+targets ([test]). Declared once (MANEUVER_COLUMNS): its JSON, JSON Schema and CSV columns are derived from it.
+
+Validity (`judge`), each failed check a short reason in `invalid_reasons`:
+    - speed (only with [test] target_speeds_kmh): a brake maneuver whose brake speed (else its top speed) lies more
+      than speed_tolerance_kmh from every target; an acceleration whose top speed stays more than the tolerance below
+      the lowest target. target_speed_kmh: the target met (braking: the nearest; accelerating: the highest reached).
+    - a GPS gap (estimates on the wheels' clock) or `disturbed` windows (a gap in the wheel or GPS samples) inside it;
+    - too short to judge: less than MIN_JUDGE_S long or less than MIN_JUDGE_SPEED_KMH of speed change;
+    - braking: no brake onset found, or no stop (the speed never fell to standstill in the span).
+time_to_speed_s (accelerating): from the launch (the last instant at standstill; a rolling start: the first window's
+start) to the first instant at the target (no target, or a target met only within the tolerance: the top speed), on
+the high-rate fused speed (the windows' speed without high-rate rows), linearly interpolated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from slipdaq.config import TestConfig
+from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.records import Column, ColumnGroup, record_row
+
+MANEUVER_KINDS = ("accelerate", "brake")
+MIN_JUDGE_S = 1.0
+MIN_JUDGE_SPEED_KMH = 5.0
+
+
+@dataclass(frozen=True, slots=True)
+class ManeuverWheel:
+    mean_slip: float | None
+    max_abs_slip: float | None
+    cx_line_n: float | None
+    mu_peak: float | None
+    slip_at_mu_peak: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Maneuver:
+    """One maneuver's results, decided when it ended."""
+
+    index: int
+    kind: str
+    t_start_s: float
+    t_end_s: float
+    speed_from_kmh: float
+    speed_to_kmh: float
+    target_speed_kmh: float | None
+    valid: bool
+    invalid_reasons: tuple[str, ...]
+    brake_speed_kmh: float | None
+    stopping_distance_m: float | None
+    stopping_distance_corrected_m: float | None
+    mfdd_mps2: float | None
+    abs_cycles: int | None
+    abs_frequency_hz: float | None
+    time_to_speed_s: float | None
+    wheels: dict[str, ManeuverWheel] = field(default_factory=dict)
+
+    def as_row(self) -> dict[str, object]:
+        """Flat mapping in the /maneuver JSON's and the maneuvers CSV's column names (MANEUVER_COLUMNS)."""
+        row: dict[str, object] = dict(record_row(self, MANEUVER_COLUMNS))
+        row["invalid_reasons"] = list(self.invalid_reasons)
+        return row
+
+
+MANEUVER_COLUMNS: tuple[ColumnGroup, ...] = (
+    ColumnGroup((
+        Column("index", "index", "integer", description="the maneuver's number in the log: 1, 2, ..."),
+        Column("kind", "kind", "enum", MANEUVER_KINDS, "accelerate or brake"),
+        Column("t_start_s", "t_start_s", "number", description="its first window, seconds from the log's first "
+                                                                 "estimate"),
+        Column("t_end_s", "t_end_s", "number", description="its last window, seconds from the log's first estimate"),
+        Column("speed_from_kmh", "speed_from_kmh", "number", description="speed at its start (0 from standstill)"),
+        Column("speed_to_kmh", "speed_to_kmh", "number", description="speed at its end (0 at a stop)"),
+        Column("target_speed_kmh", "target_speed_kmh", "number?",
+               description="the [test] target it met; undefined: none met, or no targets"),
+        Column("valid", "valid", "bool", description="true when every check passed (invalid_reasons empty)"),
+        Column("invalid_reasons", "invalid_reasons", "texts", description="why it is not valid, one short text each"),
+        Column("brake_speed_kmh", "brake_speed_kmh", "number?", description="braking: the speed at the brake onset"),
+        Column("stopping_distance_m", "stopping_distance_m", "number?",
+               description="braking: distance from the onset to standstill"),
+        Column("stopping_distance_corrected_m", "stopping_distance_corrected_m", "number?",
+               description="braking: the stopping distance corrected to the nominal speed (ISO 21994)"),
+        Column("mfdd_mps2", "mfdd_mps2", "number?", description="braking: mean fully developed deceleration "
+                                                                 "(ECE R13-H)"),
+        Column("abs_cycles", "abs_cycles", "integer?", description="braking: ABS cycles of the wheel that cycled most"),
+        Column("abs_frequency_hz", "abs_frequency_hz", "number?", description="braking: their rate"),
+        Column("time_to_speed_s", "time_to_speed_s", "number?",
+               description="accelerating: from standstill (or its start) to the target (or its top speed)"),
+    ), per_wheel=False, csv="contract"),
+    ColumnGroup((
+        Column("mean_slip_{w}", "mean_slip", "number?", description="mean slip of the {w} wheel's windows"),
+        Column("max_abs_slip_{w}", "max_abs_slip", "number?", description="largest |slip| of the {w} wheel's windows"),
+        Column("cx_line_n_{w}", "cx_line_n", "number?",
+               description="the {w} tire's force-slip line slope (N per unit slip) over its linear region"),
+        Column("mu_peak_{w}", "mu_peak", "number?", description="peak friction coefficient of the {w} tire's "
+                                                                "mu-slip curve; undefined: the points never passed it"),
+        Column("slip_at_mu_peak_{w}", "slip_at_mu_peak", "number?", description="slip at the {w} tire's mu peak"),
+    ), per_wheel=True, csv="contract"),
+)
+"""The /maneuver record's fields, in the order of its JSON and of `export --maneuvers-csv`."""
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.0f}" if v == round(v) else f"{v:.1f}"
+
+
+def _time_to_speed(m: ManeuverSummary, target_kmh: float | None) -> float | None:
+    t, v = m.speed_at
+    if len(t) < 2:
+        t = np.array([r["time_s"] for r in m.rows], dtype=np.float64)
+        v = np.array([r["speed_mps"] for r in m.rows], dtype=np.float64)
+    if len(t) < 2:
+        return None
+    top = int(np.argmax(v))
+    start = m.launch_s if m.launch_s is not None else m.rows[0]["time_s"] - 0.5 * float(m.rows[0].get("window_s") or 0.5)
+    level = float(v[top]) if target_kmh is None else min(float(v[top]), target_kmh / 3.6)
+    k = int(np.flatnonzero(v[: top + 1] >= level)[0])
+    t_at = float(t[k]) if k == 0 or v[k] == v[k - 1] else \
+        float(t[k - 1] + (level - v[k - 1]) / (v[k] - v[k - 1]) * (t[k] - t[k - 1]))
+    return t_at - start if t_at >= start else None
+
+
+def judge(m: ManeuverSummary, test: TestConfig) -> tuple[float | None, list[str], float | None]:
+    """(target met, reasons it is invalid, time to speed) of an accelerate or brake maneuver (module docstring)."""
+    reasons: list[str] = []
+    targets = sorted(test.target_speeds_kmh)
+    tol = test.speed_tolerance_kmh
+    target: float | None = None
+    b = m.brake
+    if m.phase == "brake":
+        speed = b.brake_speed_kmh if b is not None else m.speed_from_kmh
+        if targets:
+            near = min(targets, key=lambda x: abs(x - speed))
+            if abs(near - speed) <= tol:
+                target = near
+            else:
+                reasons.append(f"brake speed {speed:.1f} km/h not within {_fmt(tol)} km/h of a target "
+                               f"({', '.join(_fmt(x) for x in targets)} km/h)")
+        if b is None:
+            reasons.append("no brake onset found")
+        elif b.stop_s is None:
+            reasons.append(f"no stop (speed still {m.speed_to_kmh:.1f} km/h)")
+    else:
+        reached = [x for x in targets if m.speed_to_kmh >= x - tol]
+        if reached:
+            target = reached[-1]
+        elif targets:
+            reasons.append(f"reached {m.speed_to_kmh:.1f} km/h, below the lowest target {_fmt(targets[0])} km/h")
+    lost = sum(1 for r in m.rows if r.get("source") == "wheels")
+    disturbed = sum(1 for r in m.rows if r.get("quality") == "disturbed" and r.get("source") != "wheels")
+    if lost:
+        reasons.append(f"GPS lost in {lost} windows")
+    if disturbed:
+        reasons.append(f"{disturbed} disturbed windows (a gap in the wheel or GPS samples)")
+    duration = m.t_end_s - m.t_start_s
+    change = abs(m.speed_to_kmh - m.speed_from_kmh)
+    if duration < MIN_JUDGE_S or change < MIN_JUDGE_SPEED_KMH:
+        reasons.append(f"too short to judge ({duration:.1f} s, {change:.0f} km/h)")
+    tts = _time_to_speed(m, target) if m.phase == "accelerate" else None
+    return target, reasons, tts
+
+
+def maneuver_record(m: ManeuverSummary, index: int, test: TestConfig, wheels: Sequence[str]) -> Maneuver:
+    """The /maneuver record of an accelerate or brake maneuver."""
+    target, reasons, tts = judge(m, test)
+    b = m.brake
+    return Maneuver(
+        index=index, kind=m.phase, t_start_s=m.t_start_s, t_end_s=m.t_end_s,
+        speed_from_kmh=m.speed_from_kmh, speed_to_kmh=m.speed_to_kmh, target_speed_kmh=target,
+        valid=not reasons, invalid_reasons=tuple(reasons),
+        brake_speed_kmh=b.brake_speed_kmh if b else None, stopping_distance_m=b.stopping_distance_m if b else None,
+        stopping_distance_corrected_m=b.stopping_distance_corrected_m if b else None,
+        mfdd_mps2=b.mfdd_mps2 if b else None, abs_cycles=b.abs_cycles if b else None,
+        abs_frequency_hz=b.abs_frequency_hz if b else None, time_to_speed_s=tts,
+        wheels={w: ManeuverWheel(
+            mean_slip=ws.mean_slip, max_abs_slip=ws.max_abs_slip,
+            cx_line_n=ws.linearity.line.cx_n if ws.linearity.line else None,
+            mu_peak=ws.mu_slip.mu_peak if ws.mu_slip else None,
+            slip_at_mu_peak=ws.mu_slip.slip_at_mu_peak if ws.mu_slip else None,
+        ) for w in wheels for ws in (m.wheels[w],)},
+    )
