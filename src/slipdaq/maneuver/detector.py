@@ -130,7 +130,7 @@ class ManeuverDetector:
         last_s = self._fast_last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
         while self._queue and (final or last_s > self._queue[0][4]):
             p, ev, anchors, t_from, t_to = self._queue.popleft()
-            fast = [r if isinstance(r, dict) else r.as_row() for t, r in self._fast if t_from <= t <= t_to]
+            fast = [r for t, r in self._fast if t_from <= t <= t_to]
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
             assert self.t0_s is not None
             self.decided.append(summarize_maneuver(

@@ -93,8 +93,6 @@ class ManeuverSummary:
     gps_latency_s: float | None
     gps_latency_source: str
     wheels: dict[str, WheelSummary]
-    fast: tuple[dict[str, Any], ...] = field(default=(), repr=False, compare=False)
-    """The high-rate slip rows over the maneuver's span."""
     mu_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
     """Per wheel: (slip, mu) of the high-rate rows the mu-slip fit used."""
     brake: BrakeFigures | None = None
@@ -146,6 +144,34 @@ def summarize_wheel(
 
 
 
+@dataclass(frozen=True)
+class FastSpan:
+    """The high-rate rows over a maneuver's span, as columns (NaN: an undefined slip)."""
+
+    time_s: np.ndarray
+    speed_mps: np.ndarray
+    accel_mps2: np.ndarray
+    slips: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @classmethod
+    def of(cls, rows: Sequence[Any]) -> FastSpan:
+        """From /slip/fast rows (dicts, as a log gives them) or FastSlip records (as the estimator gives them)."""
+        if rows and not isinstance(rows[0], dict):
+            return cls(np.array([r.time_s for r in rows], dtype=np.float64),
+                       np.array([r.speed_mps for r in rows], dtype=np.float64),
+                       np.array([r.accel_mps2 for r in rows], dtype=np.float64),
+                       {w: np.array([math.nan if r.wheels[w].slip is None else r.wheels[w].slip for r in rows],
+                                    dtype=np.float64) for w in WHEELS})
+        return cls(np.array([r["time_s"] for r in rows], dtype=np.float64),
+                   np.array([r["speed_mps"] for r in rows], dtype=np.float64),
+                   np.array([r["accel_mps2"] for r in rows], dtype=np.float64),
+                   {w: np.array([math.nan if r.get(f"slip_{w}") is None else r[f"slip_{w}"] for r in rows],
+                                dtype=np.float64) for w in WHEELS})
+
+
 def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
     """(from, to): the time span of a maneuver's high-rate rows (module docstring)."""
     half = 0.5 * float(rows[0].get("window_s") or 0.5)
@@ -155,13 +181,13 @@ def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
 
 def summarize_maneuver(
     phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
-    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[dict[str, Any]] = (),
+    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
     lost_frames: dict[str, int] | None = None,
 ) -> ManeuverSummary:
-    """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed; fast: the
-    high-rate rows over its span (`span_s`); brake: (time, value) of the brake signal from BRAKE_SIGNAL_BEFORE_S
-    before the span to its end."""
+    """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
+    fast: the high-rate rows over its span (`span_s`; /slip/fast dicts or FastSlip records); brake: (time, value) of
+    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end."""
     prow = tuple(rows)
     title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
     lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
@@ -178,17 +204,14 @@ def summarize_maneuver(
         speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
         wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
     )
-    return _high_rate(m, tuple(fast), brake, vehicle or VehicleConfig()) if len(fast) >= 3 else m
+    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig()) if len(fast) >= 3 else m
 
 
-def _high_rate(m: ManeuverSummary, span: tuple[dict[str, Any], ...], brake: Sequence[tuple[float, float]],
+def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, float]],
                vehicle: VehicleConfig) -> ManeuverSummary:
-    """The maneuver with its high-rate rows, each wheel's mu-slip fit and, braking, its brake-test figures;
+    """The maneuver with each wheel's mu-slip fit over its high-rate rows and, braking, its brake-test figures;
     accelerating, its launch."""
-    t = np.array([r["time_s"] for r in span], dtype=np.float64)
-    v = np.array([r["speed_mps"] for r in span], dtype=np.float64)
-    a = np.array([r["accel_mps2"] for r in span], dtype=np.float64)
-    slips = {w: np.array([math.nan if r.get(f"slip_{w}") is None else r[f"slip_{w}"] for r in span]) for w in WHEELS}
+    t, v, a, slips = span.time_s, span.speed_mps, span.accel_mps2, span.slips
     wheels = dict(m.wheels)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if m.phase != "cruise":
@@ -220,5 +243,5 @@ def _high_rate(m: ManeuverSummary, span: tuple[dict[str, Any], ...], brake: Sequ
         v_from = min(v_from, float(np.interp(launch, t, v)) * 3.6)
     if figures is not None and figures.stop_s is not None:
         v_to = min(v_to, float(np.interp(figures.stop_s, t, v)) * 3.6)
-    return dataclasses.replace(m, wheels=wheels, fast=span, mu_points=points, brake=figures, launch_s=launch,
+    return dataclasses.replace(m, wheels=wheels, mu_points=points, brake=figures, launch_s=launch,
                                top_speed_s=top, speed_at=(t, v), speed_from_kmh=v_from, speed_to_kmh=v_to)
