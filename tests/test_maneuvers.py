@@ -282,3 +282,38 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
     (b,) = det.take()
     assert b.phase == "brake" and len(b.rows) == 10
     assert [m.phase for m in det.finish()] == []  # 3 rows: too few for a maneuver
+
+
+# ---- on the car: the live daemon on python-can's virtual bus, the status stream and the terminal view ----------
+
+def test_demo_brake_abs_prints_the_stop_as_it_ends(tmp_path: Path) -> None:
+    """`slipdaq demo --scenario brake-abs` live: the stop's line on the status stream (no terminal) once decided,
+    before the run ends; the log's /maneuver record is the one the run reports."""
+    import asyncio
+    import io
+
+    from rich.console import Console
+
+    from slipdaq.demo import run_demo_async
+    from slipdaq.sinks.status import SourceStatus, StatusSink, _Rates, render
+
+    status_path = tmp_path / "status.txt"
+    with open(status_path, "w") as status:
+        result, _err, _cfg = asyncio.run(run_demo_async(11.0, "brake-abs", "paved", tmp_path, status_stream=status,
+                                                        status_every_s=2.0))
+    lines = status_path.read_text().splitlines()
+    stop_lines = [ln for ln in lines if ln.startswith("maneuver #1 brake")]
+    assert len(stop_lines) == 1 and "MFDD" in stop_lines[0] and "ABS" in stop_lines[0] and "| valid" in stop_lines[0]
+    assert lines.index(stop_lines[0]) < len(lines) - 1  # printed while the run went on, not only at its end
+    (rec,) = result.maneuvers
+    assert [d for _t, d in logged_maneuvers(result.log_path)] == [rec.as_row()]
+    assert rec.kind == "brake" and rec.abs_cycles and rec.brake_speed_kmh and abs(rec.brake_speed_kmh - 80.0) < 2.0
+    # the terminal view: the maneuvers table under the wheels, newest first
+    sink = StatusSink(SourceStatus())
+    for m in (rec, Maneuver(**{**{f: getattr(rec, f) for f in rec.__slots__}, "index": 2, "valid": False,  # type: ignore[attr-defined]
+                                "invalid_reasons": ("too short to judge (0.4 s, 3 km/h)",)})):
+        sink.on_maneuver(m, 0.0)
+    out = io.StringIO()
+    Console(file=out, width=200).print(render(sink, _Rates()))
+    rows = [ln for ln in out.getvalue()[out.getvalue().index("maneuvers"):].splitlines() if " brake " in ln]
+    assert len(rows) == 2 and "INVALID: too short" in rows[0] and "INVALID" not in rows[1] and "valid" in rows[1]
