@@ -45,6 +45,8 @@ class TireConfig(_Section):
     size: str | None = "195/60 R15"
     free_radius_m: float | None = Field(None, gt=0, lt=2)
     set: str = Field("", description="the tire set's name (e.g. 'summer 2026'): part of the calibration's identity")
+    mu_max: float = Field(1.5, gt=0, le=5, description="the most a road tire can give: a fitted mu peak above it is "
+                          "flagged (mu_flag), never given as a result")
 
     @field_validator("size")
     @classmethod

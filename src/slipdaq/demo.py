@@ -49,10 +49,10 @@ def demo_config(gps_port: str, channel: str, scenario: str = "cycle") -> Config:
 
 def demo_settings(scenario: str) -> SimSettings:
     """The simulator's settings for the demo: the defaults; the sensor scenarios add the IMU (IMU_RATE_HZ) and the
-    brake switch (BRAKE_RATE_HZ), brake-abs also WPT at ABS_WPT_RATE_HZ."""
+    brake switch (BRAKE_RATE_HZ), brake-abs and brake-abs-all also WPT at ABS_WPT_RATE_HZ."""
     if scenario not in SENSOR_SCENARIOS:
         return SimSettings()
-    wpt_rate_hz = ABS_WPT_RATE_HZ if scenario == "brake-abs" else SimSettings().wpt_rate_hz
+    wpt_rate_hz = ABS_WPT_RATE_HZ if scenario in ("brake-abs", "brake-abs-all") else SimSettings().wpt_rate_hz
     return SimSettings(imu_rate_hz=IMU_RATE_HZ, brake_rate_hz=BRAKE_RATE_HZ, wpt_rate_hz=wpt_rate_hz)
 
 

@@ -442,7 +442,7 @@ class Column:
     name: str
     attribute: str
     kind: str
-    """'number', 'number?' (or undefined: null, an empty CSV cell), 'integer', 'integer?', 'bool', 'text', 'texts' (a
+    """'number', 'number?' (or undefined: null, an empty CSV cell), 'integer', 'integer?', 'bool', 'text', 'text?', 'texts' (a
     list of texts), or 'enum'."""
     values: tuple[str, ...] = ()
     """enum: the values it takes."""

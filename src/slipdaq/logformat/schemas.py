@@ -39,7 +39,8 @@ def _obj(title: str, props: dict[str, Any], optional: tuple[str, ...] = ()) -> d
 
 _COLUMN_KINDS: dict[str, dict[str, Any]] = {
     "number": _NUM, "number?": _NUM_OR_NULL, "integer": _INT, "integer?": _INT_OR_NULL, "bool": {"type": "boolean"},
-    "text": {"type": "string"}, "texts": {"type": "array", "items": {"type": "string"}},
+    "text": {"type": "string"}, "text?": {"type": ["string", "null"]},
+    "texts": {"type": "array", "items": {"type": "string"}},
 }
 
 

@@ -222,6 +222,11 @@ class BrakeFigures:
     abs_frequency_hz: float | None
     abs_wheel: str | None
     """The wheel the ABS figures are from (the one with the most cycles); None without slip or cycling."""
+    stopping_distance_m_lo: float | None = None
+    """95 % intervals from the inputs' noise (brake_noise.brake_intervals; None: not computed or not given)."""
+    stopping_distance_m_hi: float | None = None
+    mfdd_mps2_lo: float | None = None
+    mfdd_mps2_hi: float | None = None
 
 
 def brake_figures(
@@ -229,11 +234,14 @@ def brake_figures(
     brake_time_s: npt.ArrayLike | None = None, brake_value: npt.ArrayLike | None = None,
     slip_time_s: npt.ArrayLike | None = None, slips: Mapping[str, npt.ArrayLike] | None = None,
     standstill_mps: float = STANDSTILL_MPS, threshold_mps2: float = DECEL_THRESHOLD_MPS2, abs_band: float = ABS_BAND,
+    onset_s: float | None = None,
 ) -> BrakeFigures | None:
     """The figures of one brake maneuver (module docstring) over the span of time_s. slips: wheel -> slip series
-    on slip_time_s (default time_s). None when no onset is found or the car is not moving at it."""
+    on slip_time_s (default time_s); onset_s: the onset, given (source 'given'). None when no onset is found or the
+    car is not moving at it."""
     t, v = _arrays(time_s, speed_mps)
-    onset, source = _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2)
+    onset, source = (onset_s, "given") if onset_s is not None else \
+        _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2)
     if onset is None or t.size < 2:
         return None
     v0 = float(np.interp(onset, t, v))

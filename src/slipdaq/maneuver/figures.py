@@ -11,12 +11,11 @@ Per wheel and maneuver
     of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
     common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
 
-The tire's mu-slip curve (per wheel and maneuver; mu_slip.py), from the high-rate slip (/slip/fast) over the
+The tire's mu-slip curve (per wheel and maneuver; tire_limit.py), from the high-rate slip (/slip/fast) over the
 maneuver's span (`span_s`: its first window's start - SPAN_BEFORE_S to its last window's end, + SPAN_AFTER_S braking):
-    mu = Fx_tire / Fz_tire, Fx_tire = M*a split as the estimator splits it (driven wheels; brake_front_share), a the
-    fused acceleration of the high-rate rows from MU_MIN_SPEED_MPS on; Fz with the load transfer M*a*h/L
-    (vehicle.wheelbase_m, cg_height_m, front_axle_load_share); a Burckhardt curve fitted over the whole slip range:
-    mu_peak and slip_at_mu_peak when the data pass the peak (else none: a peak cannot be read off the linear region).
+by the hydraulic split or the joint fit over every wheel at once, whichever explains the total force better; Fz with
+the load transfer M*a*h/L (vehicle.wheelbase_m, cg_height_m, front_axle_load_share); mu_peak and slip_at_mu_peak
+when the data pass the peak and it is plausible (else none, and mu_flag says why).
 
 Brake-test figures (per brake maneuver; brake_test.py): the onset from the brake signal on CAN ([brake], nonzero =
 pressed) when the log has one, else from the onset of deceleration; the speed there, the stopping distance to
@@ -39,22 +38,20 @@ from typing import Any
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.config import VehicleConfig
-from slipdaq.estimator.force import tire_forces
+from slipdaq.config import TireConfig, VehicleConfig
 from slipdaq.maneuver import fallback
+from slipdaq.maneuver.brake_noise import brake_intervals
 from slipdaq.maneuver.brake_test import STANDSTILL_MPS, BrakeFigures, brake_figures
 from slipdaq.maneuver.events import maneuver_title
 from slipdaq.maneuver.linearity import Linearity, LinearityRule, analyse_linearity, peak_binned
-from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n
+from slipdaq.maneuver.mu_slip import MuSlipFit
+from slipdaq.maneuver.tire_limit import tire_curves
 
 SPAN_BEFORE_S = 1.5
 """The high-rate rows of a maneuver start this long before its first window (a brake's onset precedes the first
 window that the phase classifies as braking)."""
 SPAN_AFTER_S = 1.5
 """... and, braking, end this long after its last window (a stop ends below the estimates' minimum speed)."""
-MU_MIN_SPEED_MPS = 3.0
-"""The mu-slip fit takes high-rate rows from this speed on: below it a count's quantisation is a large slip, and
-ABS hands over to locked wheels (2 m/s) before the stop."""
 BRAKE_SIGNAL_BEFORE_S = 5.0
 """The brake signal's samples are taken from this long before the span (the released sample before the press)."""
 
@@ -183,11 +180,11 @@ def summarize_maneuver(
     phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
     anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
-    lost_frames: dict[str, int] | None = None,
+    lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max,
 ) -> ManeuverSummary:
     """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
     fast: the high-rate rows over its span (`span_s`; /slip/fast dicts or FastSlip records); brake: (time, value) of
-    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end."""
+    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max (tire_limit)."""
     prow = tuple(rows)
     title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
     lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
@@ -204,28 +201,21 @@ def summarize_maneuver(
         speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
         wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
     )
-    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig()) if len(fast) >= 3 else m
+    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig(), mu_max) if len(fast) >= 3 else m
 
 
 def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, float]],
-               vehicle: VehicleConfig) -> ManeuverSummary:
+               vehicle: VehicleConfig, mu_max: float) -> ManeuverSummary:
     """The maneuver with each wheel's mu-slip fit over its high-rate rows and, braking, its brake-test figures;
     accelerating, its launch."""
     t, v, a, slips = span.time_s, span.speed_mps, span.accel_mps2, span.slips
     wheels = dict(m.wheels)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if m.phase != "cruise":
-        sign = 1.0 if m.phase == "accelerate" else -1.0
-        mass = vehicle.mass_kg
-        split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
+        curves = tire_curves(v, a, slips, vehicle, 1.0 if m.phase == "accelerate" else -1.0, mu_max, t)
+        points = curves.points
         for w in WHEELS:
-            fx = np.array([f[w] for f in split])
-            fz = normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
-            mu = mu_from_force(fx, fz)
-            use = np.isfinite(slips[w]) & np.isfinite(mu) & (a * sign > 0) & (v >= MU_MIN_SPEED_MPS)
-            points[w] = (slips[w][use], mu[use])
-            fit: MuSlipFit | None = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
-            wheels[w] = dataclasses.replace(wheels[w], mu_slip=fit)
+            wheels[w] = dataclasses.replace(wheels[w], mu_slip=curves.fits[w])
     figures = None
     launch = top = None
     if m.phase == "brake":
@@ -233,6 +223,12 @@ def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, 
         bt = [x for x, _ in brake if t_from <= x <= t[-1]]
         bv = [y for x, y in brake if t_from <= x <= t[-1]]
         figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips)
+        if figures is not None:
+            iv = brake_intervals(t, v, a, figures, bt or None)
+            sd, md = iv["stopping_distance_m"], iv["mfdd_mps2"]
+            figures = dataclasses.replace(figures, stopping_distance_m_lo=sd[0] if sd else None,
+                                          stopping_distance_m_hi=sd[1] if sd else None,
+                                          mfdd_mps2_lo=md[0] if md else None, mfdd_mps2_hi=md[1] if md else None)
     elif m.phase == "accelerate":
         k_top = int(np.argmax(v))
         top = float(t[k_top])

@@ -107,15 +107,31 @@ class MuSlipFit:
     points_beyond_window: int = 0
     """Points beyond PEAK_WINDOW·s* left out of the final fit (0: every point fitted)."""
     model: str = "burckhardt"
+    """'burckhardt', or 'magic formula' (mu_joint: then c1, c2, c3 hold its B, C, D)."""
+    method: str = "hydraulic split"
+    """Where each point's force came from: 'hydraulic split' (M·a split as the estimator splits it), 'joint shared' or
+    'joint per axle' (the curve fitted to the total force over every wheel's slip, mu_joint)."""
+    flag: str | None = None
+    """Why mu_peak is not given although there is a curve (mu_flag): 'peak not passed', 'mu above MU_MAX', 'split
+    exceeds the load', 'not determined' (its 95 % interval wider than the value)."""
+    mu_peak_lo: float | None = None
+    mu_peak_hi: float | None = None
+    slip_at_mu_peak_lo: float | None = None
+    slip_at_mu_peak_hi: float | None = None
 
     def mu(self, slip: npt.ArrayLike) -> FloatArray:
-        """The fitted mu at each slip, sign(s)·(c1·(1 − exp(−c2·|s|)) − c3·|s|)."""
+        """The fitted mu at each slip, sign(s)·(c1·(1 − exp(−c2·|s|)) − c3·|s|) (Magic Formula: sign(s)·D·sin(C·
+        atan(B·|s|)))."""
         s = np.asarray(slip, dtype=float)
+        if self.model == "magic formula":
+            return np.sign(s) * self.c3 * np.sin(self.c2 * np.arctan(self.c1 * np.abs(s)))
         return np.sign(s) * _burckhardt(np.abs(s), self.c1, self.c2, self.c3)
 
     @property
     def initial_slope(self) -> float:
-        """dmu/ds at s = 0: c1·c2 − c3."""
+        """dmu/ds at s = 0: c1·c2 − c3 (Magic Formula: B·C·D)."""
+        if self.model == "magic formula":
+            return self.c1 * self.c2 * self.c3
         return self.c1 * self.c2 - self.c3
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slipdaq.config import TestConfig
-from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.maneuver.figures import ManeuverSummary, WheelSummary
 from slipdaq.records import Column, ColumnGroup, record_row
 
 MANEUVER_KINDS = ("accelerate", "brake")
@@ -36,6 +36,14 @@ class ManeuverWheel:
     cx_line_n: float | None
     mu_peak: float | None
     slip_at_mu_peak: float | None
+    cx_line_n_lo: float | None = None
+    cx_line_n_hi: float | None = None
+    mu_peak_lo: float | None = None
+    mu_peak_hi: float | None = None
+    slip_at_mu_peak_lo: float | None = None
+    slip_at_mu_peak_hi: float | None = None
+    mu_slip_method: str | None = None
+    mu_flag: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +67,10 @@ class Maneuver:
     abs_frequency_hz: float | None
     time_to_speed_s: float | None
     wheels: dict[str, ManeuverWheel] = field(default_factory=dict)
+    stopping_distance_m_lo: float | None = None
+    stopping_distance_m_hi: float | None = None
+    mfdd_mps2_lo: float | None = None
+    mfdd_mps2_hi: float | None = None
 
     def as_row(self) -> dict[str, object]:
         """Flat mapping in the /maneuver JSON's and the maneuvers CSV's column names (MANEUVER_COLUMNS)."""
@@ -100,6 +112,26 @@ MANEUVER_COLUMNS: tuple[ColumnGroup, ...] = (
         Column("mu_peak_{w}", "mu_peak", "number?", description="peak friction coefficient of the {w} tire's "
                                                                 "mu-slip curve; undefined: the points never passed it"),
         Column("slip_at_mu_peak_{w}", "slip_at_mu_peak", "number?", description="slip at the {w} tire's mu peak"),
+    ), per_wheel=True, csv="contract"),
+    ColumnGroup((
+        Column("stopping_distance_m_lo", "stopping_distance_m_lo", "number?",
+               description="braking: the stopping distance's 95 % interval from its inputs' noise, low end"),
+        Column("stopping_distance_m_hi", "stopping_distance_m_hi", "number?", description="... high end"),
+        Column("mfdd_mps2_lo", "mfdd_mps2_lo", "number?", description="braking: the MFDD's 95 % interval, low end"),
+        Column("mfdd_mps2_hi", "mfdd_mps2_hi", "number?", description="... high end"),
+    ), per_wheel=False, csv="contract"),
+    ColumnGroup((
+        Column("cx_line_n_lo_{w}", "cx_line_n_lo", "number?", description="95 % interval of cx_line_n_{w}, low end"),
+        Column("cx_line_n_hi_{w}", "cx_line_n_hi", "number?", description="... high end"),
+        Column("mu_peak_lo_{w}", "mu_peak_lo", "number?", description="95 % interval of mu_peak_{w}, low end"),
+        Column("mu_peak_hi_{w}", "mu_peak_hi", "number?", description="... high end"),
+        Column("slip_at_mu_peak_lo_{w}", "slip_at_mu_peak_lo", "number?",
+               description="95 % interval of slip_at_mu_peak_{w}, low end"),
+        Column("slip_at_mu_peak_hi_{w}", "slip_at_mu_peak_hi", "number?", description="... high end"),
+        Column("mu_slip_method_{w}", "mu_slip_method", "text?", description="how the {w} tire's force was had: "
+               "hydraulic split, joint shared, joint per axle (the curve fitted to the total force over every wheel)"),
+        Column("mu_flag_{w}", "mu_flag", "text?", description="why the {w} tire has no mu peak although it has a curve: "
+               "peak not passed, mu above MU_MAX, split exceeds the load, not determined; undefined: none"),
     ), per_wheel=True, csv="contract"),
 )
 """The /maneuver record's fields, in the order of its JSON and of `export --maneuvers-csv`."""
@@ -165,22 +197,50 @@ def judge(m: ManeuverSummary, test: TestConfig) -> tuple[float | None, list[str]
     return target, reasons, tts
 
 
+def determined(value: float | None, lo: float | None, hi: float | None) -> float | None:
+    """The value, or None when its 95 % interval is wider than the value itself (not determined)."""
+    if value is None or lo is None or hi is None:
+        return value
+    return None if hi - lo > abs(value) else value
+
+
+Z95 = 1.959963984540054
+"""The normal distribution's 97.5 % quantile: a ~95 % interval is value +- Z95 standard errors."""
+
+
+def _wheel(ws: WheelSummary) -> ManeuverWheel:
+    line, mu = ws.linearity.line, ws.mu_slip
+    lo = hi = None
+    if line is not None:
+        lo, hi = line.cx_n - Z95 * line.stderr_n, line.cx_n + Z95 * line.stderr_n
+    return ManeuverWheel(
+        mean_slip=ws.mean_slip, max_abs_slip=ws.max_abs_slip,
+        cx_line_n=determined(line.cx_n if line else None, lo, hi), cx_line_n_lo=lo, cx_line_n_hi=hi,
+        mu_peak=mu.mu_peak if mu else None, slip_at_mu_peak=mu.slip_at_mu_peak if mu else None,
+        mu_peak_lo=mu.mu_peak_lo if mu else None, mu_peak_hi=mu.mu_peak_hi if mu else None,
+        slip_at_mu_peak_lo=mu.slip_at_mu_peak_lo if mu else None,
+        slip_at_mu_peak_hi=mu.slip_at_mu_peak_hi if mu else None,
+        mu_slip_method=mu.method if mu else None, mu_flag=mu.flag if mu else None,
+    )
+
+
 def maneuver_record(m: ManeuverSummary, index: int, test: TestConfig, wheels: Sequence[str]) -> Maneuver:
-    """The /maneuver record of an accelerate or brake maneuver."""
+    """The /maneuver record of an accelerate or brake maneuver (a figure whose interval is wider than itself: not
+    determined, None)."""
     target, reasons, tts = judge(m, test)
     b = m.brake
     return Maneuver(
         index=index, kind=m.phase, t_start_s=m.t_start_s, t_end_s=m.t_end_s,
         speed_from_kmh=m.speed_from_kmh, speed_to_kmh=m.speed_to_kmh, target_speed_kmh=target,
         valid=not reasons, invalid_reasons=tuple(reasons),
-        brake_speed_kmh=b.brake_speed_kmh if b else None, stopping_distance_m=b.stopping_distance_m if b else None,
+        brake_speed_kmh=b.brake_speed_kmh if b else None,
+        stopping_distance_m=determined(b.stopping_distance_m, b.stopping_distance_m_lo, b.stopping_distance_m_hi)
+        if b else None,
         stopping_distance_corrected_m=b.stopping_distance_corrected_m if b else None,
-        mfdd_mps2=b.mfdd_mps2 if b else None, abs_cycles=b.abs_cycles if b else None,
-        abs_frequency_hz=b.abs_frequency_hz if b else None, time_to_speed_s=tts,
-        wheels={w: ManeuverWheel(
-            mean_slip=ws.mean_slip, max_abs_slip=ws.max_abs_slip,
-            cx_line_n=ws.linearity.line.cx_n if ws.linearity.line else None,
-            mu_peak=ws.mu_slip.mu_peak if ws.mu_slip else None,
-            slip_at_mu_peak=ws.mu_slip.slip_at_mu_peak if ws.mu_slip else None,
-        ) for w in wheels for ws in (m.wheels[w],)},
+        mfdd_mps2=determined(b.mfdd_mps2, b.mfdd_mps2_lo, b.mfdd_mps2_hi) if b else None,
+        abs_cycles=b.abs_cycles if b else None, abs_frequency_hz=b.abs_frequency_hz if b else None,
+        time_to_speed_s=tts, wheels={w: _wheel(m.wheels[w]) for w in wheels},
+        stopping_distance_m_lo=b.stopping_distance_m_lo if b else None,
+        stopping_distance_m_hi=b.stopping_distance_m_hi if b else None,
+        mfdd_mps2_lo=b.mfdd_mps2_lo if b else None, mfdd_mps2_hi=b.mfdd_mps2_hi if b else None,
     )

@@ -23,7 +23,7 @@ from slipdaq.maneuver.detector import ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
-from slipdaq.maneuver.record import Maneuver, maneuver_record
+from slipdaq.maneuver.record import Z95, Maneuver, determined, maneuver_record
 from slipdaq.report.labels import format_labels
 
 
@@ -144,18 +144,26 @@ COLUMNS: tuple[str, ...] = (
     "r0_m", "peak_cx_n", "peak_cx_slip", "cx_fit_n", "cx_fit_conf", "cx_fit_source", "gps_latency_s",
     "gps_latency_source", "lost_frames", "bad_sentences", "mu_peak", "slip_at_mu_peak", "mu_slip_model",
     "brake_speed_kmh", "stopping_distance_m", "stopping_distance_corrected_m", "mfdd_mps2", "abs_cycles",
-    "abs_frequency_hz",
+    "abs_frequency_hz", "mu_slip_method", "mu_flag", "mu_peak_lo", "mu_peak_hi", "slip_at_mu_peak_lo",
+    "slip_at_mu_peak_hi", "cx_line_n_lo", "cx_line_n_hi", "stopping_distance_m_lo", "stopping_distance_m_hi",
+    "mfdd_mps2_lo", "mfdd_mps2_hi",
 )
 """One row per log, maneuver and wheel. Slips are fractions, forces N, radii m, stiffness N per unit slip."""
 
 
 BRAKE_COLUMNS = ("brake_speed_kmh", "stopping_distance_m", "stopping_distance_corrected_m", "mfdd_mps2", "abs_cycles",
-                 "abs_frequency_hz")
+                 "abs_frequency_hz", "stopping_distance_m_lo", "stopping_distance_m_hi", "mfdd_mps2_lo", "mfdd_mps2_hi")
 
 
 def brake_columns(b: BrakeFigures | None) -> dict[str, Any]:
-    """The brake-test figures of a maneuver by their column names (None each without)."""
-    return {c: getattr(b, c) if b is not None else None for c in BRAKE_COLUMNS}
+    """The brake-test figures of a maneuver by their column names (None each without; a figure whose interval is
+    wider than itself: None, not determined)."""
+    out = {c: getattr(b, c) if b is not None else None for c in BRAKE_COLUMNS}
+    if b is not None:
+        out["stopping_distance_m"] = determined(b.stopping_distance_m, b.stopping_distance_m_lo,
+                                                b.stopping_distance_m_hi)
+        out["mfdd_mps2"] = determined(b.mfdd_mps2, b.mfdd_mps2_lo, b.mfdd_mps2_hi)
+    return out
 
 
 def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
@@ -172,7 +180,10 @@ def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
                     "slip_samples": ws.slip_samples, "mean_slip": ws.mean_slip, "max_abs_slip": ws.max_abs_slip,
                     "linearity": lin.verdict, "linear_end_slip": lin.end_slip, "linear_end_fx_n": lin.end_force_n,
                     "peak_linear_fx_n": lin.peak_fx_n, "peak_linear_fx_slip": lin.peak_fx_slip,
-                    "cx_line_n": lin.line.cx_n if lin.line else None,
+                    "cx_line_n": determined(lin.line.cx_n, lin.line.cx_n - Z95 * lin.line.stderr_n,
+                                            lin.line.cx_n + Z95 * lin.line.stderr_n) if lin.line else None,
+                    "cx_line_n_lo": lin.line.cx_n - Z95 * lin.line.stderr_n if lin.line else None,
+                    "cx_line_n_hi": lin.line.cx_n + Z95 * lin.line.stderr_n if lin.line else None,
                     "cx_line_points": lin.line.points if lin.line else 0,
                     "cx_line_method": lin.line.method if lin.line else None,
                     "cx_line_slip_offset": lin.line.slip_offset if lin.line else None,
@@ -184,6 +195,12 @@ def table_rows(logs: Sequence[LogSummary]) -> list[dict[str, Any]]:
                     "mu_peak": ws.mu_slip.mu_peak if ws.mu_slip else None,
                     "slip_at_mu_peak": ws.mu_slip.slip_at_mu_peak if ws.mu_slip else None,
                     "mu_slip_model": ws.mu_slip.model if ws.mu_slip else None,
+                    "mu_slip_method": ws.mu_slip.method if ws.mu_slip else None,
+                    "mu_flag": ws.mu_slip.flag if ws.mu_slip else None,
+                    "mu_peak_lo": ws.mu_slip.mu_peak_lo if ws.mu_slip else None,
+                    "mu_peak_hi": ws.mu_slip.mu_peak_hi if ws.mu_slip else None,
+                    "slip_at_mu_peak_lo": ws.mu_slip.slip_at_mu_peak_lo if ws.mu_slip else None,
+                    "slip_at_mu_peak_hi": ws.mu_slip.slip_at_mu_peak_hi if ws.mu_slip else None,
                 } | brake_columns(m.brake))
     return out
 

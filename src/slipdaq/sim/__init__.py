@@ -12,7 +12,7 @@ from typing import Literal, get_args
 
 ProfileScenario = Literal["accelerate", "brake", "cycle", "test-day"]
 """Scenarios of the kinematic model (a prescribed speed profile, slip from the inverse tire curve)."""
-SlipScenario = Literal["brake-abs", "brake-lock", "launch-spin"]
+SlipScenario = Literal["brake-abs", "brake-abs-all", "brake-lock", "launch-spin"]
 """Scenarios of the slip-driven model (slip commanded per wheel, tire forces beyond the linear region)."""
 Scenario = Literal[ProfileScenario, SlipScenario]
 

@@ -3,6 +3,9 @@
 brake-abs   cruise at BRAKE_TEST_SPEED_MPS, then ABS braking to standstill. The brake force splits front/rear by
             vehicle.brake_front_share; the limiting axle (the first to reach its tire's peak, with load transfer)
             has its slip cycled by ABS around the peak slip; the other axle carries its share of the total force.
+brake-abs-all  the same cruise and ABS braking, every wheel's slip cycled by ABS around the peak, each wheel a quarter
+            cycle after the one before (ABS controls each wheel): every tire carries mu(s)*Fz, whatever the hydraulic
+            split.
 brake-lock  the same cruise, then every wheel's slip ramps through the peak to -1 (locked) until standstill.
 launch-spin from standstill the driven wheels spin far past the peak, then traction control holds a few percent of
             slip up to LAUNCH_SPEED_MPS, then cruise.
@@ -132,6 +135,29 @@ class AbsBraking:
         return SlipCommand(slips, True)
 
 
+class AbsBrakingAll(AbsBraking):
+    """brake-abs-all: as AbsBraking, but every wheel's slip cycles around the peak, wheel k a quarter cycle after
+    wheel k - 1 (the onset ramp the same for all)."""
+
+    def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
+        if time_s < self.onset_s:
+            return SlipCommand([0.0] * len(WHEELS), False)
+        if self._cutout is None and speed_mps < ABS_MIN_SPEED_MPS:
+            self._cutout = (time_s, list(self._last))
+        if self._cutout is not None:
+            start_s, slips = self._cutout
+            k = min(1.0, (time_s - start_s) / ABS_LOCK_RAMP_S)
+            return SlipCommand([s + (-1.0 - s) * k for s in slips], True)
+        tau = time_s - self.onset_s
+        if tau < BRAKE_ONSET_S:
+            slips = [-ABS_SLIP_LOW * self.tire.peak_slip * tau / BRAKE_ONSET_S] * len(WHEELS)
+        else:
+            phase = (tau - BRAKE_ONSET_S) * ABS_RATE_HZ
+            slips = [-abs_cycle((phase + i / len(WHEELS)) % 1.0) * self.tire.peak_slip for i in range(len(WHEELS))]
+        self._last = slips
+        return SlipCommand(slips, True)
+
+
 class LockedBraking:
     """brake-lock: cruise CRUISE_BEFORE_BRAKE_S, then every wheel's slip ramps 0 -> -1 in LOCK_ONSET_S and stays
     locked (SlipController)."""
@@ -181,6 +207,8 @@ def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleCon
     """The controller of a slip-driven scenario."""
     if scenario == "brake-abs":
         return AbsBraking(tire, vehicle)
+    if scenario == "brake-abs-all":
+        return AbsBrakingAll(tire, vehicle)
     if scenario == "brake-lock":
         return LockedBraking()
     if scenario == "launch-spin":

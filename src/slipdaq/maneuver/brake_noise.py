@@ -1,0 +1,74 @@
+"""The 95 % intervals of a brake maneuver's stopping distance and MFDD from their inputs' noise. Pure.
+
+Inputs and their noise: the speed (the fused high-rate speed: its noise sigma_v is the RMS of its difference from a
+centred moving average over SMOOTH_S, taken as correlated over CORRELATION_S, as a GPS speed's error is between
+fixes) and the onset (from the brake signal: uniform within its sample interval; from the deceleration's rise:
+DECEL_ONSET_SIGMA_S). DRAWS draws of both (a fixed seed: live and report agree) recompute the figures
+(brake_test.brake_figures with the onset given); the interval is their 2.5 and 97.5 percentiles.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from slipdaq.maneuver.brake_test import BrakeFigures, brake_figures
+
+SMOOTH_S = 0.3
+CORRELATION_S = 0.1
+DECEL_ONSET_SIGMA_S = 0.05
+"""The onset from the deceleration's rise: its standard uncertainty (the rise's line extrapolated over a ramp)."""
+DRAWS = 40
+SEED = 20261125
+
+
+def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
+    if n <= 1 or x.size < n:
+        return x.copy()
+    k = np.ones(n) / n
+    pad = n // 2
+    return np.convolve(np.pad(x, (pad, n - 1 - pad), mode="edge"), k, mode="valid")
+
+
+def speed_noise_mps(time_s: npt.ArrayLike, speed_mps: npt.ArrayLike) -> float:
+    """sigma_v: RMS of the speed about its centred moving average over SMOOTH_S, where the car moves (> 1 m/s)."""
+    t, v = np.asarray(time_s, dtype=float), np.asarray(speed_mps, dtype=float)
+    if t.size < 3:
+        return 0.0
+    dt = float(np.median(np.diff(t)))
+    n = max(1, int(round(SMOOTH_S / max(dt, 1e-6))))
+    resid = (v - _moving_average(v, n))[v > 1.0]
+    return float(np.sqrt(np.mean(resid * resid))) if resid.size else 0.0
+
+
+def brake_intervals(
+    time_s: npt.ArrayLike, speed_mps: npt.ArrayLike, accel_mps2: npt.ArrayLike, figures: BrakeFigures,
+    brake_time_s: npt.ArrayLike | None = None,
+) -> dict[str, tuple[float, float] | None]:
+    """{stopping_distance_m, mfdd_mps2}: (lo, hi) each, None where fewer than 80 % of the draws give the figure."""
+    t, v = np.asarray(time_s, dtype=float), np.asarray(speed_mps, dtype=float)
+    sigma_v = speed_noise_mps(t, v)
+    if figures.onset_source == "brake signal" and brake_time_s is not None and np.asarray(brake_time_s).size > 1:
+        sigma_onset = float(np.median(np.diff(np.asarray(brake_time_s, dtype=float)))) / math.sqrt(12.0)
+    else:
+        sigma_onset = DECEL_ONSET_SIGMA_S
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.01
+    n_corr = max(1, int(round(CORRELATION_S / max(dt, 1e-6))))
+    rng = np.random.default_rng(SEED)
+    got: dict[str, list[float]] = {"stopping_distance_m": [], "mfdd_mps2": []}
+    for _ in range(DRAWS):
+        noise = _moving_average(rng.standard_normal(t.size), n_corr)
+        sd = float(np.std(noise))
+        dv = noise * (sigma_v / sd) if sd > 0 else np.zeros_like(v)
+        f = brake_figures(t, np.maximum(v + dv, 0.0), accel_mps2,
+                          onset_s=figures.onset_s + float(rng.normal(0.0, sigma_onset)))
+        if f is None:
+            continue
+        for k in got:
+            x = getattr(f, k)
+            if x is not None:
+                got[k].append(float(x))
+    return {k: (float(np.percentile(x, 2.5)), float(np.percentile(x, 97.5))) if len(x) >= 0.8 * DRAWS else None
+            for k, x in got.items()}

@@ -1,0 +1,368 @@
+"""The tire's mu–slip curve from every wheel at once. Pure: arrays in, dataclasses out.
+
+Only the vehicle's total longitudinal force Fx(t) = M·a(t) is observed. At the limit a tire carries mu(s)·Fz
+whatever the hydraulics ask, so instead of splitting Fx by the brake balance, a Burckhardt curve (mu_slip.py) is
+fitted to the total force over the wheels' own high-rate slips (the joint fit):
+
+    Fx(t) = Σ_w sign(s_w)·mu_g(|s_w(t)|)·Fz_w(t),    mu_g(x) = c1_g·(1 − exp(−c2_g·x)) − c3_g·x,
+
+g the wheel's group: one curve for all the wheels that carry force ("shared"), or one per axle ("per axle"). For a
+given c2 (per group) the model is linear in (c1, c3), so c2 is searched on a grid (then a finer one around the best)
+and (c1, c3) solved by least squares, as in mu_slip.py.
+
+Identifiability: the curves of two axles separate only when their wheels' slips differ over time (ABS cycles each
+wheel on its own phase; one axle at the limit, the other in its linear region). The per-axle fit is taken when it
+explains the force significantly better than the shared one (an F test on the effective number of independent
+samples, EFFECTIVE_SAMPLE_S apart), else the shared curve. A wheel whose slip never leaves the noise (a free-rolling
+wheel under drive) carries no force and is left out. Each group's peak counts as observed by mu_slip's rule over its
+own wheels' slips; with none observed the caller keeps the hydraulic split (`figures`), which is right where a wheel
+stays far from its limit.
+
+Uncertainty: a moving-block bootstrap (blocks of BLOCK_S, BOOTSTRAP_RESAMPLES resamples, a fixed seed so live and
+report agree) refits the chosen model; the 2.5 and 97.5 percentiles of each group's mu peak and slip at the peak are
+its 95 % interval.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from slipdaq.maneuver.mu_slip import (
+    MIN_PEAK_REGION_POINTS,
+    MIN_PEAK_SIDE_POINTS,
+    MIN_POINTS,
+    PEAK_MARGIN,
+    PEAK_REGION,
+    PEAK_WINDOW,
+    PEAK_WINDOW_ITERATIONS,
+)
+
+FloatArray = npt.NDArray[np.float64]
+
+AXLES: dict[str, tuple[str, ...]] = {"front": ("FL", "FR"), "rear": ("RL", "RR")}
+ACTIVE_SLIP = 0.02
+"""A wheel carries force in the fit when its |slip| exceeds this in at least MIN_POINTS samples."""
+C2_COARSE = np.geomspace(2.0, 200.0, 36)
+"""Coarse grid of c2 (1/slip) per group; refined between the best value's neighbours (C2_FINE_STEPS)."""
+C2_FINE_STEPS = 24
+EFFECTIVE_SAMPLE_S = 0.1
+"""High-rate samples this far apart count as independent in the F test (the slip's noise is correlated over it)."""
+F_CRITICAL = 4.0
+"""The per-axle fit is taken when its F statistic (3 more parameters) exceeds this (about p = 0.01)."""
+BLOCK_S = 0.2
+BOOTSTRAP_RESAMPLES = 60
+BOOTSTRAP_SEED = 20261125
+
+
+@dataclass(frozen=True)
+class GroupCurve:
+    """One group's fitted curve and its peak (None unless observed), with the peak's 95 % interval."""
+
+    wheels: tuple[str, ...]
+    model: str
+    """'burckhardt' (params c1, c2, c3) or 'magic formula' (params B, C, D)."""
+    params: tuple[float, float, float]
+    peak_observed: bool
+    mu_peak: float | None
+    slip_at_mu_peak: float | None
+    mu_peak_lo: float | None = None
+    mu_peak_hi: float | None = None
+    slip_at_mu_peak_lo: float | None = None
+    slip_at_mu_peak_hi: float | None = None
+
+    def mu(self, x: npt.ArrayLike) -> FloatArray:
+        """mu at |s| = x."""
+        xa = np.asarray(x, dtype=float)
+        a, b, c = self.params
+        if self.model == "magic formula":
+            return np.asarray(c * np.sin(b * np.arctan(a * xa)), dtype=float)
+        return np.asarray(a * -np.expm1(-b * xa) - c * xa, dtype=float)
+
+
+@dataclass(frozen=True)
+class JointFit:
+    method: str
+    """'joint shared' or 'joint per axle'."""
+    curves: dict[str, GroupCurve]
+    """Per wheel that carries force: its group's curve."""
+    rms_residual: float
+    """RMS of the force residual over the mean total normal load (a mu)."""
+    n_points: int
+    f_statistic: float | None
+    """The per-axle fit against the shared one (None: only one group carries force)."""
+
+
+def _peak(c1: float, c2: float, c3: float) -> tuple[float, float] | None:
+    if not (c1 > 0 and c2 > 0 and c3 > 0 and c1 * c2 > c3):
+        return None
+    s = math.log(c1 * c2 / c3) / c2
+    return float(c1 * -math.expm1(-c2 * s) - c3 * s), s
+
+
+def _observed(x: FloatArray, s_star: float) -> bool:
+    """mu_slip's rule: points below, around and beyond the peak (x: the group's |slip| samples, pooled)."""
+    n = x.size
+    beyond = int(np.count_nonzero(x > PEAK_MARGIN * s_star))
+    below = int(np.count_nonzero((x > 0) & (x < s_star)))
+    near = int(np.count_nonzero((x >= PEAK_REGION[0] * s_star) & (x <= PEAK_REGION[1] * s_star)))
+    return beyond >= max(MIN_PEAK_SIDE_POINTS, 0.05 * n) and below >= MIN_PEAK_SIDE_POINTS \
+        and near >= MIN_PEAK_REGION_POINTS
+
+
+class _Problem:
+    """The fit's data: y (n,) the total force on the maneuver's sign, per group its wheels' |s| and Fz (m, n)."""
+
+    def __init__(self, y: FloatArray, groups: list[tuple[FloatArray, FloatArray, FloatArray]]) -> None:
+        self.y = y
+        self.groups = groups
+        """Per group: (x (m, n) mirrored slips, fz (m, n), sgn (m, n) the sign of each mirrored slip)."""
+
+    def columns(self, g: int, c2s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The c1 basis per c2 (k, n) and the c3 basis (n,) of group g."""
+        x, fz, sgn = self.groups[g]
+        e = np.einsum("mn,kmn->kn", fz * sgn, -np.expm1(-c2s[:, None, None] * np.abs(x)[None]))
+        return e, -np.sum(fz * sgn * np.abs(x), axis=0)
+
+
+def _solve(cols: list[tuple[FloatArray, FloatArray]], y: FloatArray, w: FloatArray
+           ) -> tuple[FloatArray, FloatArray]:
+    """Weighted least squares for every combination of the groups' c2 values (one or two groups): (params (K...,
+    2G): c1, c3 per group; sse (K...)); a combination with a c1 <= 0 gets sse = inf."""
+    basis = [np.stack([e, np.broadcast_to(b, e.shape)], axis=1) for e, b in cols]  # (k_g, 2, n)
+    weighted = [bg * w for bg in basis]
+    grams = [np.einsum("kpn,kqn->kpq", wb, bg) for wb, bg in zip(weighted, basis)]
+    rhs = [wb @ y for wb in weighted]  # (k_g, 2)
+    if len(basis) == 1:
+        a, r = grams[0], rhs[0]
+    else:
+        k1, k2 = basis[0].shape[0], basis[1].shape[0]
+        cross = np.einsum("apn,bqn->abpq", weighted[0], basis[1])  # (k1, k2, 2, 2)
+        a = np.zeros((k1, k2, 4, 4))
+        a[..., :2, :2] = grams[0][:, None]
+        a[..., 2:, 2:] = grams[1][None, :]
+        a[..., :2, 2:] = cross
+        a[..., 2:, :2] = np.swapaxes(cross, -1, -2)
+        r = np.concatenate([np.broadcast_to(rhs[0][:, None], (k1, k2, 2)),
+                            np.broadcast_to(rhs[1][None, :], (k1, k2, 2))], axis=-1)
+    n_par = r.shape[-1]
+    scale = np.sqrt(np.maximum(np.einsum("...ii->...i", a), 1e-300))  # Jacobi scaling: c1 and c3 bases differ
+    a_s = a / (scale[..., :, None] * scale[..., None, :])
+    with np.errstate(all="ignore"):
+        params = np.linalg.solve(a_s + 1e-12 * np.eye(n_par), (r / scale)[..., None])[..., 0] / scale
+    sse = float(np.sum(w * y * y)) - np.einsum("...p,...p->...", params, r)
+    bad = np.any(params[..., 0::2] <= 0, axis=-1) | ~np.isfinite(sse)
+    return params, np.where(bad, np.inf, np.maximum(sse, 0.0))
+
+
+def _fit(p: _Problem, w: FloatArray) -> tuple[FloatArray, FloatArray, float] | None:
+    """Coarse grid, then a fine one around the best: (c2 per group, (c1, c3) per group, sse)."""
+    g_n = len(p.groups)
+    cols = [p.columns(g, C2_COARSE) for g in range(g_n)]
+    params, sse = _solve(cols, p.y, w)
+    if not np.isfinite(sse).any():
+        return None
+    best = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    fines = [np.geomspace(C2_COARSE[max(int(k) - 1, 0)], C2_COARSE[min(int(k) + 1, C2_COARSE.size - 1)], C2_FINE_STEPS)
+             for k in best]
+    params_f, sse_f = _solve([p.columns(g, fines[g]) for g in range(g_n)], p.y, w)
+    if np.isfinite(sse_f).any() and float(np.min(sse_f)) <= float(sse[best]):
+        bf = np.unravel_index(int(np.argmin(sse_f)), sse_f.shape)
+        return np.array([fines[g][k] for g, k in enumerate(bf)]), params_f[bf].reshape(g_n, 2), float(sse_f[bf])
+    return np.array([C2_COARSE[k] for k in best]), params[best].reshape(g_n, 2), float(sse[best])
+
+
+MF_B = np.geomspace(2.0, 80.0, 90)
+"""Magic Formula stiffness factor B grid (1/slip)."""
+MF_C = np.linspace(1.05, 2.2, 47)
+"""Magic Formula shape factor C grid (a peak needs C > 1)."""
+
+
+@dataclass(frozen=True)
+class MagicFormula:
+    """The Magic Formula's longitudinal form without curvature (Pacejka, Tire and Vehicle Dynamics, ch. 4):
+    mu(x) = D·sin(C·atan(B·x)); peak D at x* = tan(pi/(2C))/B."""
+
+    b: float
+    c: float
+    d: float
+
+    def mu(self, x: npt.ArrayLike) -> FloatArray:
+        return np.asarray(self.d * np.sin(self.c * np.arctan(self.b * np.asarray(x, dtype=float))), dtype=float)
+
+    @property
+    def peak(self) -> tuple[float, float]:
+        return self.d, math.tan(math.pi / (2.0 * self.c)) / self.b
+
+
+def _mf_basis(p: _Problem) -> FloatArray:
+    """Σ_w sign·sin(C·atan(B·|s_w|))·Fz_w per (C, B) of the grid: (c, b, n)."""
+    x, fz, sgn = p.groups[0]
+    out = np.zeros((MF_C.size, MF_B.size, x.shape[1]))
+    for xw, fzw, sw in zip(np.abs(x), fz, sgn):  # one wheel at a time: no (c, b, m, n) array
+        out += (fzw * sw) * np.sin(MF_C[:, None, None] * np.arctan(MF_B[None, :, None] * xw[None, None]))
+    return out
+
+
+def _fit_mf(e: FloatArray, y: FloatArray, w: FloatArray) -> tuple[MagicFormula, float] | None:
+    """D by weighted least squares for each (C, B) of the grid (e: _mf_basis); the best curve and its sse."""
+    ee = (e * e) @ w
+    ey = e @ (w * y)
+    with np.errstate(all="ignore"):
+        d = np.where(ee > 0, ey / ee, 0.0)
+    sse = np.where(d > 0, float(np.sum(w * y * y)) - d * ey, np.inf)
+    if not np.isfinite(sse).any():
+        return None
+    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    return MagicFormula(float(MF_B[j]), float(MF_C[i]), float(d[i, j])), float(max(sse[i, j], 0.0))
+
+
+def fit_joint(
+    time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n: Mapping[str, npt.ArrayLike],
+    force_n: npt.ArrayLike, sign: float, axles: Mapping[str, Sequence[str]] = AXLES,
+) -> JointFit | None:
+    """The joint fit (module docstring) of one maneuver's high-rate samples: each wheel's slip and normal load, the
+    total force (all finite, the maneuver's samples only); sign −1 braking, +1 driving. None without a wheel that
+    carries force or with fewer than MIN_POINTS samples."""
+    t = np.asarray(time_s, dtype=float)
+    y = sign * np.asarray(force_n, dtype=float)
+    active = [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP)
+              >= MIN_POINTS]
+    if not active or t.size < MIN_POINTS:
+        return None
+    groups_w = [g for g in (tuple(w for w in ws if w in active) for ws in axles.values()) if g]
+    x = {w: sign * np.asarray(slips[w], dtype=float) for w in active}
+
+    def problem(gs: list[tuple[str, ...]]) -> _Problem:
+        return _Problem(y, [(np.array([x[w] for w in g]), np.array([np.asarray(fz_n[w], dtype=float) for w in g]),
+                             np.sign(np.array([x[w] for w in g]))) for g in gs])
+
+    def observed_peak(gs: list[tuple[str, ...]], g: int, pk: tuple[float, float] | None) -> bool:
+        return pk is not None and _observed(np.abs(np.concatenate([x[wh] for wh in gs[g]])), pk[1])
+
+    def windowed(gs: list[tuple[str, ...]]) -> tuple[_Problem, FloatArray, tuple[FloatArray, FloatArray, float]] | None:
+        """The Burckhardt fit, repeated on the samples within PEAK_WINDOW·s* of each observed peak until they
+        settle (the sliding branch up to lock bends the curve)."""
+        prob = problem(gs)
+        w = np.ones_like(y)
+        fit = _fit(prob, w)
+        for _ in range(PEAK_WINDOW_ITERATIONS):
+            if fit is None:
+                return None
+            keep = np.ones(y.size, dtype=bool)
+            for g, ws in enumerate(gs):
+                pk = _burckhardt_peak(fit, g)
+                if observed_peak(gs, g, pk):
+                    for wh in ws:
+                        keep &= x[wh] <= PEAK_WINDOW * pk[1]  # type: ignore[index]  # observed: pk is set
+            w_new = keep.astype(float)
+            if np.array_equal(w_new, w) or keep.sum() < MIN_POINTS:
+                break
+            w = w_new
+            fit = _fit(prob, w)
+        return (prob, w, fit) if fit is not None else None
+
+    shared_gs = [tuple(active)]
+    got = windowed(shared_gs)
+    if got is None:
+        return None
+    prob, weights, fit = got
+    gs, f_stat = shared_gs, None
+    if len(groups_w) > 1:
+        got_p = windowed(groups_w)
+        if got_p is not None:
+            p_p, w_p, fit_p = got_p
+            n_eff = max(8.0, float(np.sum(w_p)) * float(np.median(np.diff(t))) / EFFECTIVE_SAMPLE_S)
+            sse_s = _sse_at(prob, w_p, fit)
+            f_stat = ((sse_s - fit_p[2]) / 3.0) / max(fit_p[2] / max(n_eff - 6.0, 1.0), 1e-300)
+            if f_stat > F_CRITICAL and all(observed_peak(groups_w, g, _burckhardt_peak(fit_p, g))
+                                           for g in range(len(groups_w))):
+                prob, weights, fit, gs = p_p, w_p, fit_p, groups_w  # each axle's curve identified by its own peak
+    models: list[tuple[str, tuple[float, float, float]]] = [
+        ("burckhardt", (float(fit[1][g][0]), float(fit[0][g]), float(fit[1][g][1]))) for g in range(len(gs))]
+    sse = fit[2]
+    mf_basis = None
+    if len(gs) == 1:  # the Magic Formula where it fits the shared curve better
+        mf_basis = _mf_basis(prob)
+        mf = _fit_mf(mf_basis, y, weights)
+        if mf is not None and mf[1] < sse:
+            models, sse = [("magic formula", (mf[0].b, mf[0].c, mf[0].d))], mf[1]
+        else:
+            mf_basis = None
+    intervals = _bootstrap(prob, t, len(gs), weights, mf_basis)
+    fz_total = float(np.mean(np.sum([np.asarray(fz_n[w], dtype=float) for w in slips], axis=0)))
+    curves: dict[str, GroupCurve] = {}
+    for g, ws in enumerate(gs):
+        model, params = models[g]
+        pk = _model_peak(model, params)
+        observed = observed_peak(gs, g, pk)
+        lo_hi = intervals[g] if observed else (None, None, None, None)
+        curve = GroupCurve(ws, model, params, observed, pk[0] if observed and pk else None,
+                           pk[1] if observed and pk else None, *lo_hi)
+        for w in ws:
+            curves[w] = curve
+    n_used = float(np.sum(weights > 0))
+    return JointFit("joint per axle" if len(gs) > 1 else "joint shared", curves,
+                    math.sqrt(sse / max(n_used, 1.0)) / max(fz_total, 1e-9), int(n_used), f_stat)
+
+
+def _burckhardt_peak(fit: tuple[FloatArray, FloatArray, float], g: int) -> tuple[float, float] | None:
+    return _peak(float(fit[1][g][0]), float(fit[0][g]), float(fit[1][g][1]))
+
+
+def _model_peak(model: str, params: tuple[float, float, float]) -> tuple[float, float] | None:
+    if model == "magic formula":
+        b, c, d = params
+        return MagicFormula(b, c, d).peak if c > 1.0 and b > 0 and d > 0 else None
+    return _peak(*params)
+
+
+def _sse_at(p: _Problem, w: FloatArray, fit: tuple[FloatArray, FloatArray, float]) -> float:
+    """The weighted sse of a fitted curve (its own c2, c1 and c3 per group) on other weights."""
+    pred = np.zeros_like(p.y)
+    for g in range(len(p.groups)):
+        e, b = p.columns(g, np.array([fit[0][g]]))
+        pred += fit[1][g][0] * e[0] + fit[1][g][1] * b
+    return float(np.sum(w * (p.y - pred) ** 2))
+
+
+def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray, mf_basis: FloatArray | None
+               ) -> list[tuple[float | None, float | None, float | None, float | None]]:
+    """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap percentiles of the chosen model
+    (mf_basis given: the Magic Formula; None when fewer than 80 % of the resamples find a peak)."""
+    n = t.size
+    dt = float(np.median(np.diff(t))) if n > 1 else 0.01
+    block = max(1, int(round(BLOCK_S / max(dt, 1e-6))))
+    starts_n = max(1, n - block + 1)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    peaks: list[list[tuple[float, float]]] = [[] for _ in range(n_groups)]
+    for _ in range(BOOTSTRAP_RESAMPLES):
+        w = np.zeros(n)
+        for s in rng.integers(0, starts_n, size=int(math.ceil(n / block))):
+            w[s:s + block] += 1.0
+        w *= base_w
+        if mf_basis is not None:
+            mf = _fit_mf(mf_basis, p.y, w)
+            if mf is not None and mf[0].c > 1.0:
+                peaks[0].append(mf[0].peak)
+            continue
+        fit = _fit(p, w)
+        if fit is None:
+            continue
+        for g in range(n_groups):
+            pk = _burckhardt_peak(fit, g)
+            if pk is not None:
+                peaks[g].append(pk)
+    out: list[tuple[float | None, float | None, float | None, float | None]] = []
+    for g in range(n_groups):
+        if len(peaks[g]) < 0.8 * BOOTSTRAP_RESAMPLES:
+            out.append((None, None, None, None))
+            continue
+        mu, s = np.array([a for a, _ in peaks[g]]), np.array([b for _, b in peaks[g]])
+        out.append((float(np.percentile(mu, 2.5)), float(np.percentile(mu, 97.5)),
+                    float(np.percentile(s, 2.5)), float(np.percentile(s, 97.5))))
+    return out
