@@ -11,8 +11,12 @@ Rows (per road and seed):
   test day          test-day (0-60, 60-0, 0-33, 33-0 km/h; WPT 100 Hz, GPS 10 Hz, no brake switch): maneuvers found,
                     the largest speed error (from/to against 0, 60, 33), MFDD of each stop against the truth; valid
                     against 60 and 33 +- 3; each stop invalid against 50 +- 2 with its reason
+  mu-slip           each tire's mu peak (% of the tire's) and slip at the peak (points) on brake-abs-all (every wheel
+                    at its limit), brake-abs (one axle at its limit) and launch-spin; the method that gave them, or
+                    why none (mu_flag)
 Targets: MFDD within 1 % (ABS) and 3 % (test day), stopping distance within 0.5 m and brake speed within 1 km/h (ABS),
-exactly 2 + 2 maneuvers with speeds within 3 km/h (test day).
+exactly 2 + 2 maneuvers with speeds within 3 km/h (test day); mu peak within 5 % and slip at peak within 2 points,
+no unflagged mu above the tire's (ABS, issue 28).
 --write puts the table into docs/accuracy.md between its maneuver-table markers.
 """
 
@@ -29,7 +33,7 @@ from slipdaq.demo import demo_config, demo_settings
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sim.truth import mfdd_mps2, speed_at_onset_mps, stopping_distance_m, truth_series
+from slipdaq.sim.truth import mfdd_mps2, speed_at_onset_mps, stopping_distance_m, tire_peak, truth_series
 from slipdaq.sinks import CollectingSink
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,6 +117,28 @@ def test_day_row(road: str, seed: int) -> str:
             f"{'both stops invalid (brake speed)' if invalid50 and len(stops50) == 2 else 'NOT as expected'} | |")
 
 
+def mu_row(scenario: str, road: str, seed: int) -> str:
+    """Each tire's mu peak and slip at peak (live /maneuver) against the simulator's tire; the method and flags."""
+    cfg = demo_config("/dev/null", "chan", scenario)
+    settings = SimSettings(**{**demo_settings(scenario).__dict__, "seed": seed})
+    sink, _truth, _t0 = run(cfg, scenario, road, settings, 14.0)
+    ms = [m for m in sink.maneuvers if m.kind == ("accelerate" if scenario == "launch-spin" else "brake")]
+    if not ms:
+        return f"| mu-slip {scenario} | {road} | {seed} | no maneuver | | | | |"
+    m, truth = ms[0], tire_peak(road)
+    cells = []
+    for w in ("FL", "FR", "RL", "RR"):
+        mw = m.wheels[w]
+        if mw.mu_peak is None:
+            cells.append(f"{w} none ({mw.mu_flag or 'no curve'})")
+        else:
+            cells.append(f"{w} {100 * (mw.mu_peak / truth.mu_peak - 1):+.1f} %, "
+                         f"{100 * (mw.slip_at_mu_peak - truth.slip_at_mu_peak):+.1f} pts")  # type: ignore[operator]
+    methods = sorted({m.wheels[w].mu_slip_method or "-" for w in ("FL", "FR", "RL", "RR")})
+    return (f"| mu-slip {scenario} | {road} | {seed} | {'; '.join(cells[:2])} | {'; '.join(cells[2:])} | "
+            f"{', '.join(methods)} | tire {truth.mu_peak:.2f} at {100 * truth.slip_at_mu_peak:.1f} % | |")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", default="1,2,3", help="simulator seeds (default 1,2,3)")
@@ -124,6 +150,12 @@ def main() -> int:
         for seed in seeds:
             for make in (abs_row, test_day_row):
                 line = make(road, seed)
+                print(line, flush=True)
+                lines.append(line)
+    for scenario in ("brake-abs-all", "brake-abs", "launch-spin"):
+        for road in ("paved", "sand"):
+            for seed in seeds:
+                line = mu_row(scenario, road, seed)
                 print(line, flush=True)
                 lines.append(line)
     text = "\n".join(lines)

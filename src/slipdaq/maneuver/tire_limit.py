@@ -11,7 +11,7 @@ Method
     3. Each explains the total force over those samples: the hydraulic curves by Σ_w mu_w(s_w)·Fz_w (a wheel without
        a curve: its split force), the joint one by its own model. The one with the smaller sum of squared force
        residuals is taken (`method`). A joint fit without an observed peak is not taken (its curve then says no more
-       than the split does).
+       than the split does), nor one whose every peak is not determined where the split gives one.
     The joint fit's per-wheel points for the plot: the total force split in proportion to each tire's fitted
     mu(s_w)·Fz_w, over Fz_w.
 Flags (`flag`, mu_flag in the tables): a peak above mu_max ('mu above 1.5'), or hydraulic points above mu_max in more
@@ -130,4 +130,7 @@ def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], v
                         method=joint.method, mu_peak_lo=c.mu_peak_lo, mu_peak_hi=c.mu_peak_hi,
                         slip_at_mu_peak_lo=c.slip_at_mu_peak_lo, slip_at_mu_peak_hi=c.slip_at_mu_peak_hi)
         fits[w] = flagged(fit, mu_max)
+    undetermined = all(f is None or f.flag == "not determined" for f in fits.values())
+    if undetermined and any(f is not None and f.mu_peak is not None for f in hydraulic.fits.values()):
+        return dataclasses.replace(hydraulic, joint=joint)  # the split determines a peak the joint fit leaves open
     return TireCurves(fits, joint_points, joint.method, joint)
