@@ -13,7 +13,24 @@ if [ ! -x "$py" ]; then
 fi
 echo "tests: installing slipdaq and its test dependencies into $(dirname "$(dirname "$py")")"
 "$py" -m pip install -q --disable-pip-version-check -e "$root[test]" 2>&1 | grep -v "^WARNING: Location" || true
-"$py" -c "import slipdaq, can, cantools, mcap, matplotlib, pytest, hypothesis" # fail early and clearly if the install failed
+"$py" -c "import slipdaq, can, cantools, mcap, matplotlib, plotly, playwright, pytest, hypothesis" # fail early and clearly if the install failed
+# The report page's browser test (tests/test_report_page.py) drives the OS's Chromium through Playwright: installed
+# with apt when missing, as root (as tests/hil/run_vm.sh installs qemu); where it cannot be, that test skips (one line).
+chromium=${SLIPDAQ_CHROMIUM:-/usr/bin/chromium}
+if [ ! -x "$chromium" ]; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "tests: installing chromium (apt) for the report page's browser test"
+        log=$(mktemp)
+        if ! { apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends chromium; } \
+            >"$log" 2>&1; then
+            tail -n 20 "$log" >&2
+            echo "tests: chromium could not be installed: the report page's browser test will skip"
+        fi
+        rm -f "$log"
+    else
+        echo "tests: no $chromium and not root (or no apt): the report page's browser test will skip"
+    fi
+fi
 echo "tests: lint (ruff) and type check (mypy), configured in pyproject.toml"
 "$py" -m ruff check --quiet "$root"
 "$py" -m mypy

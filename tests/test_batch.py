@@ -62,8 +62,9 @@ def _same(a: object, b: object) -> bool:
     return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
 
 
-def _check_outputs(out: Path, logs: dict[str, Path], names: list[str]) -> None:
-    """One Parquet file per log, equal to its two-pass estimates; the fleet table and the report."""
+def _check_outputs(out: Path, logs: dict[str, Path], names: list[str], png: bool = False) -> None:
+    """One Parquet file per log, equal to its two-pass estimates; the fleet table and the report (one page, each
+    log's plot data beside it; with png the PNGs)."""
     files = sorted((out / "estimates").glob("*.parquet"))
     assert sorted(f.name.rsplit("-", 1)[0] for f in files) == sorted(names)
     for f in files:
@@ -86,22 +87,31 @@ def _check_outputs(out: Path, logs: dict[str, Path], names: list[str]) -> None:
     index = (out / "report" / "index.html").read_text()
     assert all(n in index for n in names)
     summary = json.loads((out / "report" / "summary.json").read_text())
-    assert summary["comparison"] and all(p.is_file() for p in (out / "report").glob("*/*.png"))
-    assert len(list((out / "report").glob("compare-*.png"))) >= 2
+    assert summary["comparison"] and all((out / "report" / n / "plots.js").is_file() for n in names)
+    assert (out / "report" / "plotly.min.js").is_file() and (out / "report" / "compare.js").is_file()
+    assert index.count('data-slipdaq-table="maneuvers"') == 1
+    assert index.count("<tr data-href=") == sum(len(log["maneuvers"]) for log in summary["logs"])
+    pngs = {p.relative_to(out / "report").as_posix() for p in (out / "report").rglob("*.png")}
+    if png:
+        per_maneuver = {f for log in summary["logs"] for m in log["maneuvers"] for f in m["pngs"].values()}
+        assert len(per_maneuver) == 6 * sum(len(log["maneuvers"]) for log in summary["logs"])
+        assert len(summary["comparison"]) >= 2 and pngs == per_maneuver | {c["png"] for c in summary["comparison"]}
+    else:
+        assert pngs == set()
 
 
 def test_batch_on_a_local_cluster_skip_rule_and_a_failing_log(logs: dict[str, Path], tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     good = [n for n in logs if n != "corrupt"]
     out = tmp_path / "fleet"
-    args = [*(str(logs[n]) for n in (*good[:2], "corrupt", *good[2:])), "-o", str(out), "--workers", "2"]
+    args = [*(str(logs[n]) for n in (*good[:2], "corrupt", *good[2:])), "-o", str(out), "--workers", "2", "--png"]
     rc, err, stdout = _batch(args, capsys)
     assert rc == 1  # the corrupt log failed, the others went on
     assert sum("FAILED" in line and "corrupt.mcap" in line for line in err) == 1
     assert any(line.startswith("slipdaq: batch: failed: ") and "corrupt.mcap" in line for line in err)
     assert len([line for line in err if line.startswith("batch: [")]) == 5
     assert "4 processed, 0 up to date, 1 failed" in stdout
-    _check_outputs(out, logs, good)
+    _check_outputs(out, logs, good, png=True)
 
     written = {p: p.stat().st_mtime_ns for p in (*(out / "estimates").iterdir(), *(out / "cache").iterdir())}
     rc, err, stdout = _batch(args, capsys)
@@ -109,15 +119,15 @@ def test_batch_on_a_local_cluster_skip_rule_and_a_failing_log(logs: dict[str, Pa
     assert sum("up to date" in line for line in err) == 4
     assert {p: p.stat().st_mtime_ns for p in written} == written  # not written again
     assert set((out / "estimates").iterdir()) | set((out / "cache").iterdir()) == set(written)
-    _check_outputs(out, logs, good)
+    _check_outputs(out, logs, good, png=True)
 
     os.utime(logs["sand-2"], ns=(time.time_ns(), time.time_ns()))  # changed: processed again, older file removed
-    rc, err, stdout = _batch([*(str(logs[n]) for n in good), "-o", str(out), "--workers", "1"], capsys)
+    rc, err, stdout = _batch([*(str(logs[n]) for n in good), "-o", str(out), "--workers", "1", "--png"], capsys)
     assert rc == 0 and "1 processed, 3 up to date, 0 failed" in stdout
     assert len(list((out / "estimates").glob("sand-2-*.parquet"))) == 1
     assert len(list((out / "cache").glob("sand-2-*.pickle"))) == 1
     assert all(written[p] == p.stat().st_mtime_ns for p in written if not p.name.startswith("sand-2-"))
-    _check_outputs(out, logs, good)
+    _check_outputs(out, logs, good, png=True)
 
 
 @contextlib.contextmanager

@@ -187,7 +187,7 @@ def abs_report(base: Config, tmp_path_factory: pytest.TempPathFactory):
     d = tmp_path_factory.mktemp("abs")
     log = d / "abs.mcap"
     process_to_log(cfg, records, log, "import")
-    assert main(["report", str(log), "-o", str(d / "report")]) == 0
+    assert main(["report", str(log), "-o", str(d / "report"), "--png"]) == 0
     summary = json.loads((d / "report" / "summary.json").read_text())
     return summary, ts, d
 

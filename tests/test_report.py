@@ -1,5 +1,5 @@
 """`slipdaq report` on real logs: a paved cycle and a sand brake run made by the real pipeline from simulator
-records (offline, as `import`), and a short live demo log; PNGs checked as images, the summary against the
+records (offline, as `import`), and a short live demo log; PNGs (`--png`) checked as images, the summary against the
 simulator's truth. Plus the pure parts: the linearity rule, the phase fallback, labels and grouping."""
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import json
 import os
 import re
 import struct
+import subprocess
+import sys
 from pathlib import Path
 
 import can
@@ -48,7 +50,7 @@ def _sim_log(cfg, out: Path, scenario: str, road: str, duration_s: float, labels
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    """Three logs (paved cycle, sand brake, 8 s live demo) and one `slipdaq report` over them."""
+    """Three logs (paved cycle, sand brake, 8 s live demo) and one `slipdaq report --png` over them."""
     d = tmp_path_factory.mktemp("report")
     cfg = load_config(CONFIG)
     paved = _sim_log(cfg, d / "cycle-paved.mcap", "cycle", "paved", 16.0, {"road": "paved"}, seed=3)
@@ -60,7 +62,7 @@ def report(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped
     out = d / "out"
     progress = io.StringIO()
     with contextlib.redirect_stdout(progress):
-        rc = main(["report", str(paved), str(sand), str(demo), "-o", str(out)])
+        rc = main(["report", str(paved), str(sand), str(demo), "-o", str(out), "--png"])
     return {"cfg": cfg, "paved": paved, "sand": sand, "demo": demo, "out": out, "rc": rc,
             "progress": progress.getvalue().splitlines()}
 
@@ -204,13 +206,14 @@ def test_comparison_groups_logs_by_label(report) -> None:  # type: ignore[no-unt
     paved, sand = brake["groups"]
     assert paved["logs"] == ["cycle-paved"] and sand["logs"] == ["brake-sand"]
     assert paved["wheels"]["FL"]["cx_fit_n"] > 1.5 * sand["wheels"]["FL"]["cx_fit_n"]  # paved is stiffer
-    assert brake["plot"] == "compare-brake-fx-slip.png"
+    assert brake["plot"] == "compare-brake-fx-slip" and brake["png"] == "compare-brake-fx-slip.png"
 
 
 def test_report_progress_lines_and_group_by(report, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     lines = report["progress"]
     assert lines[0].startswith("report: read ") and lines[0].endswith(" estimates (two-pass)")
-    assert "report: brake-sand: brake 90–0 km/h: 6 plots" in lines
+    assert "report: brake-sand: brake 90–0 km/h: 7 plots" in lines
+    assert "report: brake-sand: brake 90–0 km/h: 6 PNGs" in lines
     assert "report: comparison brake: road=paved, road=sand" in lines
     assert lines[-1].startswith("report: wrote ") and "index.html" in lines[-1]
     out = tmp_path / "r"
@@ -218,6 +221,34 @@ def test_report_progress_lines_and_group_by(report, tmp_path: Path, capsys) -> N
     summary = json.loads((out / "summary.json").read_text())
     assert [log["group"] for log in summary["logs"]] == ["road=paved, tire=–"]
     assert summary["comparison"] == []  # one log: nothing to compare
+    assert not list(out.rglob("*.png"))  # without --png: none
+    # the page: plotly.js written once (the package's own file), the log's plot data beside it, nothing online
+    import plotly.offline
+
+    assert (out / "plotly.min.js").read_text(encoding="utf-8") == plotly.offline.get_plotlyjs()
+    demo = report["demo"].stem
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.js")) == sorted(
+        [f"{demo}/plots.js", "plotly.min.js", "slipdaq-report.js"])
+    html = (out / "index.html").read_text()
+    assert "http://" not in html and "https://" not in html
+    assert html.count('data-slipdaq-table="maneuvers"') == 1 and "<noscript>" in html
+
+
+def test_default_report_and_batch_task_import_no_matplotlib(report, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """`report` and a batch task (fleet.process_log) draw no PNG and never import matplotlib (a fresh interpreter)."""
+    log = str(report["paved"])
+    code = (
+        "import sys\n"
+        "from slipdaq.cli import main\n"
+        "from slipdaq.fleet import Job, process_log\n"
+        f"assert main(['report', {log!r}, '-o', {str(tmp_path / 'r')!r}]) == 0\n"
+        f"r = process_log(Job({log!r}, 'x', '0' * 16, {log!r}))\n"
+        "assert r.error is None and not r.pngs and r.page is not None, r.error\n"
+        "assert 'matplotlib' not in sys.modules, 'matplotlib imported'\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert not list((tmp_path / "r").rglob("*.png"))
 
 
 def test_report_of_a_file_that_is_not_a_slipdaq_log_is_one_line_exit_1(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

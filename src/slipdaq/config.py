@@ -164,14 +164,27 @@ class _CanSignalSection(_Section):
 
 
 class ImuConfig(_CanSignalSection):
-    """The longitudinal acceleration from an inertial sensor on CAN (positive forward, after `sign`); unset: the GPS
-    speed differences."""
+    """The longitudinal acceleration from an inertial sensor (positive forward, after `sign`): on CAN by its DBC
+    names, or (source = "serial") an Xsens MTi's Xbus output on a serial port; unset: the GPS speed differences."""
 
     section: ClassVar[str] = "imu"
+    source: Literal["can", "serial"] = "can"
     unit: Literal["m/s^2", "g"] | None = None
     """The signal's unit (default: the DBC's)."""
     sign: Literal[1, -1] = 1
     """-1 for a sensor mounted backwards."""
+    port: str | None = Field(None, min_length=1, description="serial: the MTi's port, e.g. /dev/ttyUSB1")
+    baudrate: int = Field(115200, gt=0)
+    protocol: Literal["xbus"] = "xbus"
+    """serial: the MTi's MTData2 messages (Acceleration in the sensor's axes, gravity included)."""
+    axis: Literal["x", "y", "z"] = "x"
+    """serial: the sensor axis that points forward (backwards: sign = -1)."""
+
+    @model_validator(mode="after")
+    def _serial(self) -> ImuConfig:
+        if self.source == "serial" and (self.port is None or self.message is not None):
+            raise ValueError("imu.source = \"serial\" takes imu.port (and no imu.message or imu.signal)")
+        return self
 
 
 class BrakeConfig(_CanSignalSection):

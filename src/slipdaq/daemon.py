@@ -13,13 +13,14 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import can
 
 from slipdaq import compiled
 from slipdaq.calibration import Calibration, Learned, to_toml
 from slipdaq.config import Config, ConfigError
+from slipdaq.decode.xbus import XbusFramer
 from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
@@ -30,6 +31,9 @@ from slipdaq.sinks.status import SourceStatus, StatusSink, print_maneuvers, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 from slipdaq.sources.clock import SteadyClock, watch_steps
 from slipdaq.sources.serial_gps import SerialGpsSource
+
+if TYPE_CHECKING:
+    from slipdaq.sinks.foxglove_live import FoxgloveLive
 
 
 class _Stop(Exception):
@@ -78,12 +82,12 @@ class _LiveLogSink(McapLogSink):
 
     def __init__(
         self, path: Path, config: Config, metadata: dict[str, str], *,
-        clock: SteadyClock, on_event: Callable[[SourceEvent], None],
+        clock: SteadyClock, on_event: Callable[[SourceEvent], None], tap: Callable[[str, float, bytes], None] | None = None,
     ) -> None:
         super().__init__(
             path, config, mode="live", metadata=metadata, flush_every_s=1.0, clock=clock, on_event=on_event,
             rotation=RotationPolicy(config.log.rotate_size_bytes, config.log.rotate_duration_s),
-            can_channels=[channel_name(config.can.channel)],
+            can_channels=[channel_name(config.can.channel)], tap=tap,
         )
         self.extra: list[Callable[[], dict[str, object]]] = []
         """The sources' status() functions, merged into each diagnostics record."""
@@ -113,6 +117,21 @@ def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
         n += 1
         path = log_dir / f"{prefix}-{stamp}-{n}.mcap"
     return path
+
+
+def start_live(config: Config, stream: TextIO) -> FoxgloveLive | None:
+    """The Foxglove live server of `live.foxglove`, if set (OSError when it cannot listen); its address printed."""
+    if config.live.foxglove is None:
+        return None
+    from slipdaq.sinks.foxglove_live import FoxgloveLive
+
+    try:
+        live = FoxgloveLive(config.live.foxglove)
+    except ValueError as e:  # an address that skipped the config's check (Config.with_overrides)
+        raise ConfigError(f"{config.source_path or '<config>'}: live.foxglove: {e}") from None
+    print(f"slipdaq: Foxglove live view on {live.url} (Foxglove: Open connection, Foxglove WebSocket)", file=stream,
+          flush=True)
+    return live
 
 
 async def run_daemon(
@@ -156,7 +175,14 @@ async def run_daemon(
         log_status=lambda: sink.log_status(),
     ))
     meta = can_meta | (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
-    sink = _LiveLogSink(log_path, config, meta, clock=clock, on_event=status.on_source_event)
+    live = start_live(config, status_stream or sys.stdout)
+    try:
+        sink = _LiveLogSink(log_path, config, meta, clock=clock, on_event=status.on_source_event,
+                            tap=live.publish if live is not None else None)
+    except BaseException:  # no log (a file is there, the disk): no server either
+        if live is not None:
+            live.close()
+        raise
     events = EventFanout([sink, status])  # source events -> /diagnostics/events and the view
     can_source = CanBusSource(bus, report=report, stamp=clock, on_event=events,
                               read_interval_s=config.can.read_interval_s,
@@ -165,7 +191,11 @@ async def run_daemon(
     import pyubx2  # noqa: F401  (now, not on the loop with the first UBX frame: UbxDecoder imports it lazily)
     gps_source = SerialGpsSource(config.gps.port, config.gps.baudrate, clock=clock, on_event=events) \
         if serial_gps else None
-    sink.extra += [can_source.status] + ([gps_source.status] if gps_source is not None else [])
+    imu_source = SerialGpsSource(config.imu.port, config.imu.baudrate, clock=clock, on_event=events,
+                                 framer=XbusFramer, name="imu") \
+        if config.imu.source == "serial" and config.imu.port is not None else None
+    sink.extra += [can_source.status] + ([gps_source.status] if gps_source is not None else []) + \
+        ([live.status] if live is not None else [])
     pipeline = Pipeline(config, [sink, status], calibration=calibration)
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -192,6 +222,8 @@ async def run_daemon(
             tg.create_task(can_source.run(pipeline.process, pipeline.process_can_batch), name="can")
             if gps_source is not None:
                 tg.create_task(gps_source.run(process_gps), name="gps")
+            if imu_source is not None:  # an Xsens MTi: its records as the GPS's, beside them on the loop
+                tg.create_task(imu_source.run(pipeline.process), name="imu")
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")
             tg.create_task(watch_steps(clock, events), name="clock")
@@ -202,6 +234,8 @@ async def run_daemon(
             loop.remove_signal_handler(sig)
         pipeline.finish()
         sink.close()
+        if live is not None:  # after the log's last message; a client that stopped reading is not waited for
+            live.close()
         stream = status_stream or sys.stdout
         if not stream.isatty():  # the maneuvers decided since the view's last look (the last one at the end)
             print_maneuvers(status, stream)

@@ -59,13 +59,16 @@ def demo_settings(scenario: str) -> SimSettings:
 async def run_demo_async(
     duration_s: float, scenario: str, road: str, log_dir: Path, *, status_stream: TextIO | None = None,
     status_every_s: float = 5.0, settings: SimSettings | None = None, labels: dict[str, str] | None = None,
-    calibration: Calibration | None = None,
+    calibration: Calibration | None = None, foxglove: str | None = None,
 ) -> tuple[RunResult, SlipError, Config]:
     """labels: free-form {KEY: VALUE} stored in the log's metadata as `label.KEY` (`--label KEY=VALUE`);
-    calibration: the stored calibration the daemon starts from."""
+    calibration: the stored calibration the daemon starts from; foxglove: `[HOST:]PORT` of a Foxglove live server
+    (live.foxglove)."""
     gps = PtyGps()
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
     cfg = demo_config(gps.path, channel, scenario)
+    if foxglove is not None:
+        cfg = cfg.with_overrides(live={"foxglove": foxglove})
     truth: list[TruthSample] = []
     started: list[SimSettings] = []
     log_path = new_log_path(log_dir, "demo")
@@ -104,9 +107,9 @@ async def run_demo_async(
 
 def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: TextIO = sys.stdout,
              labels: dict[str, str] | None = None, calibration_path: Path | None = None,
-             no_calibration: bool = False) -> int:
+             no_calibration: bool = False, foxglove: str | None = None) -> int:
     """calibration_path: the calibration file (default calibration.toml in log_dir); no_calibration: start cold and
-    save nothing."""
+    save nothing; foxglove: `[HOST:]PORT` of a Foxglove live server."""
     print(f"demo: {scenario} on {road} road for {duration_s:.0f} s — simulator and daemon on a virtual CAN bus "
           f"and a pseudo-terminal GPS; Ctrl-C stops early.", file=out, flush=True)
     cfg = load_config(packaged_config_path())
@@ -114,7 +117,7 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
     if cal.note:
         print(cal.note, file=out, flush=True)
     result, err, _ = asyncio.run(run_demo_async(duration_s, scenario, road, log_dir, status_stream=out,
-                                                labels=labels, calibration=cal.start))
+                                                labels=labels, calibration=cal.start, foxglove=foxglove))
     saved = cal.finish(result.learned, cfg, str(result.log_path))
     rate = result.can_frames / result.duration_s if result.duration_s > 0 else 0.0
     print(

@@ -1,6 +1,6 @@
 """`slipdaq export`: a log's estimates, high-rate slip and GPS into other formats, one writer per format behind one
-interface (a registry by name, as python-can's by suffix): csv, fast_csv, maneuvers_csv, mf4, parquet. A writer takes the log's
-streams (LogStreams, read on demand) and a path, and returns how many rows it wrote."""
+interface (a registry by name, as python-can's by suffix): csv, fast_csv, maneuvers_csv, imu_csv, mf4, parquet. A
+writer takes the log's streams (LogStreams, read on demand) and a path, and returns how many rows it wrote."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from typing import Any
 
 from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic, read_metadata
 from slipdaq.logformat.salvage import ScanResult
-from slipdaq.logformat.topics import TOPIC_GPS, TOPIC_MANEUVER
+from slipdaq.logformat.topics import TOPIC_GPS, TOPIC_MANEUVER, TOPIC_SENSORS
 from slipdaq.outputs import OutputError, refuse_inputs, same_file
 from slipdaq.report.labels import labels_of
 from slipdaq.sources.read_errors import guarded
@@ -36,6 +36,12 @@ class LogStreams:
     def fixes(self) -> Iterator[dict[str, Any]]:
         return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_GPS,), self.scanned)))
 
+    def imu_rows(self) -> Iterator[dict[str, Any]]:
+        """The forward acceleration the estimator took from the IMU (on CAN or serial): time_s, accel_mps2."""
+        return guarded(self.log, ({"time_s": d["time_s"], "accel_mps2": d["value"]}
+                                  for _topic, _t, d in iter_topic(self.log, (TOPIC_SENSORS,), self.scanned)
+                                  if d.get("kind") == "imu_accel"))
+
     def maneuvers(self) -> Iterator[dict[str, Any]]:
         return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_MANEUVER,), self.scanned)))
 
@@ -56,6 +62,12 @@ def _maneuvers_csv(log: LogStreams, path: Path) -> int:
     from slipdaq.sinks.csv_export import MANEUVER_CSV_COLUMNS, write_csv
 
     return write_csv(log.maneuvers(), path, MANEUVER_CSV_COLUMNS)
+
+
+def _imu_csv(log: LogStreams, path: Path) -> int:
+    from slipdaq.sinks.csv_export import write_csv
+
+    return write_csv(log.imu_rows(), path, ("time_s", "accel_mps2"))
 
 
 def _mf4(log: LogStreams, path: Path) -> int:
@@ -90,6 +102,8 @@ FORMATS: dict[str, ExportFormat] = {
     "maneuvers_csv": ExportFormat("--maneuvers-csv", "maneuvers", _maneuvers_csv, empty_note=(
         " (no accelerate or brake maneuver ended in it, or a log recorded before they were logged: `slipdaq replay` "
         "it)")),
+    "imu_csv": ExportFormat("--imu-csv", "IMU samples", _imu_csv, empty_note=(
+        " (no IMU: neither [imu] on CAN nor an MTi on serial)")),
     "mf4": ExportFormat("--mf4", "estimates", _mf4, needs=("asammdf", "mdf")),
     "parquet": ExportFormat("--parquet", "estimates", _parquet, needs=("pyarrow", "fleet")),
 }

@@ -1,21 +1,25 @@
 """`slipdaq batch`: many logs on Dask, one task per log; this module only orchestrates.
 
 A task (process_log) re-runs one log two-pass and summarizes it (report.build.read_log, report.summary.summarize_log),
-draws its plots (report.build.plot_log) and its estimates as Parquet (sinks.parquet_export.write_parquet), each into
-a temporary directory on the worker, and returns them as bytes in a LogResult, or the error text. This process
-writes everything: only the logs need to be readable by the workers (at the same path), not DIR.
+lays out its page's plots (report.page_data.log_page: the data the browser draws, every high-rate row of its
+maneuvers), with `--png` draws its PNGs (report.build.plot_log), and writes its estimates as Parquet
+(sinks.parquet_export.write_parquet) into a temporary directory on the worker; it returns them as bytes in a
+LogResult, or the error text. This process writes everything: only the logs need to be readable by the workers (at
+the same path), not DIR.
 
 Output layout in DIR:
     estimates/<name>-<key>.parquet   the Parquet dataset: one file per log (the estimate rows, `log`, `label_<KEY>`)
-    cache/<name>-<key>.pickle        the LogResult without its Parquet bytes (summary and PNGs): what a re-run needs
-    report/                          report.build.write_report over every log: index.html, summary.csv, summary.json,
-                                     <name>/*.png, compare-*.png
+    cache/<name>-<key>.pickle        the LogResult without its Parquet bytes (summary, page data, PNGs): what a
+                                     re-run needs
+    report/                          report.build.write_report over every log: one page (index.html: every log's
+                                     maneuvers in one table, the comparison, each log's plots), <name>/plots.js,
+                                     plotly.min.js, summary.csv, summary.json; with --png <name>/*.png, compare-*.png
 
 <name> is the log's file stem made file-safe and unique in the run (report.build.unique_name); <key> hashes the
 log's size and mtime, its stored metadata (the config, the DBC, the calibration it started from, its labels), the
 name and slipdaq's version. Skip rule: a log whose Parquet and cache files with its current key exist is not
-processed again; its summary and plots are read from the cache file. A new output of a name removes the older files
-of that name.
+processed again; its summary and plots are read from the cache file (with --png: unless its cache has no PNGs). A
+new output of a name removes the older files of that name.
 """
 
 from __future__ import annotations
@@ -38,9 +42,11 @@ from typing import Any, TextIO
 
 import slipdaq
 from slipdaq.outputs import atomic_output, refuse_inputs
+from slipdaq.report.build import Placed
+from slipdaq.report.page_data import PagePlots
 from slipdaq.report.summary import LogSummary
 
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
 ESTIMATES, CACHE, REPORT = "estimates", "cache", "report"
 PlotBytes = dict[str, dict[str, tuple[str, bytes]]]
@@ -59,6 +65,8 @@ class Job:
     key: str
     file: str
     """Absolute, as the workers open it."""
+    png: bool = False
+    """Draw the PNGs too (`batch --png`)."""
 
     @property
     def stem(self) -> str:
@@ -67,13 +75,17 @@ class Job:
 
 @dataclass(frozen=True)
 class LogResult:
-    """What a task returns (small and picklable): the summary, the plots and the Parquet bytes, or the error."""
+    """What a task returns (small and picklable): the summary, the page's plots, the PNGs and the Parquet bytes, or
+    the error."""
 
     path: str
     name: str
     key: str
     summary: LogSummary | None = None
-    plots: PlotBytes = field(default_factory=dict)
+    page: PagePlots | None = None
+    pngs: PlotBytes = field(default_factory=dict)
+    png: bool = False
+    """The PNGs were drawn (`pngs` is empty for a log without maneuvers)."""
     parquet: bytes = b""
     rows: int = 0
     seconds: float = 0.0
@@ -118,9 +130,11 @@ def _error_text(e: BaseException) -> str:
 
 
 def process_log(job: Job) -> LogResult:
-    """The task: one log two-pass, its summary, plots and Parquet bytes; any error as text (never raises)."""
+    """The task: one log two-pass, its summary, page plots (PNGs with job.png) and Parquet bytes; any error as text
+    (never raises)."""
     from slipdaq.report.build import plot_log, read_log
     from slipdaq.report.labels import labels_of
+    from slipdaq.report.page_data import log_page
     from slipdaq.report.summary import summarize_log
     from slipdaq.sinks.parquet_export import write_parquet
 
@@ -130,15 +144,16 @@ def process_log(job: Job) -> LogResult:
         labels = labels_of(data.metadata)
         summary = summarize_log(data.rows, data.metadata, data.diagnostics, path=job.path, name=job.name,
                                 labels=labels, fast=data.fast, sensors=data.sensors)
+        page = log_page(summary, data.fast)
         with tempfile.TemporaryDirectory(prefix="slipdaq-batch-") as tmp:
-            made = plot_log(summary, Path(tmp) / "plots")
-            plots = {k: {s: (p.name, p.read_bytes()) for s, p in v.items()} for k, v in made.items()}
+            made = plot_log(summary, Path(tmp) / "plots") if job.png else {}
+            pngs = {k: {s: (p.name, p.read_bytes()) for s, p in v.items()} for k, v in made.items()}
             pq = Path(tmp) / "estimates.parquet"
             n = write_parquet(data.rows, pq, log_name=job.name, labels=labels)
             blob = pq.read_bytes()
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=_error_text(e))
-    return LogResult(job.path, job.name, job.key, summary, plots, blob, n, time.perf_counter() - t0)
+    return LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0)
 
 
 # ---- DIR: the dataset, the cache, the report --------------------------------------------------------------------
@@ -158,7 +173,9 @@ def load_cached(out: Path, job: Job) -> LogResult | None:
             got = pickle.load(f)
     except Exception:  # a cache file this version cannot read: process the log again
         return None
-    if not isinstance(got, LogResult) or got.key != job.key or got.summary is None:
+    if not isinstance(got, LogResult) or got.key != job.key or got.summary is None or got.page is None:
+        return None
+    if job.png and not got.png:  # PNGs asked for now, not drawn then
         return None
     return dataclasses.replace(got, path=job.path)
 
@@ -192,20 +209,24 @@ def inputs_inside(directory: Path, inputs: Sequence[str]) -> list[str]:
     return found
 
 
-def _placer(out: Path, results: dict[str, LogResult]) -> Callable[[LogSummary, Path], dict[str, dict[str, Path]]]:
-    """report.build.PlotMaker writing a log's PNGs as its task rendered them, read back from its cache file (they are
-    not kept in memory meanwhile)."""
-    def place(log: LogSummary, out_dir: Path) -> dict[str, dict[str, Path]]:
+def _placer(out: Path, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
+    """report.build.PlotMaker writing a log's page data (and with png its PNGs) as its task made them, read back from
+    its cache file (they are not kept in memory meanwhile)."""
+    from slipdaq.report.page_data import LOG_SCRIPT
+
+    def place(log: LogSummary, out_dir: Path) -> Placed:
         with _paths(out, results[log.name])[1].open("rb") as f:
-            plots: PlotBytes = pickle.load(f).plots
-        made: dict[str, dict[str, Path]] = {}
+            cached: LogResult = pickle.load(f)
+        assert cached.page is not None  # load_cached and the tasks make sure
         out_dir.mkdir(parents=True, exist_ok=True)
-        for key, by_stem in plots.items():
+        (out_dir / LOG_SCRIPT).write_bytes(cached.page.script)
+        made: dict[str, dict[str, Path]] = {}
+        for key, by_stem in (cached.pngs if png else {}).items():
             made[key] = {}
-            for stem, (file, png) in by_stem.items():
-                (out_dir / file).write_bytes(png)
+            for stem, (file, data) in by_stem.items():
+                (out_dir / file).write_bytes(data)
                 made[key][stem] = out_dir / file
-        return made
+        return Placed(cached.page, made)
     return place
 
 
@@ -283,13 +304,14 @@ class _Progress:
 
 def _ok_line(r: LogResult, out: Path, cached: bool) -> str:
     parquet = _paths(out, r)[0]
-    n = sum(len(v) for v in r.plots.values())
+    n = sum(len(v) for v in r.page.plots.values()) if r.page else 0
+    pngs = f", {sum(len(v) for v in r.pngs.values())} PNGs" if r.png else ""
     maneuvers = len(r.summary.maneuvers) if r.summary else 0
-    what = "up to date" if cached else f"{r.rows} estimates, {maneuvers} maneuvers, {n} plots ({r.seconds:.1f} s)"
+    what = "up to date" if cached else f"{r.rows} estimates, {maneuvers} maneuvers, {n} plots{pngs} ({r.seconds:.1f} s)"
     return f"{r.path}: {what} -> {parquet}"
 
 
-def _jobs(logs: Sequence[str | Path]) -> tuple[list[Job], list[LogResult]]:
+def _jobs(logs: Sequence[str | Path], png: bool = False) -> tuple[list[Job], list[LogResult]]:
     """A job per log (duplicates dropped), and the failures of logs whose key cannot be made (not readable)."""
     from slipdaq.report.build import unique_name
 
@@ -303,7 +325,7 @@ def _jobs(logs: Sequence[str | Path]) -> tuple[list[Job], list[LogResult]]:
         seen.add(Path(log).resolve())
         name = unique_name(Path(log).stem, taken)
         try:
-            jobs.append(Job(str(log), name, log_key(log, name), os.path.abspath(log)))
+            jobs.append(Job(str(log), name, log_key(log, name), os.path.abspath(log), png))
         except Exception as e:
             failed.append(LogResult(str(log), name, "", error=_error_text(e)))
     return jobs, failed
@@ -311,9 +333,10 @@ def _jobs(logs: Sequence[str | Path]) -> tuple[list[Job], list[LogResult]]:
 
 def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str | None = None,
               workers: int | None = None, group_by: Sequence[str] | None = None,
-              stream: TextIO | None = None) -> BatchResult:
+              stream: TextIO | None = None, png: bool = False) -> BatchResult:
     """Every log that is not up to date as one Dask task; each result saved as it comes; then the report over every
-    log that succeeded (processed or up to date). A log that fails is in `failed` with its error."""
+    log that succeeded (processed or up to date): one page. A log that fails is in `failed` with its error. png: the
+    PNGs too (a log cached without them is processed again)."""
     from slipdaq.report.build import write_report
     from slipdaq.report.summary import group_of
 
@@ -323,7 +346,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
     stream = stream or sys.stderr
     progress = _Progress(stream, len(dict.fromkeys(Path(p).resolve() for p in logs)))
     try:
-        jobs, failed = _jobs(logs)
+        jobs, failed = _jobs(logs, png)
         for r in failed:
             progress.line(f"FAILED {failure(r)}")
         results: dict[str, LogResult] = {}
@@ -333,7 +356,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
             if cached is None:
                 todo.append(job)
                 continue
-            results[job.name] = dataclasses.replace(cached, plots={})
+            results[job.name] = dataclasses.replace(cached, page=None, pngs={})
             progress.line(_ok_line(cached, out, cached=True))
         skipped = set(results)
         if todo:
@@ -354,7 +377,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                     fut.release()
                     if r.error is None:
                         save(out, r, inputs)
-                        results[job.name] = dataclasses.replace(r, parquet=b"", plots={})
+                        results[job.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
                         progress.line(_ok_line(r, out, cached=False))
                     else:
                         failed.append(r)
@@ -366,7 +389,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                  for n in order if (s := results[n].summary) is not None]
     index = None
     if summaries:
-        index = write_report(summaries, out / REPORT, inputs=inputs, plot=_placer(out, results)).index
+        index = write_report(summaries, out / REPORT, inputs=inputs, plot=_placer(out, results, png), png=png).index
     rank = {str(log): i for i, log in enumerate(logs)}
     failed.sort(key=lambda r: rank.get(r.path, 0))
     return BatchResult(out, [results[n] for n in order if n not in skipped], [results[n] for n in order if n in skipped],

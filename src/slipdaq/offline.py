@@ -86,14 +86,17 @@ def process(
     total: int | None = None,
     stream: TextIO | None = None,
     description: str = "",
+    maneuvers: bool = True,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
-    progress on a terminal, a line every 5 s otherwise.
+    progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
+    whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own).
 
     records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
-    pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds)
+    pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
+                        maneuvers=maneuvers)
     compiled.prepare()
     if stream.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -191,7 +194,8 @@ def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], sta
                learned_from: str, *, total: int | None = None, stream: TextIO | None = None) -> FirstPass:
     """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix."""
     seen = _FirstPassSink()
-    p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2")
+    p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2",
+                maneuvers=False)
     learned = p.estimator.learned()
     calibration = merged(start, learned, config, learned_from)
     return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))
@@ -274,7 +278,7 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | No
         return None
     first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
     rows = Rows()
-    p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
+    p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream, maneuvers=False,
                 **first.second_pass())
     if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
         return None

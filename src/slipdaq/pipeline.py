@@ -22,6 +22,7 @@ from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
+from slipdaq.decode.xbus import MtiAccel
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.maneuver.detector import ManeuverDetector
 from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
@@ -37,6 +38,7 @@ from slipdaq.records import (
     SensorSample,
     UbxFrame,
     WheelSampleBatch,
+    XbusBytes,
 )
 from slipdaq.sinks import Sink
 
@@ -98,21 +100,24 @@ class _Parts:
 
 class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
-                 frozen: bool = False, gps_speeds: Sequence[float] | None = None) -> None:
+                 frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True) -> None:
         """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
         gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
-        pass's smoothed speeds); the sinks get the fixes as decoded."""
+        pass's smoothed speeds); the sinks get the fixes as decoded. maneuvers=False: no maneuver is summarized (a
+        pass whose sinks take no /maneuver record; the events are still closed)."""
         self.config = config
         self.sinks = list(sinks)
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.ubx = UbxDecoder()
         self.sensors = SignalDecoder(config)
+        self.xbus = MtiAccel(config.imu)
+        """An Xsens MTi on a serial port ([imu] source = "serial"): its forward acceleration, as the CAN IMU's."""
         self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
         self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen)
-        self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS)
+        self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
         self.maneuver_count = 0
         self._gps_speeds = gps_speeds
@@ -137,6 +142,12 @@ class Pipeline:
             return
         for s in self.sinks:
             s.on_raw(record)
+        if isinstance(record, XbusBytes):
+            accel = self.xbus.forward_accel_mps2(record)
+            if accel is not None:
+                self._sensor(SensorSample(record.timestamp_s, "imu_accel", accel))
+            self._tick(record.timestamp_s)
+            return
         fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
         if fix is not None and isinstance(record, self._velocity_from):  # else gps.velocity names the other protocol
             self._fix(fix, record.timestamp_s)
@@ -189,8 +200,8 @@ class Pipeline:
         each other record, in turn. Consecutive batches are estimated as one (up to MERGE_MAX_FRAMES) and the wheel
         frames are decoded ahead, past GPS records, up to where the next diagnostics snapshot falls due (the decoder
         does not depend on GPS): numpy's fixed cost is paid once for many. The sinks get the batches as they came."""
-        queue: list[CanFrameBatch | NmeaLine | UbxFrame] = [
-            x if isinstance(x, CanFrameBatch | NmeaLine | UbxFrame)
+        queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes] = [
+            x if isinstance(x, CanFrameBatch | NmeaLine | UbxFrame | XbusBytes)
             else CanFrameBatch.from_frames([x] if isinstance(x, CanFrame) else x) for x in items]
         run: list[CanFrameBatch] = []
         frames = 0
@@ -222,7 +233,7 @@ class Pipeline:
         finally:
             self._ahead = _Decoded.NONE
 
-    def _decode_ahead(self, queue: list[CanFrameBatch | NmeaLine | UbxFrame], k: int) -> _Decoded:
+    def _decode_ahead(self, queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes], k: int) -> _Decoded:
         """The wheel frames of queue[k:] decoded at once, up to the record that makes the next diagnostics snapshot
         due (its counters are the decoder's as of that record) or MERGE_MAX_FRAMES."""
         due = self._next_diag_s

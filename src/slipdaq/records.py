@@ -11,6 +11,14 @@ from typing import Any
 
 import numpy as np
 
+from slipdaq.columns import ACCEL_SOURCES as ACCEL_SOURCES  # re-exported: the columns are declared in columns.py
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, record_row
+from slipdaq.columns import PHASES as PHASES
+from slipdaq.columns import QUALITIES as QUALITIES
+from slipdaq.columns import Column as Column
+from slipdaq.columns import ColumnGroup as ColumnGroup
+from slipdaq.columns import column_names as column_names
+
 
 @dataclass(slots=True)
 class CanFrame:
@@ -76,7 +84,17 @@ class UbxFrame:
     data: bytes
 
 
-RawRecord = CanFrame | NmeaLine | UbxFrame
+@dataclass(frozen=True, slots=True)
+class XbusBytes:
+    """One raw record of an Xsens MTi's serial stream (decode/xbus.py), with its host receive time: a complete Xbus
+    message (preamble to checksum) or a run of bytes between messages that frame none (noise, kept so that the raw
+    log is lossless)."""
+
+    timestamp_s: float
+    data: bytes
+
+
+RawRecord = CanFrame | NmeaLine | UbxFrame | XbusBytes
 
 FLAG_EXTENDED = 1
 FLAG_ERROR = 2
@@ -420,133 +438,6 @@ class FastSlip:
         return record_row(self, FAST_SLIP_COLUMNS)
 
 
-def record_row(record: Any, groups: Sequence[ColumnGroup]) -> dict[str, float | str | None]:
-    """A record's flat mapping by its column groups (a per-wheel group: each of record.wheels in its order)."""
-    row: dict[str, float | str | None] = {}
-    for group in groups:
-        if group.per_wheel:
-            for w, we in record.wheels.items():
-                for c in group.columns:
-                    row[c.key(w)] = getattr(we, c.attribute)
-        else:
-            for c in group.columns:
-                row[c.name] = getattr(record, c.attribute)
-    return row
-
-
-@dataclass(frozen=True, slots=True)
-class Column:
-    """One column of a flat record: its name (`{w}` stands for the wheel), the attribute it holds, what kind of value
-    it is, and its unit in the name's suffix (`_s`, `_mps`, `_n`, `_m`)."""
-
-    name: str
-    attribute: str
-    kind: str
-    """'number', 'number?' (or undefined: null, an empty CSV cell), 'integer', 'integer?', 'bool', 'text', 'text?', 'texts' (a
-    list of texts), or 'enum'."""
-    values: tuple[str, ...] = ()
-    """enum: the values it takes."""
-    description: str = ""
-    """What it is (`{w}`: the wheel): the JSON Schema's description, the MF4 channel's comment."""
-
-    def key(self, wheel: str) -> str:
-        return self.name.format(w=wheel)
-
-    def describe(self, wheel: str = "") -> str:
-        return self.description.format(w=wheel)
-
-
-@dataclass(frozen=True, slots=True)
-class ColumnGroup:
-    """Consecutive columns of a flat record: of the estimate itself, or of each wheel in turn (per_wheel)."""
-
-    columns: tuple[Column, ...]
-    per_wheel: bool
-    csv: str
-    """'contract' (the public CSV columns, in order), 'extra' (appended after them), '' (log only)."""
-
-
-PHASES = ("standstill", "accelerate", "cruise", "brake")
-QUALITIES = ("ok", "uncalibrated", "disturbed")
-ACCEL_SOURCES = ("imu", "gps")
-
-ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
-    ColumnGroup((
-        Column("time_s", "time_s", "number",
-               description="centre of the estimate's window, seconds in the log's clock"),
-        Column("speed_mps", "speed_mps", "number", description="vehicle speed: the mean reference speed over the window"),
-        Column("accel_mps2", "accel_mps2", "number?",
-               description="longitudinal acceleration over the window (see accel_source); undefined: none"),
-        Column("force_n", "force_n", "number?",
-               description="total longitudinal force Fx = M*a (plus the road loads when configured)"),
-    ), per_wheel=False, csv="contract"),
-    ColumnGroup((
-        Column("slip_{w}", "slip", "number?",
-               description="slip of the {w} wheel, SAE, a fraction; undefined below the minimum speed, across a gap "
-                           "in the wheel's samples, or while the latency is unknown and the speed changes"),
-        Column("re_{w}_m", "re_m", "number?", description="effective rolling radius Re of the {w} wheel"),
-        Column("r0_{w}_m", "r0_m", "number", description="reference radius r0 of the {w} wheel, the one slip was "
-                                                         "computed with"),
-        Column("cx_{w}_n", "cx_n", "number?", description="longitudinal stiffness Cx = Fx/s of the {w} wheel (N per "
-                                                          "unit slip); undefined outside the linear slip region"),
-    ), per_wheel=True, csv="contract"),
-    ColumnGroup((
-        Column("phase", "phase", "enum", PHASES, "maneuver phase"),
-        Column("source", "source", "text", description="gps: centred on a reference fix; wheels: GPS lost, speed "
-                                                       "from the non-driven wheels"),
-        Column("gps_latency_s", "gps_latency_s", "number", description="the GPS latency the estimate used"),
-        Column("latency_source", "latency_source", "text",
-               description="where the latency came from: fixed, utc, wheels, stored, none"),
-    ), per_wheel=False, csv="extra"),
-    ColumnGroup((
-        Column("r0_source_{w}", "r0_source", "text", description="where r0 of the {w} wheel came from: tire_size, "
-               "configured, other_wheels, calibrating, calibrated, stored"),
-        Column("slip_nd_{w}", "slip_nd", "number?",
-               description="slip of the {w} wheel against the non-driven wheels' speed (driven wheels only)"),
-        Column("cx_fit_{w}_n", "cx_fit_n", "number?",
-               description="stiffness of the {w} wheel fitted over the run so far (or the stored one)"),
-        Column("cx_fit_{w}_conf", "cx_fit_conf", "number?", description="confidence of cx_fit_{w}_n, 0..1"),
-    ), per_wheel=True, csv="extra"),
-    ColumnGroup((Column("quality", "quality", "enum", QUALITIES, "ok; uncalibrated (latency unknown, or a radius "
-                        "from the tire size or the other wheels); disturbed (a gap in the samples, GPS lost)"),),
-                per_wheel=False, csv="extra"),
-    ColumnGroup((Column("accel_source", "accel_source", "enum", ACCEL_SOURCES, "where accel_mps2 comes from: imu "
-                        "(the IMU's mean over the window) or gps (the reference speed's central difference)"),),
-                per_wheel=False, csv="extra"),
-    ColumnGroup((Column("window_s", "window_s", "number", description="the window's length"),),
-                per_wheel=False, csv=""),
-    ColumnGroup((Column("force_{w}_n", "force_n", "number?", description="the {w} tire's share of Fx"),
-                 Column("wheel_speed_{w}_mps", "speed_mps", "number?",
-                        description="circumferential speed omega*r0 of the {w} wheel over the window")),
-                per_wheel=True, csv=""),
-)
-"""An estimate's columns, declared once, in the order of its /estimate JSON and its CSV row: the log's JSON, its JSON
-Schema, the CSV's columns, the MF4 export's channels and Estimate.as_row are derived from this."""
-
-FAST_SLIP_COLUMNS: tuple[ColumnGroup, ...] = (
-    ColumnGroup((Column("time_s", "time_s", "number", description="the instant, seconds in the log's clock"),
-                 Column("speed_mps", "speed_mps", "number",
-                        description="vehicle speed fused from the reference speed and the IMU")),
-                per_wheel=False, csv="contract"),
-    ColumnGroup((Column("slip_{w}", "slip", "number?", description="high-rate slip of the {w} wheel, SAE, a fraction; "
-                        "undefined below the minimum speed or without the wheel's samples around the instant"),),
-                per_wheel=True, csv="contract"),
-    ColumnGroup((Column("accel_mps2", "accel_mps2", "number", description="the fused longitudinal acceleration"),
-                 Column("accel_source", "accel_source", "enum", ACCEL_SOURCES,
-                        "imu when the IMU's samples fed the filter, else gps")), per_wheel=False, csv=""),
-    ColumnGroup((Column("wheel_speed_{w}_mps", "speed_mps", "number?",
-                        description="circumferential speed omega*r0 of the {w} wheel at the instant"),),
-                per_wheel=True, csv=""),
-)
-"""A FastSlip's columns (the /slip/fast JSON, its schema, `export --fast-csv`)."""
-
-
-def column_names(groups: Sequence[ColumnGroup], wheels: Sequence[str], csv: str | None = None) -> tuple[str, ...]:
-    """The column names of the groups (those of one CSV class when csv is given), for these wheels."""
-    return tuple(c.key(w) if g.per_wheel else c.name for g in groups if csv is None or g.csv == csv
-                 for w in (wheels if g.per_wheel else ("",)) for c in g.columns)
-
-
 @dataclass(slots=True)
 class Diagnostics:
     """Running counters of what the pipeline saw; a snapshot is logged about once a second."""
@@ -588,9 +479,10 @@ class Diagnostics:
 class SourceEvent:
     time_s: float
     """When it happened, in the log's clock."""
-    source: str = field(metadata={"enum": ("gps", "can", "log", "clock", "calibration")})
+    source: str = field(metadata={"enum": ("gps", "can", "log", "clock", "calibration", "imu")})
     event: str
-    """gps: connected, disconnected, silent, unreadable, readable, emit_error; can: reader_error, down, up;
+    """gps (and imu, an MTi on serial): connected, disconnected, silent, unreadable, readable, emit_error; can:
+    reader_error, down, up;
     log: write_failed, resumed, rotated; clock: stepped; calibration: replaced (the run contradicted a stored value
     beyond its uncertainty and uses its own)."""
     detail: str = ""
@@ -605,3 +497,4 @@ class SourceEvent:
 
 
 EventHandler = Callable[[SourceEvent], None]
+

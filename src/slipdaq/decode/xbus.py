@@ -27,6 +27,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
+from slipdaq.records import XbusBytes
+
 PREAMBLE = 0xFA
 BUS_ID = 0xFF
 """The master's bus id: every message an MTi sends on its own (MTData2) and every reply on a serial port."""
@@ -54,15 +56,6 @@ _EPOCH_ORDINAL = dt.date(1970, 1, 1).toordinal()
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
-
-
-@dataclass(frozen=True, slots=True)
-class XbusBytes:
-    """One raw record of an MTi's serial stream, with its host receive time: a complete Xbus message (preamble to
-    checksum) or a run of bytes between messages that frame none (noise, kept so that the raw log is lossless)."""
-
-    timestamp_s: float
-    data: bytes
 
 
 @dataclass(frozen=True, slots=True)
@@ -475,3 +468,20 @@ def forward_accel_mps2(packet: MtiPacket, axis: Literal["x", "y", "z"], sign: in
     if accel is None:
         return None
     return sign * accel["xyz".index(axis)]
+
+
+class MtiAccel:
+    """An MTi's forward acceleration per raw record, as the pipeline takes it ([imu] source = "serial"): the
+    Acceleration of each MTData2 packet on `axis`, times `sign`; None for other records or without an IMU on serial."""
+
+    def __init__(self, imu: Any) -> None:
+        self.enabled = getattr(imu, "source", "can") == "serial"
+        self.axis: Literal["x", "y", "z"] = getattr(imu, "axis", "x")
+        self.sign = int(getattr(imu, "sign", 1))
+        self.decoder = XbusDecoder()
+
+    def forward_accel_mps2(self, record: XbusBytes) -> float | None:
+        if not self.enabled:
+            return None
+        packet = self.decoder.decode(record)
+        return forward_accel_mps2(packet, self.axis, self.sign) if packet is not None else None

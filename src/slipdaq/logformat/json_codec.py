@@ -4,9 +4,11 @@ separators gives, written directly for the topics written at high rate or once p
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.logformat.topics import log_time_ns
 from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, CanFrame, ColumnGroup, GpsFix, NmeaLine, WheelSample
 
 
@@ -119,3 +121,20 @@ def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
 def fix_json(fix: GpsFix) -> bytes:
     """/gps/fix payload: equal to dumps of the fix's fields in order."""
     return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
+
+
+LOCATION_FRAME_ID = "gps"
+_NO_COVARIANCE = [0.0] * 9
+
+
+def location_fix_json(fix: GpsFix) -> bytes | None:
+    """/gps/location payload (foxglove.LocationFix) of a valid fix with a position, else None: timestamp the fix's log
+    time, altitude 0 when the receiver gave none, covariance unknown (type 0)."""
+    lat, lon = fix.latitude_deg, fix.longitude_deg
+    if not fix.valid or lat is None or lon is None or not (math.isfinite(lat) and math.isfinite(lon)):
+        return None
+    alt = fix.altitude_m if fix.altitude_m is not None and math.isfinite(fix.altitude_m) else 0.0
+    sec, nsec = divmod(log_time_ns(fix.timestamp_s), 1_000_000_000)
+    return dumps({"timestamp": {"sec": sec, "nsec": nsec}, "frame_id": LOCATION_FRAME_ID, "latitude": float(lat),
+                  "longitude": float(lon), "altitude": float(alt), "position_covariance": _NO_COVARIANCE,
+                  "position_covariance_type": 0})

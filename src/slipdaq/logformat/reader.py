@@ -1,8 +1,12 @@
 """Read a slipdaq MCAP log back: its config, its metadata and its raw records in recorded order.
 
-A finished log (with its summary) is read with the standard MCAP reader. A log that was never finished (the daemon
-was killed, or lost power) is read record by record up to its last complete chunk (logformat.salvage.scan); pass a
-ScanResult to learn how far that got.
+Every log is read record by record (logformat.salvage.scan: each record parsed with mcap's StreamReader, each
+chunk checked against its CRC), in the order it was written: a finished log to its data end, a log that was never
+finished (the daemon was killed, or lost power) up to its last complete chunk; pass a ScanResult to learn how far
+that got. Its metadata and summary are read with the standard MCAP reader. Damage inside a log (a chunk that fails
+its CRC, bytes that are no record) is never read past silently: the reader raises DamageError (a LogError) naming
+the damaged byte ranges, and the torn tail too when there is one, and the `slipdaq recover` command that writes
+everything else.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from slipdaq.config import Config, parse_config
 from slipdaq.logformat import cdr
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.json_codec import can_frame_from_dict, can_frame_to_dict, wheel_sample_to_dict
-from slipdaq.logformat.salvage import ScanResult, scan, scan_messages, scan_metadata
+from slipdaq.logformat.salvage import DamageError, ScanResult, scan, scan_metadata, summary_intact
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
     METADATA_NAME,
@@ -27,15 +31,16 @@ from slipdaq.logformat.topics import (
     TOPIC_CAN,
     TOPIC_ESTIMATE,
     TOPIC_FAST_SLIP,
+    TOPIC_IMU_RAW,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
     log_time_ns,
 )
-from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame, XbusBytes
 
-__all__ = ["LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates", "iter_raw_batches",
-           "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
+__all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates",
+           "iter_raw_batches", "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
 
 
 def _open(path: str | Path):
@@ -46,13 +51,14 @@ def _open(path: str | Path):
 
 
 def is_finished(path: str | Path) -> bool:
-    """True when the file has a footer pointing to its summary: closed properly, readable by index."""
+    """True when the file has a footer pointing to its summary, and the summary checks out against its CRC: closed
+    properly, readable by index."""
     with _open(path) as f:
         try:
             summary = make_reader(f).get_summary()
         except Exception:  # no footer at the end (torn), or not MCAP at all
             return False
-    return summary is not None and bool(summary.chunk_indexes)
+        return summary is not None and bool(summary.chunk_indexes) and summary_intact(f)
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
@@ -75,10 +81,19 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return found
 
 
-def can_channels(metadata: dict[str, str]) -> tuple[str | None, ...]:
-    """The CAN channel names a log's /can/raw frames index (its can_channels; a log from before it: one, unnamed)."""
+def can_channels(metadata: dict[str, str], source: str | Path = "<metadata>") -> tuple[str | None, ...]:
+    """The CAN channel names a log's /can/raw frames index (its can_channels; a log from before it: one, unnamed).
+    LogError when it is not a JSON list of names (metadata records carry no CRC: a flipped bit stays)."""
     text = metadata.get("can_channels")
-    return tuple(json.loads(text)) if text is not None else (None,)
+    if text is None:
+        return (None,)
+    try:
+        names = json.loads(text)
+    except ValueError:
+        names = None
+    if not isinstance(names, list) or not all(n is None or isinstance(n, str) for n in names):
+        raise LogError(f"{source}: its metadata's can_channels is not a list of CAN channel names: {text[:60]!r}")
+    return tuple(names)
 
 
 def config_from_log(path: str | Path) -> Config:
@@ -88,34 +103,38 @@ def config_from_log(path: str | Path) -> Config:
     return parse_config(meta.get("config_toml", ""), Path(source) if source else None, dbc_text=meta.get("dbc"))
 
 
+def _indexed_metadata(path: str | Path) -> list[tuple[str, dict[str, str]]] | None:
+    """The metadata records of a finished log through its summary's index (None when it has none that reads)."""
+    if not is_finished(path):
+        return None
+    try:
+        with _open(path) as f:
+            return [(m.name, dict(m.metadata)) for m in make_reader(f).iter_metadata()]
+    except Exception:  # a damaged metadata record: the scan finds it
+        return None
+
+
 def iter_messages(
     path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None,
     on_metadata: Callable[[str, dict[str, str]], None] | None = None,
 ) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, message encoding, log_time_ns, data) in the order the messages were written.
 
-    A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far.
-    on_metadata(name, metadata) gets each metadata record before the messages written after it."""
-    if is_finished(path):
-        if scan_result is not None:
-            scan_result.finished = scan_result.has_summary = True
-        with _open(path) as f:
-            reader = make_reader(f, validate_crcs=True)
-            if on_metadata is not None:
-                for m in reader.iter_metadata():
-                    on_metadata(m.name, dict(m.metadata))
-            for _schema, channel, message in reader.iter_messages(topics=list(topics), log_time_order=False):
-                yield channel.topic, channel.message_encoding, message.log_time, message.data
-        return
-    if on_metadata is None:
-        for channel, message in scan_messages(path, topics, scan_result):
-            yield channel.topic, channel.message_encoding, message.log_time, message.data
-        return
+    Every log is read record by record (salvage.scan), each chunk checked against its CRC: a finished log to its
+    data end, a log that was not finished up to its last complete chunk (scan_result, if given, then tells how far).
+    Damage before data that is whole raises DamageError, once the rest of the file is scanned, naming every damaged
+    byte range (and the torn tail). on_metadata(name, metadata) gets each metadata record before the messages
+    written after it (a finished log's: all of them first, through its index)."""
+    indexed = _indexed_metadata(path) if on_metadata is not None else None
+    if on_metadata is not None and indexed is not None:
+        for name, metadata in indexed:
+            on_metadata(name, metadata)
     for kind, item in scan(path, scan_result):
         if kind == "metadata":
-            on_metadata(item.name, dict(item.metadata))  # type: ignore[attr-defined]  # a 'metadata' item is a Metadata record
+            if on_metadata is not None and indexed is None:
+                on_metadata(item.name, dict(item.metadata))
         elif kind == "message":
-            channel, message = item  # type: ignore[misc]  # a 'message' item is (Channel, Message)
+            channel, message = item
             if channel.topic in topics:
                 yield channel.topic, channel.message_encoding, message.log_time, message.data
 
@@ -140,7 +159,7 @@ def iter_topic(
 
 def iter_raw_batches(
     path: str | Path, scan_result: ScanResult | None = None
-) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame]:
+) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes]:
     """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
     batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
     run: list[CanFrame] = []
@@ -148,7 +167,7 @@ def iter_raw_batches(
 
     def on_metadata(name: str, metadata: dict[str, str]) -> None:
         if name == METADATA_NAME:
-            channels[0] = can_channels(metadata)
+            channels[0] = can_channels(metadata, path)
 
     for topic, encoding, _t, data in iter_messages(path, RAW_TOPICS, scan_result, on_metadata):
         if topic == TOPIC_CAN:
@@ -169,6 +188,8 @@ def iter_raw_batches(
         d = json.loads(data)
         if topic == TOPIC_UBX:
             yield UbxFrame(d["timestamp_s"], bytes.fromhex(d["data"]))
+        elif topic == TOPIC_IMU_RAW:
+            yield XbusBytes(d["timestamp_s"], bytes.fromhex(d["data"]))
         else:
             yield NmeaLine(d["timestamp_s"], d["line"])
     if run:

@@ -16,6 +16,8 @@ from slipdaq.logformat.topics import (
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
     TOPIC_GPS,
+    TOPIC_GPS_LOCATION,
+    TOPIC_IMU_RAW,
     TOPIC_MANEUVER,
     TOPIC_NMEA,
     TOPIC_SENSORS,
@@ -100,8 +102,31 @@ LIVE_DIAGNOSTICS: dict[str, Any] = {
     # the CAN reader (sources.can_bus.CanBusSource.status)
     "can_reader_errors": _INT, "can_outages": _INT, "can_receiving": _BOOL, "can_last_error": _TEXT_OR_NULL,
     "can_last_outage_s": _NUM_OR_NULL,
+    # the Foxglove live server (sinks.foxglove_live.FoxgloveLive.status), when the run has one
+    "live_address": _TEXT, "live_clients": _INT, "live_published_messages": _INT, "live_dropped_messages": _INT,
 }
 """Keys a live run adds to /diagnostics (declared, not required)."""
+LOCATION_FIX_SCHEMA: dict[str, Any] = {
+    "title": "foxglove.LocationFix", "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "title": "time", "description": "Timestamp of the message",
+                      "properties": {"sec": {"type": "integer", "minimum": 0},
+                                     "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
+        "frame_id": {"type": "string", "description": "Frame for the sensor"},
+        "latitude": {"type": "number", "description": "Latitude in degrees"},
+        "longitude": {"type": "number", "description": "Longitude in degrees"},
+        "altitude": {"type": "number", "description": "Altitude in meters"},
+        "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9,
+                                "description": "Position covariance (m^2), ENU, row-major"},
+        "position_covariance_type": {"title": "foxglove.PositionCovarianceType", "oneOf": [
+            {"title": t, "const": i} for i, t in enumerate(("UNKNOWN", "APPROXIMATED", "DIAGONAL_KNOWN", "KNOWN"))]},
+    },
+    "required": ["timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance",
+                 "position_covariance_type"],
+}
+"""/gps/location: Foxglove's published foxglove.LocationFix JSON Schema (its optional heading, velocity, color and
+metadata left out), so that Foxglove's Map panel shows the track live and on the file."""
 SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_NMEA: _obj("slipdaq.NmeaLine", {"timestamp_s": _NUM, "line": {"type": "string"}, "can_index": _CAN_INDEX}),
     TOPIC_UBX: _obj("slipdaq.UbxFrame", {
@@ -131,5 +156,10 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_FAST_SLIP: columns_schema("slipdaq.FastSlip", FAST_SLIP_COLUMNS),
     TOPIC_SENSORS: dataclass_schema("slipdaq.SensorSample", SensorSample),
     TOPIC_MANEUVER: columns_schema("slipdaq.Maneuver", MANEUVER_COLUMNS),
+    TOPIC_GPS_LOCATION: LOCATION_FIX_SCHEMA,
+    TOPIC_IMU_RAW: _obj("slipdaq.XbusBytes", {
+        "timestamp_s": _NUM, "data": {"type": "string", "description": "an Xbus message (or the bytes between two) as hex"},
+        "can_index": _CAN_INDEX,
+    }),
 }
 """The JSON topics (all but BATCH_SCHEMAS), in the order their channels are registered."""

@@ -9,15 +9,18 @@ METADATA_NAME = "slipdaq"
 TOPIC_CAN = "/can/raw"
 TOPIC_NMEA = "/nmea/raw"
 TOPIC_UBX = "/gps/ubx/raw"
+TOPIC_IMU_RAW = "/imu/raw"
 TOPIC_WPT = "/wpt/count"
 TOPIC_GPS = "/gps/fix"
+TOPIC_GPS_LOCATION = "/gps/location"
+"""The fixes with a position as foxglove.LocationFix (JSON), for Foxglove's Map panel."""
 TOPIC_ESTIMATE = "/estimate"
 TOPIC_FAST_SLIP = "/slip/fast"
 TOPIC_SENSORS = "/can/sensors"
 TOPIC_MANEUVER = "/maneuver"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_EVENTS = "/diagnostics/events"
-RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX)
+RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX, TOPIC_IMU_RAW)
 
 MAX_BATCH_FRAMES = 512
 MAX_BATCH_SPAN_S = 0.05

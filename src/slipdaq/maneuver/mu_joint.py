@@ -19,8 +19,9 @@ own wheels' slips; with none observed the caller keeps the hydraulic split (`fig
 stays far from its limit.
 
 Uncertainty: a moving-block bootstrap (blocks of BLOCK_S, BOOTSTRAP_RESAMPLES resamples, a fixed seed so live and
-report agree) refits the chosen model; the 2.5 and 97.5 percentiles of each group's mu peak and slip at the peak are
-its 95 % interval.
+report agree) refits the chosen model; each group's mu peak and slip at the peak get the interval median ± 1.96
+robust standard deviations (1.4826·MAD) of the resamples' values: a 95 % interval under normality that a few
+degenerate resamples (a curve without a real peak) do not stretch.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ EFFECTIVE_SAMPLE_S = 0.1
 F_CRITICAL = 4.0
 """The per-axle fit is taken when its F statistic (3 more parameters) exceeds this (about p = 0.01)."""
 BLOCK_S = 0.2
-BOOTSTRAP_RESAMPLES = 60
+BOOTSTRAP_RESAMPLES = 40
 BOOTSTRAP_SEED = 20261125
 
 
@@ -176,9 +177,9 @@ def _fit(p: _Problem, w: FloatArray) -> tuple[FloatArray, FloatArray, float] | N
     return np.array([C2_COARSE[k] for k in best]), params[best].reshape(g_n, 2), float(sse[best])
 
 
-MF_B = np.geomspace(2.0, 80.0, 90)
+MF_B = np.geomspace(2.0, 80.0, 60)
 """Magic Formula stiffness factor B grid (1/slip)."""
-MF_C = np.linspace(1.05, 2.2, 47)
+MF_C = np.linspace(1.05, 2.2, 32)
 """Magic Formula shape factor C grid (a peak needs C > 1)."""
 
 
@@ -199,26 +200,56 @@ class MagicFormula:
         return self.d, math.tan(math.pi / (2.0 * self.c)) / self.b
 
 
-def _mf_basis(p: _Problem) -> FloatArray:
-    """Σ_w sign·sin(C·atan(B·|s_w|))·Fz_w per (C, B) of the grid: (c, b, n)."""
+def _mf_basis(p: _Problem) -> tuple[FloatArray, FloatArray]:
+    """Σ_w sign·sin(C·atan(B·|s_w|))·Fz_w per (C, B) of the grid, as (C·B, n), and its squares (reused by every
+    resample of the bootstrap)."""
     x, fz, sgn = p.groups[0]
     out = np.zeros((MF_C.size, MF_B.size, x.shape[1]))
     for xw, fzw, sw in zip(np.abs(x), fz, sgn):  # one wheel at a time: no (c, b, m, n) array
         out += (fzw * sw) * np.sin(MF_C[:, None, None] * np.arctan(MF_B[None, :, None] * xw[None, None]))
-    return out
+    e = out.reshape(MF_C.size * MF_B.size, x.shape[1])
+    return e, e * e
 
 
-def _fit_mf(e: FloatArray, y: FloatArray, w: FloatArray) -> tuple[MagicFormula, float] | None:
-    """D by weighted least squares for each (C, B) of the grid (e: _mf_basis); the best curve and its sse."""
-    ee = (e * e) @ w
+def _fit_mf(basis: tuple[FloatArray, FloatArray], y: FloatArray, w: FloatArray) -> tuple[MagicFormula, float] | None:
+    """D by weighted least squares for each (C, B) of the grid (basis: _mf_basis); the best curve and its sse."""
+    e, e2 = basis
+    ee = e2 @ w
     ey = e @ (w * y)
     with np.errstate(all="ignore"):
         d = np.where(ee > 0, ey / ee, 0.0)
     sse = np.where(d > 0, float(np.sum(w * y * y)) - d * ey, np.inf)
     if not np.isfinite(sse).any():
         return None
-    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
-    return MagicFormula(float(MF_B[j]), float(MF_C[i]), float(d[i, j])), float(max(sse[i, j], 0.0))
+    k = int(np.argmin(sse))
+    i, j = divmod(k, MF_B.size)
+    return MagicFormula(float(MF_B[j]), float(MF_C[i]), float(d[k])), float(max(sse[k], 0.0))
+
+
+MF_FINE_STEPS = 9
+
+
+def _refine_mf(p: _Problem, y: FloatArray, w: FloatArray, coarse: tuple[MagicFormula, float]
+               ) -> tuple[MagicFormula, float]:
+    """The Magic Formula fit on a finer (B, C) grid between the coarse best's neighbours."""
+    best = coarse[0]
+    i, j = int(np.argmin(np.abs(MF_C - best.c))), int(np.argmin(np.abs(MF_B - best.b)))
+    bs = np.geomspace(MF_B[max(j - 1, 0)], MF_B[min(j + 1, MF_B.size - 1)], MF_FINE_STEPS)
+    cs = np.linspace(MF_C[max(i - 1, 0)], MF_C[min(i + 1, MF_C.size - 1)], MF_FINE_STEPS)
+    x, fz, sgn = p.groups[0]
+    grid = np.zeros((cs.size, bs.size, x.shape[1]))
+    for xw, fzw, sw in zip(np.abs(x), fz, sgn):
+        grid += (fzw * sw) * np.sin(cs[:, None, None] * np.arctan(bs[None, :, None] * xw[None, None]))
+    e = grid.reshape(cs.size * bs.size, -1)
+    ee, ey = (e * e) @ w, e @ (w * y)
+    with np.errstate(all="ignore"):
+        d = np.where(ee > 0, ey / ee, 0.0)
+    sse = np.where(d > 0, float(np.sum(w * y * y)) - d * ey, np.inf)
+    k = int(np.argmin(sse))
+    if not sse[k] < coarse[1]:
+        return coarse
+    ci, bj = divmod(k, bs.size)
+    return MagicFormula(float(bs[bj]), float(cs[ci]), float(d[k])), float(max(sse[k], 0.0))
 
 
 def fit_joint(
@@ -289,6 +320,7 @@ def fit_joint(
     if len(gs) == 1:  # the Magic Formula where it fits the shared curve better
         mf_basis = _mf_basis(prob)
         mf = _fit_mf(mf_basis, y, weights)
+        mf = _refine_mf(prob, y, weights, mf) if mf is not None else None
         if mf is not None and mf[1] < sse:
             models, sse = [("magic formula", (mf[0].b, mf[0].c, mf[0].d))], mf[1]
         else:
@@ -321,6 +353,14 @@ def _model_peak(model: str, params: tuple[float, float, float]) -> tuple[float, 
     return _peak(*params)
 
 
+def _robust_interval(x: FloatArray) -> tuple[float, float]:
+    """median ± 1.96·1.4826·MAD: a 95 % interval that a few degenerate resamples (a curve with no real peak) do not
+    stretch as they stretch the percentiles."""
+    m = float(np.median(x))
+    half = 1.959963984540054 * 1.4826 * float(np.median(np.abs(x - m)))
+    return m - half, m + half
+
+
 def _sse_at(p: _Problem, w: FloatArray, fit: tuple[FloatArray, FloatArray, float]) -> float:
     """The weighted sse of a fitted curve (its own c2, c1 and c3 per group) on other weights."""
     pred = np.zeros_like(p.y)
@@ -330,9 +370,10 @@ def _sse_at(p: _Problem, w: FloatArray, fit: tuple[FloatArray, FloatArray, float
     return float(np.sum(w * (p.y - pred) ** 2))
 
 
-def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray, mf_basis: FloatArray | None
+def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray,
+               mf_basis: tuple[FloatArray, FloatArray] | None
                ) -> list[tuple[float | None, float | None, float | None, float | None]]:
-    """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap percentiles of the chosen model
+    """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap of the chosen model (_robust_interval)
     (mf_basis given: the Magic Formula; None when fewer than 80 % of the resamples find a peak)."""
     n = t.size
     dt = float(np.median(np.diff(t))) if n > 1 else 0.01
@@ -363,6 +404,5 @@ def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray, mf
             out.append((None, None, None, None))
             continue
         mu, s = np.array([a for a, _ in peaks[g]]), np.array([b for _, b in peaks[g]])
-        out.append((float(np.percentile(mu, 2.5)), float(np.percentile(mu, 97.5)),
-                    float(np.percentile(s, 2.5)), float(np.percentile(s, 97.5))))
+        out.append((*_robust_interval(mu), *_robust_interval(s)))
     return out

@@ -7,7 +7,8 @@ Method
        brake_front_share), mu = Fx/Fz, one Burckhardt curve per wheel (mu_slip.fit_mu_slip). Right while every tire
        stays on the stable branch (the split is the brake's), wrong when a tire at its limit carries mu(s)·Fz
        whatever the hydraulics ask.
-    2. Joint fit (mu_joint.fit_joint) over the samples where every wheel's slip is defined.
+    2. Joint fit (mu_joint.fit_joint) over the samples where every wheel's slip is defined, when some tire may be at
+       its limit (LIMIT_SLIP).
     3. Each explains the total force over those samples: the hydraulic curves by Σ_w mu_w(s_w)·Fz_w (a wheel without
        a curve: its split force), the joint one by its own model. The one with the smaller sum of squared force
        residuals is taken (`method`). A joint fit without an observed peak is not taken (its curve then says no more
@@ -37,6 +38,9 @@ MU_MIN_SPEED_MPS = 3.0
 """The mu-slip fits take high-rate rows from this speed on: below it a count's quantisation is a large slip, and
 ABS hands over to locked wheels (2 m/s) before the stop."""
 SPLIT_EXCESS_SHARE = 0.05
+LIMIT_SLIP = 0.08
+"""The joint fit is tried only when some wheel's |slip| exceeds this in 20 samples or more, or the split's curves
+see a peak or exceed mu_max: a maneuver whose tires all stay well inside their linear region keeps the split."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +99,9 @@ def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], v
     every = moving & np.logical_and.reduce([np.isfinite(slips[w]) for w in WHEELS])
     if int(every.sum()) < 20:
         return hydraulic
+    near_limit = np.count_nonzero(np.max(np.abs(np.array([slips[w][every] for w in WHEELS])), axis=0) > LIMIT_SLIP)
+    if near_limit < 20 and not any(excess.values()) and not any(f is not None and f.peak_observed for f in hyd.values()):
+        return hydraulic  # every tire far from its limit: the split is the brake's, no joint fit needed
     t = time_s[every] if time_s is not None else np.arange(int(every.sum())) * 0.01
     s_e = {w: slips[w][every] for w in WHEELS}
     fz_e = {w: fz[w][every] for w in WHEELS}

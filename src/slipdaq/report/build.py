@@ -1,10 +1,13 @@
-"""`slipdaq report`: read logs, summarize (summary.py), draw (plots.py), write index.html and the tables (write.py).
+"""`slipdaq report`: read logs, summarize (summary.py), lay out the page's plots (page_data.py), write index.html
+(page.py) and the tables (write.py); with `--png` also the PNGs (plots.py, matplotlib: imported only then).
 make_report reads and summarizes; write_report writes the report of summarized logs (also `slipdaq batch`'s).
 
 Output layout in DIR:
     index.html, summary.json, summary.csv
-    <log>/<phase>-<plot>.png        five plots per maneuver (plots.PLOTS), <log> = the log's file stem
-    compare-<phase>-fx-slip.png     Fx against slip of every log, grouped by labels (two or more logs)
+    plotly.min.js, slipdaq-report.js   the plotting library and the page's script, once per report
+    compare.js                         the comparison plots' data (two or more logs)
+    <log>/plots.js                     the data of a log's plots, <log> = the log's file stem
+    --png: <log>/<key>-<plot>.png      six PNGs per maneuver (style.PLOTS); compare-<phase>-fx-slip.png
 """
 
 from __future__ import annotations
@@ -20,11 +23,15 @@ from slipdaq.logformat.reader import iter_topic, read_metadata
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE, TOPIC_FAST_SLIP, TOPIC_SENSORS
 from slipdaq.outputs import atomic_tree
 from slipdaq.report.labels import labels_of
+from slipdaq.report.page import LogLinks
+from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
 """The report's top files, written into DIR in this order after its plots (the index last: it links the rest)."""
+RESERVED = (*TABLES, PLOTLY_JS, PAGE_JS, COMPARE_SCRIPT)
+"""Names in DIR that no log's directory takes."""
 
 
 @dataclass
@@ -45,6 +52,7 @@ class ReportResult:
     logs: list[LogSummary]
     comparisons: list[Comparison]
     pngs: list[Path]
+    """Empty unless `png`."""
     index: Path
     summary_json: Path
     summary_csv: Path
@@ -80,17 +88,25 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
 
 
 def unique_name(name: str, taken: set[str]) -> str:
-    """A file-safe name for a log (from its file stem) that is not in `taken` nor one of TABLES; added to `taken`."""
+    """A file-safe name for a log (from its file stem) that is not in `taken` nor one of RESERVED; added to `taken`."""
     base = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "log"
     slug, n = base, 2
-    while slug in taken or slug in TABLES:
+    while slug in taken or slug in RESERVED:
         slug, n = f"{base}-{n}", n + 1
     taken.add(slug)
     return slug
 
 
-PlotMaker = Callable[[LogSummary, Path], dict[str, dict[str, Path]]]
-"""Draws (or places) the plots of one log in a directory: {maneuver key: {plot stem: path}}."""
+@dataclass(frozen=True)
+class Placed:
+    """What a PlotMaker wrote for one log: its page's plots (DIR/<log>/plots.js) and, with `png`, its PNGs."""
+
+    page: PagePlots
+    pngs: dict[str, dict[str, Path]] = field(default_factory=dict)
+
+
+PlotMaker = Callable[[LogSummary, Path], Placed]
+"""Writes (or places) the page data and the PNGs of one log in its directory."""
 
 
 def _sayer(progress: TextIO | None) -> Callable[[str], None]:
@@ -98,16 +114,27 @@ def _sayer(progress: TextIO | None) -> Callable[[str], None]:
 
 
 def plot_log(log: LogSummary, out_dir: Path, say: Callable[[str], None] = lambda msg: None) -> dict[str, dict[str, Path]]:
-    """The plots of every maneuver of one log in out_dir (plots.plot_maneuver): {maneuver key: {plot stem: path}}."""
+    """The PNGs of every maneuver of one log in out_dir (plots.plot_maneuver; matplotlib imported here):
+    {maneuver key: {plot stem: path}}."""
     from slipdaq.report import plots
 
     made: dict[str, dict[str, Path]] = {}
     for m in log.maneuvers:
         made[m.key] = plots.plot_maneuver(log, m, out_dir)
-        say(f"{log.name}: {m.title}: {len(made[m.key])} plots")
+        say(f"{log.name}: {m.title}: {len(made[m.key])} PNGs")
+    return made
+
+
+def place_log(log: LogSummary, out_dir: Path, page: PagePlots, png: bool = False,
+              say: Callable[[str], None] = lambda msg: None) -> Placed:
+    """A log's page data in out_dir (plots.js) and, with png, its PNGs."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / LOG_SCRIPT).write_bytes(page.script)
+    for m in log.maneuvers:
+        say(f"{log.name}: {m.title}: {len(page.plots.get(m.key, {}))} plots")
     if not log.maneuvers:
         say(f"{log.name}: no maneuver with a defined slip")
-    return made
+    return Placed(page, plot_log(log, out_dir, say) if png else {})
 
 
 def make_report(
@@ -117,8 +144,10 @@ def make_report(
     group_by: Sequence[str] | None = None,
     progress: TextIO | None = None,
     two_pass: bool = False,
+    png: bool = False,
 ) -> ReportResult:
-    """Every log read first (a bad one fails before anything is written), summarized, then written (write_report)."""
+    """Every log read first (a bad one fails before anything is written), summarized and its plots laid out (with
+    every high-rate row of its maneuvers), then written (write_report); png: the PNGs too."""
     say = _sayer(progress)
     data = []
     for p in log_paths:
@@ -129,7 +158,10 @@ def make_report(
     logs = [summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=unique_name(d.path.stem, taken),
                           labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
             for d in data]
-    return write_report(logs, out_dir, inputs=log_paths, progress=progress)
+    pages = {log.name: log_page(log, d.fast) for log, d in zip(logs, data)}
+    del data
+    return write_report(logs, out_dir, inputs=log_paths, progress=progress, png=png,
+                        plot=lambda log, d: place_log(log, d, pages[log.name], png, say))
 
 
 def write_report(
@@ -139,35 +171,46 @@ def write_report(
     inputs: Sequence[str | Path] = (),
     progress: TextIO | None = None,
     plot: PlotMaker | None = None,
+    png: bool = False,
 ) -> ReportResult:
-    """The report of summarized logs (unique names) in out_dir: per log its plots in DIR/<name>/ (`plot`, default
-    plot_log), the comparison plots, the tables, index.html last; built in a temporary directory in DIR and moved
-    into place when all are done (outputs.atomic_tree): a report that fails leaves DIR as it was."""
-    from slipdaq.report import plots, write
+    """The report of summarized logs (unique names) in out_dir: per log its plots' data (and PNGs) in DIR/<log>/
+    (`plot`, default: laid out from the summary alone, then place_log), the comparison, the tables, plotly.js and the
+    page's script, index.html last; built in a temporary directory in DIR and moved into place when all are done
+    (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too."""
+    from slipdaq.report import page, page_data, write
 
     out = Path(out_dir)
     say = _sayer(progress)
     logs = list(logs)
     with atomic_tree(out, inputs=inputs, last=TABLES) as build:
-        plot_paths: dict[str, dict[str, dict[str, str]]] = {}
+        links: dict[str, LogLinks] = {}
         pngs: list[Path] = []
         for log in logs:
-            made = plot(log, build / log.name) if plot else plot_log(log, build / log.name, say)
-            plot_paths[log.name] = {k: {s: p.relative_to(build).as_posix() for s, p in v.items()}
-                                    for k, v in made.items()}
-            pngs += (out / p.relative_to(build) for v in made.values() for p in v.values())
+            placed = plot(log, build / log.name) if plot else place_log(log, build / log.name, log_page(log), png, say)
+            rel = {k: {s: p.relative_to(build).as_posix() for s, p in v.items()} for k, v in placed.pngs.items()}
+            links[log.name] = LogLinks(placed.page, rel)
+            pngs += (out / p for v in rel.values() for p in v.values())
         comparisons = compare(logs) if len(logs) > 1 else []
-        compare_plots: dict[str, str] = {}
+        compare_pngs: dict[str, str] = {}
+        if comparisons:
+            (build / COMPARE_SCRIPT).write_bytes(page_data.compare_script(comparisons, logs))
         for c in comparisons:
-            p = plots.plot_comparison(c.phase, logs, build / f"compare-{c.phase}-fx-slip.png")
-            compare_plots[c.phase] = p.relative_to(build).as_posix()
-            pngs.append(out / compare_plots[c.phase])
+            if png:
+                from slipdaq.report import plots
+
+                p = plots.plot_comparison(c.phase, logs, build / f"compare-{c.phase}-fx-slip.png")
+                compare_pngs[c.phase] = p.relative_to(build).as_posix()
+                pngs.append(out / compare_pngs[c.phase])
             say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
+        page_data.write_assets(build)
         rows = table_rows(logs)
         cs, js, index = (build / name for name in TABLES)
         write.write_csv(rows, cs)
-        write.write_json(logs, comparisons, rows, plot_paths, compare_plots, js)
-        write.write_html(logs, comparisons, plot_paths, compare_plots, index)
+        write.write_json(logs, comparisons, rows, {n: lk.page.plots for n, lk in links.items()},
+                         {n: lk.pngs for n, lk in links.items()}, compare_pngs, js,
+                         overviews={n: lk.page.overview for n, lk in links.items()})
+        page.write_html(logs, comparisons, links, compare_pngs, index)
     cs, js, index = (out / name for name in TABLES)
-    say(f"wrote {index} ({len(pngs)} plots), {js}, {cs}")
+    n_plots = sum(len(v) for lk in links.values() for v in lk.page.plots.values())
+    say(f"wrote {index} ({n_plots} plots" + (f", {len(pngs)} PNGs" if png else "") + f"), {js}, {cs}")
     return ReportResult(out, logs, comparisons, pngs, index, js, cs)

@@ -1,4 +1,5 @@
-"""The report's plots: PNG files of FIG_W_PX x FIG_H_PX pixels, drawn with matplotlib's Agg canvas (no display).
+"""The report's PNGs (`report --png`, `batch --png`): files of FIG_W_PX x FIG_H_PX pixels, drawn with matplotlib's
+Agg canvas (no display). Imported only for them: the page's plots are drawn in the browser (page_*.py).
 
 Per maneuver, six plots with the four wheels in them, each wheel in its colour and marker (WHEEL_STYLE, the same
 in every plot): slip against time, speed against slip, tire force Fx against slip (with each wheel's fitted line of
@@ -23,31 +24,18 @@ from matplotlib.typing import LineStyleType
 
 from slipdaq import WHEELS
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.report.style import PLOTS, SLIP_LABEL, WHEEL_STYLE
 from slipdaq.report.summary import LogSummary
 
+__all__ = ["FIG_H_PX", "FIG_W_PX", "PLOTS", "WHEEL_STYLE", "plot_comparison", "plot_maneuver"]
+
 FIG_W_PX, FIG_H_PX, DPI = 800, 600, 100
-WHEEL_STYLE: dict[str, dict[str, str]] = {
-    "FL": {"color": "#1f77b4", "marker": "o"},
-    "FR": {"color": "#ff7f0e", "marker": "^"},
-    "RL": {"color": "#2ca02c", "marker": "s"},
-    "RR": {"color": "#d62728", "marker": "v"},
-}
 GROUP_MARKERS = ("o", "x", "s", "+", "D", "*", "v", "P")
 GROUP_LINES: tuple[LineStyleType, ...] = ("--", ":", "-.", (0, (5, 1, 1, 1)))
 
-PLOTS: tuple[tuple[str, str], ...] = (
-    ("slip-time", "slip against time"),
-    ("speed-slip", "speed against slip"),
-    ("fx-slip", "tire force Fx against slip"),
-    ("re-slip", "effective rolling radius Re against slip"),
-    ("cx-slip", "stiffness Cx against slip"),
-    ("mu-slip", "friction coefficient μ = Fx/Fz against slip (high-rate)"),
-)
-"""(file stem, title) of the six plots of a maneuver, in report order."""
 MU_POINTS_MAX = 2000
 """The μ-slip plot shows at most this many high-rate points per wheel (evenly thinned)."""
 
-SLIP_LABEL = "slip s [%]"
 GAP_S = 1.0
 """Slip against time is not joined across a gap longer than this (e.g. between two laps' phases)."""
 

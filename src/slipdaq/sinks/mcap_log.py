@@ -21,7 +21,7 @@ import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.logformat import cdr
-from slipdaq.logformat.json_codec import dumps, estimate_json, fast_slip_json, fix_json, nmea_line_json
+from slipdaq.logformat.json_codec import dumps, estimate_json, fast_slip_json, fix_json, location_fix_json, nmea_line_json
 from slipdaq.logformat.rotation import RotationPolicy
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
@@ -32,6 +32,8 @@ from slipdaq.logformat.topics import (
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
     TOPIC_GPS,
+    TOPIC_GPS_LOCATION,
+    TOPIC_IMU_RAW,
     TOPIC_MANEUVER,
     TOPIC_NMEA,
     TOPIC_SENSORS,
@@ -56,6 +58,7 @@ from slipdaq.records import (
     UbxFrame,
     WheelSample,
     WheelSampleBatch,
+    XbusBytes,
 )
 from slipdaq.sinks import Sink
 
@@ -179,17 +182,22 @@ class McapLogSink(Sink):
         on_event: EventHandler | None = None,
         monotonic: Callable[[], float] = time.monotonic,
         can_channels: Sequence[str | None] = (),
+        tap: Callable[[str, float, bytes], None] | None = None,
     ) -> None:
         """clock: the log's clock (the sources' SteadyClock in live runs), for the times of the sink's own events.
         on_event: gets the sink's own events (write failed, resumed, rotated), e.g. the live view. fsync: default on
         for live runs (flush_every_s set). can_channels: the CAN channel names known before the first frame (a live
-        run's bus); the frames' other channels are added as they come."""
+        run's bus); the frames' other channels are added as they come. tap: gets (topic, log time in s, bytes) of
+        every message as the log gets it (a late record at the later log time the file gives it), e.g. the Foxglove
+        live server (sinks.foxglove_live); it must not block."""
         first_path = Path(path)
         first_path.parent.mkdir(parents=True, exist_ok=True)
         self._flush_every_s = flush_every_s
         self._clock = clock or time.time
         self._on_event = on_event
         self._mono = monotonic
+        self._tap = tap
+        self._tap_last_s = 0.0
         self.closed = False
         meta = {
             "version": slipdaq.__version__,
@@ -291,6 +299,9 @@ class McapLogSink(Sink):
     def _emit(self, topic: str, log_time_s: float, data: bytes) -> None:
         """Write one message (a record that arrived after a later-stamped one, e.g. a GPS line read before the CAN
         frames stamped before it, is logged when it was processed); commit when a live run's period is up."""
+        if self._tap is not None:  # the log time the file gets: never earlier than the last message's (LogWriter)
+            self._tap_last_s = max(self._tap_last_s, log_time_s)
+            self._tap(topic, self._tap_last_s, data)
         now = self._mono()
         if (self.log.write(topic, log_time_s, data, now) and self._flush_every_s is not None
                 and now - self.log.last_commit >= self._flush_every_s and not self._in_flush):
@@ -358,9 +369,9 @@ class McapLogSink(Sink):
         elif isinstance(record, NmeaLine):
             self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
             self._write(TOPIC_NMEA, record.timestamp_s, nmea_line_json(record, self.can_index))
-        elif isinstance(record, UbxFrame):
+        elif isinstance(record, UbxFrame | XbusBytes):
             self.flush_batches()
-            self._write(TOPIC_UBX, record.timestamp_s,
+            self._write(TOPIC_UBX if isinstance(record, UbxFrame) else TOPIC_IMU_RAW, record.timestamp_s,
                         dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex(),
                                 "can_index": self.can_index}))
         else:  # a raw record type this sink has no topic for yet: say so once, do not stop the run
@@ -414,6 +425,9 @@ class McapLogSink(Sink):
 
     def on_fix(self, fix: GpsFix) -> None:
         self._write(TOPIC_GPS, fix.timestamp_s, fix_json(fix))
+        location = location_fix_json(fix)
+        if location is not None:  # a valid fix with a position, for Foxglove's Map panel
+            self._write(TOPIC_GPS_LOCATION, fix.timestamp_s, location)
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self._write(TOPIC_ESTIMATE, log_time_s, estimate_json(estimate))

@@ -12,6 +12,7 @@ UBX or RTCM with NMEA gives the same records as it would live.
 from __future__ import annotations
 
 import heapq
+import math
 import re
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
@@ -28,6 +29,16 @@ from slipdaq.sources.read_errors import InputError, guarded
 
 _STAMPED = re.compile(rb"[ \t]*\([ \t]*(?P<t>[-+]?\d+(?:\.\d*)?)[ \t]*\)[ \t]?")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
+MAX_LOG_TIME_S = (2**64 - 1) / 1e9
+"""The latest time a log holds (MCAP's log time: nanoseconds since 1970 in 64 bits, about the year 2554)."""
+
+
+def _stamp_error(p: Path, what: str, t: float) -> ImportError_ | None:
+    """The error for a time stamp a log cannot hold (infinite, NaN, after MAX_LOG_TIME_S); None when it can."""
+    if math.isfinite(t) and t < MAX_LOG_TIME_S:
+        return None
+    return ImportError_(f"{p}: {what} is stamped {t!r} s, which no log holds (at most {MAX_LOG_TIME_S:.0f} s after "
+                        "1970): not a time stamp")
 
 
 class ImportError_(InputError):
@@ -46,8 +57,11 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
         formats = "" if p.suffix.lower() in CAN_SUFFIXES else f"; formats: {', '.join(CAN_SUFFIXES)}"
         raise ImportError_(f"{p}: python-can cannot read it ({e}){formats}") from None
     with reader:
-        for msg in guarded(p, reader):
-            yield to_frame(msg)
+        for n, msg in enumerate(guarded(p, reader), 1):
+            frame = to_frame(msg)
+            if (bad := _stamp_error(p, f"frame {n}", frame.timestamp_s)) is not None:
+                raise bad
+            yield frame
 
 
 def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame]:
@@ -82,15 +96,17 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
     probe, probe_ubx = NmeaDecoder(), UbxDecoder()
     framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
-        for raw in chain(guarded(p, f, "line"), [None]):
+        for n, raw in enumerate(chain(guarded(p, f, "line"), [None]), 1):
             m = _STAMPED.match(raw) if raw is not None else None
             if m and raw is not None:
                 last_t = float(m["t"])
+                if (bad := _stamp_error(p, f"line {n}", last_t)) is not None:
+                    raise bad
                 raw = raw[m.end() :]
             for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():
                 if m is None:
                     fix = probe.decode(record) if isinstance(record, NmeaLine) else probe_ubx.decode(record)
-                    if fix is not None and fix.fix_time_utc_s is not None:
+                    if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(p, "", fix.fix_time_utc_s):
                         last_t = fix.fix_time_utc_s
                 if last_t is None:
                     pending.append(record)

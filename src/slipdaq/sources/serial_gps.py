@@ -126,9 +126,12 @@ class SerialGpsSource:
         on_event: EventHandler | None = None,
         monotonic: Callable[[], float] = time.monotonic,
         framer: Callable[[], Framer] = GpsFramer,
+        name: str = "gps",
     ) -> None:
         """clock stamps the lines (the log's clock); monotonic measures gaps, backoff and the quality window;
-        framer makes the byte -> record framer for each connection (UBX frames and NMEA lines by default)."""
+        framer makes the byte -> record framer for each connection (UBX frames and NMEA lines by default; an Xsens
+        MTi's Xbus messages: decode.xbus.XbusFramer); name: the source its events name ("gps", "imu")."""
+        self.name = name
         self.port = port
         self.baudrate = baudrate
         self.clock = clock
@@ -184,7 +187,7 @@ class SerialGpsSource:
         if self.on_event is None:
             return
         try:
-            self.on_event(SourceEvent(self.clock(), "gps", event, detail, gap_s, self._counters()))
+            self.on_event(SourceEvent(self.clock(), self.name, event, detail, gap_s, self._counters()))
         except Exception:  # a sink that fails must not stop the GPS
             log.exception("GPS event handler failed")
 
