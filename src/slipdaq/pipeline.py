@@ -122,6 +122,8 @@ class Pipeline:
         self.maneuver_count = 0
         self._gps_speeds = gps_speeds
         self.fixes = 0
+        self.valid_fixes = 0
+        """... of them marked valid (an RMC status A, a UBX fix OK, a valid reference frame)."""
         """GPS fixes of the protocol gps.velocity names, so far."""
         self.can_frames = 0
         self.unknown_frames = 0
@@ -160,6 +162,7 @@ class Pipeline:
         if self._gps_speeds is not None and self.fixes < len(self._gps_speeds):
             fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
         self.fixes += 1
+        self.valid_fixes += bool(fix.valid)
         for e in self.estimator.add_gps(fix):
             self._estimate(e, log_time_s)
         if self.estimator.events:

@@ -155,6 +155,8 @@ def cmd_import(args: argparse.Namespace) -> int:
             why = ", ".join(f"{reason} {n}" for reason, n in d.dropped_sentences.items() if n)
             _require(p.fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
                      f"({d.bad_sentences} bad sentences{'; dropped: ' + why if why else ''})", args)
+            _require(p.valid_fixes, f"{args.nmea}: no valid fix: {p.fixes} fixes, all marked invalid (no satellite fix)",
+                     args)
         else:
             _require(p.fixes, f"{' '.join(map(str, can_logs))}: no reference speed in it: no frame of "
                      f"{cfg.gps.message}.{cfg.gps.signal} ([gps] message and signal; their DBC in can.dbc)", args)

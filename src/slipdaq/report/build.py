@@ -21,7 +21,7 @@ from typing import Any, TextIO
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_topic, read_metadata
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE, TOPIC_FAST_SLIP, TOPIC_SENSORS
-from slipdaq.outputs import atomic_tree
+from slipdaq.outputs import atomic_tree, refuse_inputs
 from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
@@ -137,6 +137,13 @@ def place_log(log: LogSummary, out_dir: Path, page: PagePlots, png: bool = False
     return Placed(page, plot_log(log, out_dir, say) if png else {})
 
 
+def refuse_report_inputs(out_dir: str | Path, log_paths: Sequence[str | Path]) -> None:
+    """OutputError, before any log is read, when DIR is one of the inputs or one of its top files (RESERVED) would
+    be (a plot inside a log's folder that would be one is refused when the files are moved into place)."""
+    out = Path(out_dir)
+    refuse_inputs([out] + [out / name for name in RESERVED], log_paths)
+
+
 def make_report(
     log_paths: Sequence[str | Path],
     out_dir: str | Path,
@@ -149,6 +156,7 @@ def make_report(
     """Every log read first (a bad one fails before anything is written), summarized and its plots laid out (with
     every high-rate row of its maneuvers), then written (write_report); png: the PNGs too."""
     say = _sayer(progress)
+    refuse_report_inputs(out_dir, log_paths)
     data = []
     for p in log_paths:
         d = read_log(p, two_pass)
