@@ -3,14 +3,16 @@ every `$`, `!` and UBX sync as well as at LF; the same records however the bytes
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pyubx2 import UBXReader
 
-from slipdaq.decode.framing import MAX_FRAME_BYTES, MAX_LINE_BYTES, GpsFramer
+from slipdaq.decode.framing import MAX_FRAME_BYTES, MAX_LINE_BYTES, GpsFramer, crc24q
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import ubx_checksum
-from slipdaq.records import NmeaLine, UbxFrame
+from slipdaq.records import NmeaLine, RtcmFrame, UbxFrame
 
 
 def sentence(start: str, body: str) -> str:
@@ -45,13 +47,13 @@ def frame_all(data: bytes, step: int | None = None) -> list[NmeaLine | UbxFrame]
 
 def test_sentence_right_after_binary_bytes_is_kept() -> None:
     nav_sig = ubx(0x01, 0x43, bytes(range(256)) * 4 + bytes(232))  # 1,264 bytes, as the ZED-F9R's largest NAV-SIG
-    noise = bytes(b for b in range(256) if b not in b"\n$!\xb5") * 2  # 504 bytes of binary with no delimiter
+    noise = bytes(b for b in range(256) if b not in b"\n$!\xb5\xd3") * 2  # 502 bytes of binary with no delimiter
     stream = (nav_sig + RMC.encode() + b"\r\n" + RTCM_1006 + GGA.encode() + b"\r\n"
               + noise + RMC.encode() + b"\r\n")
     for step in (None, 1, 7, 100):
         records = frame_all(stream, step)
-        assert content(records) == [nav_sig, RMC, *(part.decode("latin-1") for part in RTCM_1006.split(b"\n")), GGA,
-                                    noise[:MAX_LINE_BYTES].decode("latin-1"), RMC]
+        assert content(records) == [nav_sig, RMC, RTCM_1006, GGA, noise[:MAX_LINE_BYTES].decode("latin-1"), RMC]
+        assert isinstance(records[2], RtcmFrame)
     assert UBXReader.parse(records[0].data).identity == "NAV-SIG"  # type: ignore[union-attr]
     decoder = NmeaDecoder()
     fixes = [f for r in records if isinstance(r, NmeaLine) and (f := decoder.decode(r)) is not None]
@@ -99,5 +101,49 @@ def test_records_do_not_depend_on_reads(parts: list[bytes], cuts: list[int]) -> 
     for r in split:
         if isinstance(r, NmeaLine):
             assert len(r.line) <= MAX_LINE_BYTES and "\n" not in r.line
+        elif isinstance(r, RtcmFrame):
+            assert r.data[0] == 0xD3 and crc24q(r.data[:-3]) == r.data[-3:]
         else:
             assert r.data[:2] == b"\xb5\x62" and ubx_checksum(r.data[2:-2]) == r.data[-2:]
+
+
+def test_rtcm3_frames_of_a_real_capture_are_records_equal_to_pyrtcm_s() -> None:
+    """The ZED-F9R capture (gpsd's, UBX + RTCM 3 + NMEA): every RTCM 3 frame in it is one RtcmFrame, whose CRC-24Q
+    pyrtcm checks and whose message pyrtcm parses; no RTCM bytes end up in NMEA lines."""
+    from pyrtcm import RTCMReader
+    from pyrtcm.rtcmhelpers import calc_crc24q
+
+    data = (Path(__file__).parent / "data" / "gpsd-ubx-mixed" / "ublox-zed-f9r.log").read_bytes()
+    records = frame_all(data, 97)
+    rtcm = [r for r in records if isinstance(r, RtcmFrame)]
+    assert len(rtcm) >= 10
+    for r in rtcm:
+        assert calc_crc24q(r.data) == 0
+        assert RTCMReader.parse(r.data).identity.isdigit()
+    assert not any(isinstance(r, NmeaLine) and "\xd3" in r.line for r in records)
+    assert crc24q(RTCM_1006[:-3]) == RTCM_1006[-3:]
+
+
+def test_rtcm3_frames_are_logged_on_their_topic_and_read_back(tmp_path: Path) -> None:
+    """The receiver's RTCM 3 frames go to /gps/rtcm/raw as they came (not counted as bad sentences) and come back as
+    raw records in their place."""
+    from conftest import CONFIG
+    from slipdaq.config import load_config
+    from slipdaq.logformat.reader import iter_raw_records, iter_topic
+    from slipdaq.pipeline import Pipeline
+    from slipdaq.sinks.mcap_log import McapLogSink
+
+    data = (Path(__file__).parent / "data" / "gpsd-ubx-mixed" / "ublox-zed-f9r.log").read_bytes()
+    records = frame_all(data)
+    cfg = load_config(CONFIG)
+    sink = McapLogSink(tmp_path / "gps.mcap", cfg, "import")
+    pipeline = Pipeline(cfg, [sink])
+    for k, r in enumerate(records):
+        pipeline.process(type(r)(1_767_225_600.0 + 0.001 * k, r.line if isinstance(r, NmeaLine) else r.data))
+    pipeline.finish()
+    sink.close()
+    logged = [bytes.fromhex(d["data"]) for _t, _t2, d in iter_topic(tmp_path / "gps.mcap", ("/gps/rtcm/raw",))]
+    assert logged == [r.data for r in records if isinstance(r, RtcmFrame)] and logged
+    back = [r for r in iter_raw_records(tmp_path / "gps.mcap") if isinstance(r, RtcmFrame)]
+    assert [r.data for r in back] == logged
+    assert pipeline.nmea.bad_sentences == 0

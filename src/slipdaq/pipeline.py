@@ -35,6 +35,7 @@ from slipdaq.records import (
     GpsFix,
     NmeaLine,
     RawRecord,
+    RtcmFrame,
     SensorSample,
     UbxFrame,
     WheelSampleBatch,
@@ -144,6 +145,9 @@ class Pipeline:
             return
         for s in self.sinks:
             s.on_raw(record)
+        if isinstance(record, RtcmFrame):  # corrections for the receiver, logged, not decoded
+            self._tick(record.timestamp_s)
+            return
         if isinstance(record, XbusBytes):
             accel = self.xbus.forward_accel_mps2(record)
             if accel is not None:
@@ -203,8 +207,8 @@ class Pipeline:
         each other record, in turn. Consecutive batches are estimated as one (up to MERGE_MAX_FRAMES) and the wheel
         frames are decoded ahead, past GPS records, up to where the next diagnostics snapshot falls due (the decoder
         does not depend on GPS): numpy's fixed cost is paid once for many. The sinks get the batches as they came."""
-        queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes] = [
-            x if isinstance(x, CanFrameBatch | NmeaLine | UbxFrame | XbusBytes)
+        queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame] = [
+            x if isinstance(x, CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame)
             else CanFrameBatch.from_frames([x] if isinstance(x, CanFrame) else x) for x in items]
         run: list[CanFrameBatch] = []
         frames = 0
@@ -236,7 +240,7 @@ class Pipeline:
         finally:
             self._ahead = _Decoded.NONE
 
-    def _decode_ahead(self, queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes], k: int) -> _Decoded:
+    def _decode_ahead(self, queue: list[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame], k: int) -> _Decoded:
         """The wheel frames of queue[k:] decoded at once, up to the record that makes the next diagnostics snapshot
         due (its counters are the decoder's as of that record) or MERGE_MAX_FRAMES."""
         due = self._next_diag_s

@@ -11,13 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from slipdaq.columns import ACCEL_SOURCES as ACCEL_SOURCES  # re-exported: the columns are declared in columns.py
 from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, record_row
-from slipdaq.columns import PHASES as PHASES
-from slipdaq.columns import QUALITIES as QUALITIES
-from slipdaq.columns import Column as Column
-from slipdaq.columns import ColumnGroup as ColumnGroup
-from slipdaq.columns import column_names as column_names
 
 
 @dataclass(slots=True)
@@ -85,6 +79,14 @@ class UbxFrame:
 
 
 @dataclass(frozen=True, slots=True)
+class RtcmFrame:
+    """One RTCM 3 frame (preamble 0xD3 to its CRC-24Q) from the GPS serial port, kept as received (not decoded)."""
+
+    timestamp_s: float
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
 class XbusBytes:
     """One raw record of an Xsens MTi's serial stream (decode/xbus.py), with its host receive time: a complete Xbus
     message (preamble to checksum) or a run of bytes between messages that frame none (noise, kept so that the raw
@@ -94,7 +96,7 @@ class XbusBytes:
     data: bytes
 
 
-RawRecord = CanFrame | NmeaLine | UbxFrame | XbusBytes
+RawRecord = CanFrame | NmeaLine | UbxFrame | RtcmFrame | XbusBytes
 
 FLAG_EXTENDED = 1
 FLAG_ERROR = 2

@@ -1,11 +1,15 @@
-"""A GPS receiver's byte stream -> raw records: UBX frames and NMEA lines (the one framing rule, live and import).
+"""A GPS receiver's byte stream -> raw records: UBX frames, RTCM 3 frames and NMEA lines (the one framing rule, live
+and import).
 
 A UBX frame starts with the sync bytes 0xB5 0x62, then class, id, a 16-bit little-endian payload length, the payload
 and a two-byte Fletcher checksum; a frame whose checksum fails, or whose declared length exceeds MAX_FRAME_BYTES, is
 noise: its first byte is dropped (counted in bad_frames) and framing goes on at the next byte.
 
-Everything else is text, cut into lines at LF and also before every `$` or `!` (the NMEA start delimiters) and before
-the UBX sync bytes wherever they appear. So a sentence that follows binary bytes (UBX, RTCM) without a line end in
+An RTCM 3 frame starts with 0xD3, six zero bits and a 10-bit length, then the message and a CRC-24Q (RTCM 10403.3,
+section 4): kept as a record when its CRC holds, else its first byte goes on as text.
+
+Everything else is text, cut into lines at LF and also before every `$` or `!` (the NMEA start delimiters), before
+0xD3 and before the UBX sync bytes wherever they appear. So a sentence that follows binary bytes (UBX, RTCM) without a line end in
 between starts a line of its own and is kept. A line longer than MAX_LINE_BYTES yields its first MAX_LINE_BYTES bytes
 once (counted in overlong_lines) and the rest of it, up to the next LF, start delimiter or sync, is dropped.
 
@@ -21,7 +25,7 @@ import re
 from collections import deque
 
 from slipdaq.decode.ubx import SYNC, ubx_checksum
-from slipdaq.records import NmeaLine, UbxFrame
+from slipdaq.records import NmeaLine, RtcmFrame, UbxFrame
 
 MAX_LINE_BYTES = 256
 """NMEA allows 82 characters; longer lines are cut here and counted as overlong."""
@@ -29,13 +33,35 @@ MAX_FRAME_BYTES = 8 + 8192
 """The largest UBX frame kept (NAV-PVT is 100 bytes, NAV-SIG of a ZED-F9 up to 1.3 kB, RXM-RAWX with 255
 measurements 8 kB); a longer declared length is noise."""
 
-_DELIMITER = re.compile(rb"\n|[$!]|\xb5b")
-"""What ends a line: its line end, or the start of the next record (an NMEA start delimiter, the UBX sync bytes)."""
-_LF, _B5 = 0x0A, 0xB5
+_DELIMITER = re.compile(rb"\n|[$!\xd3]|\xb5b")
+"""What ends a line: its line end, or the start of the next record (an NMEA start delimiter, an RTCM 3 preamble, the
+UBX sync bytes)."""
+_LF, _B5, _D3 = 0x0A, 0xB5, 0xD3
+
+
+def _crc24q_table() -> list[int]:
+    table = []
+    for i in range(256):
+        c = i << 16
+        for _ in range(8):
+            c = (c << 1) ^ 0x1864CFB if c & 0x800000 else c << 1
+        table.append(c & 0xFFFFFF)
+    return table
+
+
+_CRC24Q = _crc24q_table()
+
+
+def crc24q(data: bytes) -> bytes:
+    """The CRC-24Q of RTCM 3 (polynomial 0x1864CFB, initial value 0), as its three bytes, most significant first."""
+    crc = 0
+    for b in data:
+        crc = ((crc << 8) & 0xFFFFFF) ^ _CRC24Q[((crc >> 16) ^ b) & 0xFF]
+    return crc.to_bytes(3, "big")
 
 
 class GpsFramer:
-    """Splits a receiver's byte stream into UbxFrame and NmeaLine records (see the module docstring)."""
+    """Splits a receiver's byte stream into UbxFrame, RtcmFrame and NmeaLine records (see the module docstring)."""
 
     def __init__(self) -> None:
         self._buf = bytearray()
@@ -49,14 +75,14 @@ class GpsFramer:
         """Bytes held for a record whose end has not come yet."""
         return len(self._buf)
 
-    def feed(self, data: bytes, timestamp_s: float) -> list[NmeaLine | UbxFrame]:
+    def feed(self, data: bytes, timestamp_s: float) -> list[NmeaLine | UbxFrame | RtcmFrame]:
         """The records completed by these bytes, which arrived at timestamp_s."""
         if data:
             self._buf += data
             self._reads.append((len(self._buf), timestamp_s))
         return self._frame(final=False)
 
-    def flush(self) -> list[NmeaLine | UbxFrame]:
+    def flush(self) -> list[NmeaLine | UbxFrame | RtcmFrame]:
         """The end of the stream: what is held becomes records (a frame cut short is noise, a line without end a line)."""
         return self._frame(final=True)
 
@@ -67,8 +93,8 @@ class GpsFramer:
                 return t
         return self._reads[-1][1]
 
-    def _frame(self, final: bool) -> list[NmeaLine | UbxFrame]:
-        out: list[NmeaLine | UbxFrame] = []
+    def _frame(self, final: bool) -> list[NmeaLine | UbxFrame | RtcmFrame]:
+        out: list[NmeaLine | UbxFrame | RtcmFrame] = []
         buf = self._buf
         n = len(buf)
         pos = 0
@@ -91,6 +117,19 @@ class GpsFramer:
                         self.bad_frames += 1
                         pos += 1
                     continue
+            if first == _D3:
+                if n - pos < 3 and not final:
+                    break  # maybe a frame
+                if n - pos >= 3 and buf[pos + 1] & 0xFC == 0:
+                    length = 6 + ((buf[pos + 1] & 0x03) << 8 | buf[pos + 2])
+                    if n - pos < length and not final:
+                        break
+                    frame = bytes(buf[pos : pos + length])
+                    if len(frame) == length and crc24q(frame[:-3]) == frame[-3:]:
+                        self._skipping = False
+                        out.append(RtcmFrame(self._arrival(pos + length), frame))
+                        pos += length
+                        continue
             if first == _LF:
                 self._skipping = False
                 pos += 1
@@ -129,14 +168,14 @@ class GpsFramer:
             reads[i] = (stop - pos, t)
         return out
 
-    def _cut(self, out: list[NmeaLine | UbxFrame], pos: int) -> None:
+    def _cut(self, out: list[NmeaLine | UbxFrame | RtcmFrame], pos: int) -> None:
         """An overlong line: its first MAX_LINE_BYTES bytes once, then the rest is skipped."""
         if not self._skipping:
             self.overlong_lines += 1
             self._emit(out, pos, pos + MAX_LINE_BYTES, pos + MAX_LINE_BYTES)
         self._skipping = True
 
-    def _emit(self, out: list[NmeaLine | UbxFrame], start: int, end: int, last: int) -> None:
+    def _emit(self, out: list[NmeaLine | UbxFrame | RtcmFrame], start: int, end: int, last: int) -> None:
         """The line buf[start:end]; it arrived with the byte before `last` (its LF, or its own last byte)."""
         text = bytes(self._buf[start:end]).rstrip(b"\r").decode("latin-1")
         if text:

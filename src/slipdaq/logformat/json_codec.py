@@ -8,8 +8,9 @@ import math
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
 from slipdaq.logformat.topics import log_time_ns
-from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, CanFrame, ColumnGroup, GpsFix, NmeaLine, WheelSample
+from slipdaq.records import CanFrame, GpsFix, NmeaLine, WheelSample
 
 
 def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:

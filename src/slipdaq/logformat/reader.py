@@ -32,12 +32,13 @@ from slipdaq.logformat.topics import (
     TOPIC_ESTIMATE,
     TOPIC_FAST_SLIP,
     TOPIC_IMU_RAW,
+    TOPIC_RTCM,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
     log_time_ns,
 )
-from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, UbxFrame, XbusBytes
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame, XbusBytes
 
 __all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates",
            "iter_raw_batches", "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
@@ -159,7 +160,7 @@ def iter_topic(
 
 def iter_raw_batches(
     path: str | Path, scan_result: ScanResult | None = None
-) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes]:
+) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame]:
     """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
     batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
     run: list[CanFrame] = []
@@ -190,6 +191,8 @@ def iter_raw_batches(
             yield UbxFrame(d["timestamp_s"], bytes.fromhex(d["data"]))
         elif topic == TOPIC_IMU_RAW:
             yield XbusBytes(d["timestamp_s"], bytes.fromhex(d["data"]))
+        elif topic == TOPIC_RTCM:
+            yield RtcmFrame(d["timestamp_s"], bytes.fromhex(d["data"]))
         else:
             yield NmeaLine(d["timestamp_s"], d["line"])
     if run:

@@ -7,6 +7,7 @@ import dataclasses
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup
 from slipdaq.decode.nmea import DROP_REASONS
 from slipdaq.logformat import cdr
 from slipdaq.logformat.topics import (
@@ -20,12 +21,13 @@ from slipdaq.logformat.topics import (
     TOPIC_IMU_RAW,
     TOPIC_MANEUVER,
     TOPIC_NMEA,
+    TOPIC_RTCM,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
 )
 from slipdaq.maneuver.record import MANEUVER_COLUMNS
-from slipdaq.records import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup, GpsFix, SensorSample, SourceEvent
+from slipdaq.records import GpsFix, SensorSample, SourceEvent
 
 _NUM = {"type": "number"}
 _NUM_OR_NULL = {"type": ["number", "null"]}
@@ -159,6 +161,10 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_GPS_LOCATION: LOCATION_FIX_SCHEMA,
     TOPIC_IMU_RAW: _obj("slipdaq.XbusBytes", {
         "timestamp_s": _NUM, "data": {"type": "string", "description": "an Xbus message (or the bytes between two) as hex"},
+        "can_index": _CAN_INDEX,
+    }),
+    TOPIC_RTCM: _obj("slipdaq.RtcmFrame", {
+        "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole RTCM 3 frame as hex"},
         "can_index": _CAN_INDEX,
     }),
 }

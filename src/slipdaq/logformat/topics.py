@@ -9,6 +9,7 @@ METADATA_NAME = "slipdaq"
 TOPIC_CAN = "/can/raw"
 TOPIC_NMEA = "/nmea/raw"
 TOPIC_UBX = "/gps/ubx/raw"
+TOPIC_RTCM = "/gps/rtcm/raw"
 TOPIC_IMU_RAW = "/imu/raw"
 TOPIC_WPT = "/wpt/count"
 TOPIC_GPS = "/gps/fix"
@@ -20,7 +21,7 @@ TOPIC_SENSORS = "/can/sensors"
 TOPIC_MANEUVER = "/maneuver"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_EVENTS = "/diagnostics/events"
-RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX, TOPIC_IMU_RAW)
+RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX, TOPIC_IMU_RAW, TOPIC_RTCM)
 
 MAX_BATCH_FRAMES = 512
 MAX_BATCH_SPAN_S = 0.05

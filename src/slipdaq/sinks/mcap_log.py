@@ -36,6 +36,7 @@ from slipdaq.logformat.topics import (
     TOPIC_IMU_RAW,
     TOPIC_MANEUVER,
     TOPIC_NMEA,
+    TOPIC_RTCM,
     TOPIC_SENSORS,
     TOPIC_UBX,
     TOPIC_WPT,
@@ -53,6 +54,7 @@ from slipdaq.records import (
     GpsFix,
     NmeaLine,
     RawRecord,
+    RtcmFrame,
     SensorSample,
     SourceEvent,
     UbxFrame,
@@ -369,9 +371,11 @@ class McapLogSink(Sink):
         elif isinstance(record, NmeaLine):
             self.flush_batches()  # the file keeps the order of processing: frames before, line, frames after
             self._write(TOPIC_NMEA, record.timestamp_s, nmea_line_json(record, self.can_index))
-        elif isinstance(record, UbxFrame | XbusBytes):
+        elif isinstance(record, UbxFrame | XbusBytes | RtcmFrame):
             self.flush_batches()
-            self._write(TOPIC_UBX if isinstance(record, UbxFrame) else TOPIC_IMU_RAW, record.timestamp_s,
+            topic = TOPIC_UBX if isinstance(record, UbxFrame) else TOPIC_IMU_RAW if isinstance(record, XbusBytes) \
+                else TOPIC_RTCM
+            self._write(topic, record.timestamp_s,
                         dumps({"timestamp_s": record.timestamp_s, "data": record.data.hex(),
                                 "can_index": self.can_index}))
         else:  # a raw record type this sink has no topic for yet: say so once, do not stop the run

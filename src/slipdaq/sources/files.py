@@ -24,7 +24,7 @@ import can
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
-from slipdaq.records import CanFrame, NmeaLine, RawRecord, UbxFrame
+from slipdaq.records import CanFrame, NmeaLine, RawRecord, RtcmFrame, UbxFrame
 from slipdaq.sources.read_errors import InputError, guarded
 
 _STAMPED = re.compile(rb"[ \t]*\([ \t]*(?P<t>[-+]?\d+(?:\.\d*)?)[ \t]*\)[ \t]?")
@@ -87,12 +87,12 @@ def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame]:
         last_p = p
 
 
-def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
+def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]:
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such NMEA log")
     last_t: float | None = None
-    pending: list[NmeaLine | UbxFrame] = []  # records before the first time is known
+    pending: list[NmeaLine | UbxFrame | RtcmFrame] = []  # records before the first time is known
     probe, probe_ubx = NmeaDecoder(), UbxDecoder()
     framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
@@ -105,7 +105,8 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame]:
                 raw = raw[m.end() :]
             for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():
                 if m is None:
-                    fix = probe.decode(record) if isinstance(record, NmeaLine) else probe_ubx.decode(record)
+                    fix = probe.decode(record) if isinstance(record, NmeaLine) else \
+                        probe_ubx.decode(record) if isinstance(record, UbxFrame) else None
                     if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(p, "", fix.fix_time_utc_s):
                         last_t = fix.fix_time_utc_s
                 if last_t is None:
