@@ -4,8 +4,11 @@ A task (process_log) re-runs one log two-pass and summarizes it (report.build.re
 lays out its page's plots (report.page_data.log_page: the data the browser draws, every high-rate row of its
 maneuvers), with `--png` draws its PNGs (report.build.plot_log), and writes its estimates as Parquet
 (sinks.parquet_export.write_parquet) into a temporary directory on the worker; it returns them as bytes in a
-LogResult, or the error text. This process writes everything: only the logs need to be readable by the workers (at
-the same path), not DIR.
+LogResult, or the error text. Who writes a log's Parquet and cache files: on the local cluster (workers on this
+machine) the task itself, into DIR, returning its summary only; on a cluster of --scheduler this process, from the
+bytes the task returned (only the logs need to be readable by the workers, at the same path, not DIR); with DIR an
+fsspec URL (fleet_storage) the task, through fsspec. A task copies a log at a URL into a local temporary file first.
+This process builds the report from the cache files (uploaded when DIR is a URL).
 
 Output layout in DIR:
     estimates/<name>-<key>.parquet   the Parquet dataset: one file per log (the estimate rows, `log`, `label_<KEY>`)
@@ -17,9 +20,10 @@ Output layout in DIR:
 
 <name> is the log's file stem made file-safe and unique in the run (report.build.unique_name); <key> hashes the
 log's size and mtime, its stored metadata (the config, the DBC, the calibration it started from, its labels), the
-name and slipdaq's version. Skip rule: a log whose Parquet and cache files with its current key exist is not
-processed again; its summary and plots are read from the cache file (with --png: unless its cache has no PNGs). A
-new output of a name removes the older files of that name.
+name and slipdaq's version; for a log at a URL, its size and ETag (or last-modified) from fsspec's info instead of the
+size, mtime and metadata (the log is not read by this process). Skip rule: a log whose Parquet and cache files with
+its current key exist is not processed again; its summary and plots are read from the cache file (with --png: unless
+its cache has no PNGs). A new output of a name removes the older files of that name.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import slipdaq
+from slipdaq.fleet_storage import FleetError, UrlStore, expand_logs, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output, refuse_inputs
 from slipdaq.report.build import Placed
 from slipdaq.report.page_data import PagePlots
@@ -53,10 +58,6 @@ PlotBytes = dict[str, dict[str, tuple[str, bytes]]]
 """maneuver key -> plot stem -> (file name, PNG bytes)."""
 
 
-class FleetError(Exception):
-    """Dask missing, or the cluster cannot be reached (one line)."""
-
-
 @dataclass(frozen=True)
 class Job:
     path: str
@@ -64,9 +65,13 @@ class Job:
     name: str
     key: str
     file: str
-    """Absolute, as the workers open it."""
+    """Absolute, as the workers open it (or the URL)."""
     png: bool = False
     """Draw the PNGs too (`batch --png`)."""
+    out: str | None = None
+    """DIR (a URL, or an absolute path) when the task writes its outputs itself (None: it returns them)."""
+    inputs: tuple[str, ...] = ()
+    """With a local `out`: the inputs its files must not be (inputs_inside)."""
 
     @property
     def stem(self) -> str:
@@ -90,24 +95,38 @@ class LogResult:
     rows: int = 0
     seconds: float = 0.0
     error: str | None = None
+    plots: int = 0
+    """How many plots the page has (and PNGs were drawn): for the progress line."""
+    png_files: int = 0
+    written: bool = False
+    """The task wrote its Parquet and cache files itself: `parquet`, `page` and `pngs` are empty."""
 
 
 @dataclass
 class BatchResult:
-    out_dir: Path
+    out_dir: Path | str
+    """A path, or the URL given."""
     done: list[LogResult]
     """Processed in this run, in the order of the logs."""
     skipped: list[LogResult]
     """Up to date: read from the cache."""
     failed: list[LogResult]
-    report: Path | None
-    """index.html; None when no log succeeded."""
+    report: Path | str | None
+    """index.html (its URL when DIR is one); None when no log succeeded."""
+
+    @property
+    def estimates(self) -> str:
+        """Where the Parquet dataset is."""
+        return f"{self.out_dir}/{ESTIMATES}" if isinstance(self.out_dir, str) else str(Path(self.out_dir) / ESTIMATES)
 
 
 def log_key(path: str | Path, name: str) -> str:
     """The hash in a log's output names (16 hex digits)."""
     from slipdaq.logformat.reader import read_metadata
 
+    if is_url(path):  # its ETag (or last-modified) stands for its contents: the log is not read here
+        ident = {"format": CACHE_FORMAT, "version": slipdaq.__version__, "log": url_identity(str(path)), "name": name}
+        return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
     st = os.stat(path)
     ident = {"format": CACHE_FORMAT, "version": slipdaq.__version__, "size": st.st_size, "mtime_ns": st.st_mtime_ns,
              "metadata": read_metadata(path), "name": name}
@@ -130,8 +149,8 @@ def _error_text(e: BaseException) -> str:
 
 
 def process_log(job: Job) -> LogResult:
-    """The task: one log two-pass, its summary, page plots (PNGs with job.png) and Parquet bytes; any error as text
-    (never raises)."""
+    """The task: one log two-pass, its summary, page plots (PNGs with job.png) and Parquet bytes (with job.out: written
+    there, and only the summary returned); any error as text (never raises)."""
     from slipdaq.report.build import plot_log, read_log
     from slipdaq.report.labels import labels_of
     from slipdaq.report.page_data import log_page
@@ -140,7 +159,8 @@ def process_log(job: Job) -> LogResult:
 
     t0 = time.perf_counter()
     try:
-        data = read_log(job.file, two_pass=True, progress=io.StringIO())
+        with local_copy(job.file) as local:
+            data = read_log(local, two_pass=True, progress=io.StringIO())
         labels = labels_of(data.metadata)
         summary = summarize_log(data.rows, data.metadata, data.diagnostics, path=job.path, name=job.name,
                                 labels=labels, fast=data.fast, sensors=data.sensors)
@@ -151,26 +171,53 @@ def process_log(job: Job) -> LogResult:
             pq = Path(tmp) / "estimates.parquet"
             n = write_parquet(data.rows, pq, log_name=job.name, labels=labels)
             blob = pq.read_bytes()
+        r = LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0,
+                      plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()))
+        if job.out is not None:
+            if is_url(job.out):
+                save_to(UrlStore(job.out), r)
+            else:
+                save(Path(job.out), r, job.inputs)
+            r = dataclasses.replace(r, parquet=b"", page=None, pngs={}, written=True)
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=_error_text(e))
-    return LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0)
+    return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
 
 # ---- DIR: the dataset, the cache, the report --------------------------------------------------------------------
 
-def _paths(out: Path, job: Job | LogResult) -> tuple[Path, Path]:
+Out = Path | UrlStore
+"""DIR: a local directory, or a URL."""
+
+
+def _rel(job: Job | LogResult) -> tuple[str, str]:
     stem = f"{job.name}-{job.key}"
-    return out / ESTIMATES / f"{stem}.parquet", out / CACHE / f"{stem}.pickle"
+    return f"{ESTIMATES}/{stem}.parquet", f"{CACHE}/{stem}.pickle"
 
 
-def load_cached(out: Path, job: Job) -> LogResult | None:
+def _paths(out: Path, job: Job | LogResult) -> tuple[Path, Path]:
+    parquet, cache = _rel(job)
+    return out / parquet, out / cache
+
+
+def _where(out: Out, job: Job | LogResult) -> str:
+    """The Parquet file's path or URL (in messages)."""
+    return out.where(_rel(job)[0]) if isinstance(out, UrlStore) else str(_paths(out, job)[0])
+
+
+def _read_cache(out: Out, job: Job | LogResult) -> bytes:
+    return out.read(_rel(job)[1]) if isinstance(out, UrlStore) else _paths(out, job)[1].read_bytes()
+
+
+def load_cached(out: Out, job: Job) -> LogResult | None:
     """The LogResult of an up-to-date log (its Parquet and cache files with its key exist), else None."""
-    parquet, cache = _paths(out, job)
-    if not parquet.is_file() or not cache.is_file():
+    if isinstance(out, UrlStore):
+        if not all(out.exists(r) for r in _rel(job)):
+            return None
+    elif not all(p.is_file() for p in _paths(out, job)):
         return None
     try:
-        with cache.open("rb") as f:
-            got = pickle.load(f)
+        got = pickle.loads(_read_cache(out, job))
     except Exception:  # a cache file this version cannot read: process the log again
         return None
     if not isinstance(got, LogResult) or got.key != job.key or got.summary is None or got.page is None:
@@ -195,6 +242,20 @@ def save(out: Path, result: LogResult, inputs: Sequence[str]) -> Path:
     return parquet
 
 
+def save_to(store: UrlStore, result: LogResult) -> str:
+    """save() at a URL (by the task): the Parquet object, then the cache object, then the older objects of the name
+    removed; returns the Parquet object's URL."""
+    parquet, cache = _rel(result)
+    store.write(parquet, result.parquet)
+    store.write(cache, pickle.dumps(dataclasses.replace(result, parquet=b""), protocol=pickle.HIGHEST_PROTOCOL))
+    older = re.compile(re.escape(result.name) + r"-[0-9a-f]{16}\.(parquet|pickle)")
+    for d in (ESTIMATES, CACHE):
+        for n in store.names(d):
+            if older.fullmatch(n) and f"{d}/{n}" not in (parquet, cache):
+                store.remove(f"{d}/{n}")
+    return store.where(parquet)
+
+
 def inputs_inside(directory: Path, inputs: Sequence[str]) -> list[str]:
     """The inputs that a file written under `directory` could be: inside it once resolved, or a hard link of a file
     in it. Only these go to the outputs' checks (outputs.refuse_inputs compares every output with every input)."""
@@ -209,14 +270,13 @@ def inputs_inside(directory: Path, inputs: Sequence[str]) -> list[str]:
     return found
 
 
-def _placer(out: Path, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
+def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
     """report.build.PlotMaker writing a log's page data (and with png its PNGs) as its task made them, read back from
     its cache file (they are not kept in memory meanwhile)."""
     from slipdaq.report.page_data import LOG_SCRIPT
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
-        with _paths(out, results[log.name])[1].open("rb") as f:
-            cached: LogResult = pickle.load(f)
+        cached: LogResult = pickle.loads(_read_cache(out, results[log.name]))
         assert cached.page is not None  # load_cached and the tasks make sure
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / LOG_SCRIPT).write_bytes(cached.page.script)
@@ -302,30 +362,34 @@ class _Progress:
         self._stack.close()
 
 
-def _ok_line(r: LogResult, out: Path, cached: bool) -> str:
-    parquet = _paths(out, r)[0]
-    n = sum(len(v) for v in r.page.plots.values()) if r.page else 0
-    pngs = f", {sum(len(v) for v in r.pngs.values())} PNGs" if r.png else ""
+def _ok_line(r: LogResult, out: Out, cached: bool) -> str:
+    pngs = f", {r.png_files} PNGs" if r.png else ""
     maneuvers = len(r.summary.maneuvers) if r.summary else 0
-    what = "up to date" if cached else f"{r.rows} estimates, {maneuvers} maneuvers, {n} plots{pngs} ({r.seconds:.1f} s)"
-    return f"{r.path}: {what} -> {parquet}"
+    what = "up to date" if cached else f"{r.rows} estimates, {maneuvers} maneuvers, {r.plots} plots{pngs} ({r.seconds:.1f} s)"
+    return f"{r.path}: {what} -> {_where(out, r)}"
 
 
-def _jobs(logs: Sequence[str | Path], png: bool = False) -> tuple[list[Job], list[LogResult]]:
+def _ident(log: str | Path) -> str | Path:
+    """What makes two logs the same (duplicates are dropped): the URL as given, or the resolved path."""
+    return str(log) if is_url(log) else Path(log).resolve()
+
+
+def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None) -> tuple[list[Job], list[LogResult]]:
     """A job per log (duplicates dropped), and the failures of logs whose key cannot be made (not readable)."""
     from slipdaq.report.build import unique_name
 
     taken: set[str] = set()
-    seen: set[Path] = set()
+    seen: set[str | Path] = set()
     jobs: list[Job] = []
     failed: list[LogResult] = []
     for log in logs:
-        if Path(log).resolve() in seen:
+        if _ident(log) in seen:
             continue
-        seen.add(Path(log).resolve())
-        name = unique_name(Path(log).stem, taken)
+        seen.add(_ident(log))
+        name = unique_name(Path(str(log).rstrip("/")).stem, taken)
         try:
-            jobs.append(Job(str(log), name, log_key(log, name), os.path.abspath(log), png))
+            file = str(log) if is_url(log) else os.path.abspath(log)
+            jobs.append(Job(str(log), name, log_key(log, name), file, png, out))
         except Exception as e:
             failed.append(LogResult(str(log), name, "", error=_error_text(e)))
     return jobs, failed
@@ -336,17 +400,26 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
               stream: TextIO | None = None, png: bool = False) -> BatchResult:
     """Every log that is not up to date as one Dask task; each result saved as it comes; then the report over every
     log that succeeded (processed or up to date): one page. A log that fails is in `failed` with its error. png: the
-    PNGs too (a log cached without them is processed again)."""
-    from slipdaq.report.build import write_report
+    PNGs too (a log cached without them is processed again). Logs and out_dir may be fsspec URLs (a URL log with a
+    glob is expanded); with out_dir a URL, each task writes its own outputs there."""
+    from slipdaq.report.build import TABLES, write_report
     from slipdaq.report.summary import group_of
 
-    out = Path(out_dir)
-    refuse_inputs([out], [str(p) for p in logs])
-    inputs = inputs_inside(out, [str(p) for p in logs])
+    logs = expand_logs(logs)
+    out: Out
+    inputs: list[str] = []
+    if isinstance(out_dir, str) and is_url(out_dir):
+        out = UrlStore(out_dir)
+        out.check_writable()
+    else:
+        out = Path(out_dir)
+        local = [str(p) for p in logs if not is_url(p)]
+        refuse_inputs([out], local)
+        inputs = inputs_inside(out, local)
     stream = stream or sys.stderr
-    progress = _Progress(stream, len(dict.fromkeys(Path(p).resolve() for p in logs)))
+    progress = _Progress(stream, len(dict.fromkeys(_ident(p) for p in logs)))
     try:
-        jobs, failed = _jobs(logs, png)
+        jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None)
         for r in failed:
             progress.line(f"FAILED {failure(r)}")
         results: dict[str, LogResult] = {}
@@ -366,6 +439,11 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                 if scheduler and not client.scheduler_info().get("workers"):
                     print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
                           file=stream, flush=True)
+                if isinstance(out, Path) and not scheduler:  # the local cluster's workers share DIR: they write it
+                    for d in (ESTIMATES, CACHE):
+                        (out / d).mkdir(parents=True, exist_ok=True)
+                    mine = tuple(os.path.abspath(i) for i in inputs)
+                    todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine) for j in todo]
                 futures = {client.submit(process_log, job, key=f"slipdaq-batch-{job.stem}", pure=False): job
                            for job in todo}
                 for fut in as_completed(futures):
@@ -376,7 +454,9 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                         r = LogResult(job.path, job.name, job.key, error=_error_text(e))
                     fut.release()
                     if r.error is None:
-                        save(out, r, inputs)
+                        if not r.written:  # a cluster of --scheduler: DIR is this machine's
+                            assert isinstance(out, Path)  # a task writes at a URL itself
+                            save(out, r, inputs)
                         results[job.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
                         progress.line(_ok_line(r, out, cached=False))
                     else:
@@ -387,10 +467,18 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
     order = [j.name for j in jobs if j.name in results]
     summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
                  for n in order if (s := results[n].summary) is not None]
-    index = None
-    if summaries:
+    index: Path | str | None = None
+    if not summaries:
+        pass
+    elif isinstance(out, UrlStore):  # built here, then uploaded: the tables and the page last
+        with tempfile.TemporaryDirectory(prefix="slipdaq-report-") as tmp:
+            write_report(summaries, Path(tmp) / REPORT, plot=_placer(out, results, png), png=png)
+            out.put_tree(Path(tmp) / REPORT, REPORT, last=TABLES)
+        index = out.where(f"{REPORT}/{TABLES[-1]}")
+    else:
         index = write_report(summaries, out / REPORT, inputs=inputs, plot=_placer(out, results, png), png=png).index
     rank = {str(log): i for i, log in enumerate(logs)}
     failed.sort(key=lambda r: rank.get(r.path, 0))
-    return BatchResult(out, [results[n] for n in order if n not in skipped], [results[n] for n in order if n in skipped],
+    return BatchResult(out_dir if isinstance(out, UrlStore) else out, [results[n] for n in order if n not in skipped],
+                       [results[n] for n in order if n in skipped],
                        failed, index)

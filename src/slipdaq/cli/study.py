@@ -17,8 +17,15 @@ Each log is one task on Dask: re-run two-pass from its raw records (as `replay -
 estimates for a log without raw records), summarized and plotted (as `report`). Default: a local cluster
 of --workers processes on this machine, nothing to start; --scheduler: an existing Dask cluster (start
 `dask scheduler` on one host and `dask worker tcp://HOST:8786` on each machine; every worker must read
-the logs at the same paths, e.g. a shared file system; this process writes DIR). Needs the fleet extra:
+the logs at the same paths, e.g. a shared file system; this process writes a local DIR; on the local
+cluster each task writes its own files). Needs the fleet extra:
 pip install -e ".[fleet]".
+
+Logs and DIR may be fsspec URLs: 's3://bucket/day1/*.mcap' (quoted: fsspec expands the glob) -o
+s3://bucket/out. A worker copies a log at a URL to a local temporary file and reads that; with DIR a URL
+each task writes its Parquet and cache objects there itself, and this process uploads the report.
+Credentials and endpoint from the environment (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY,
+AWS_ENDPOINT_URL or FSSPEC_S3_ENDPOINT_URL, AWS_PROFILE, ...) of this process and of every worker.
 
 Output in DIR:
   estimates/NAME-KEY.parquet  one file per log: its estimates (the CSV's columns), `log` and `label_KEY`
@@ -27,8 +34,9 @@ Output in DIR:
                               labels, interactive plots), summary.csv and summary.json (one row per log,
                               maneuver and wheel); with --png the PNGs
 NAME is the log's file stem; KEY hashes the log's size and mtime, its stored config, DBC, calibration
-and labels, and slipdaq's version. A re-run skips a log whose files with its current KEY exist (the
-report is written again from the cache); a new output of a NAME removes the older one.
+and labels, and slipdaq's version (a log at a URL: its size and ETag or last-modified instead). A re-run
+skips a log whose files with its current KEY exist (the report is written again from the cache); a new
+output of a NAME removes the older one.
 
 Progress: one line per finished log on stderr (with a progress bar on a terminal). A log that fails is
 reported with its error and the others go on. Exit status: 0 every log succeeded, 1 one or more failed
@@ -58,8 +66,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("batch", help="many logs on Dask: Parquet dataset, fleet summary table, comparison report",
                        description=BATCH_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("logs", nargs="+", metavar="LOG.mcap")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created)")
+    p.add_argument("logs", nargs="+", metavar="LOG.mcap", help="a path, or a URL (a glob in a URL is expanded)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created), or a URL")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster of this scheduler, e.g. "
                        "tcp://HOST:8786 (default: a local cluster on this machine, no server to start)")
@@ -89,7 +97,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         return EXIT_FAIL
     report = f"; report {res.report}" if res.report else "; no report (no log succeeded)"
     print(f"batch: {len(res.done)} processed, {len(res.skipped)} up to date, {len(res.failed)} failed -> "
-          f"{res.out_dir / 'estimates'}{report}")
+          f"{res.estimates}{report}")
     for r in res.failed:
         print(f"slipdaq: batch: failed: {failure(r)}", file=sys.stderr)
     return EXIT_FAIL if res.failed else EXIT_OK
