@@ -214,4 +214,5 @@ def test_run_as_a_process_sigint_finishes_the_log(tmp_path: Path) -> None:
     assert len(nmea) == len(lines)  # every line written reached the log
     assert [r.line for r in nmea] == lines
     assert math.isfinite(nmea[0].timestamp_s)
-    assert set(RAW_TOPICS) == {"/can/raw", "/nmea/raw", "/gps/ubx/raw", "/imu/raw"} and TOPIC_ESTIMATE == "/estimate"
+    assert set(RAW_TOPICS) == {"/can/raw", "/nmea/raw", "/gps/ubx/raw", "/imu/raw", "/gps/rtcm/raw"} \
+        and TOPIC_ESTIMATE == "/estimate"

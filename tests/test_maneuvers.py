@@ -317,3 +317,38 @@ def test_demo_brake_abs_prints_the_stop_as_it_ends(tmp_path: Path) -> None:
     Console(file=out, width=200).print(render(sink, _Rates()))
     rows = [ln for ln in out.getvalue()[out.getvalue().index("maneuvers"):].splitlines() if " brake " in ln]
     assert len(rows) == 2 and "INVALID: too short" in rows[0] and "INVALID" not in rows[1] and "valid" in rows[1]
+
+
+def test_summaries_on_a_thread_give_the_same_records_in_order() -> None:
+    """The live daemon computes each maneuver's summary on a thread (its fits never hold up reading): the records are
+    those of the synchronous pipeline, in the same order, each delivered with a record processed after the one that
+    decided it."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from slipdaq.records import Estimate
+
+    cfg = load_config(CONFIG)
+    events = list(generate(cfg, "test-day", "paved", SETTINGS, 36.0))
+    records = [e.record for e in events if e.record is not None]
+    sync = CollectingSink()
+    Pipeline(cfg, [sync]).run(records)
+
+    class Timed(CollectingSink):
+        def __init__(self) -> None:
+            super().__init__()
+            self.times: list[float] = []
+            self.last_estimate_s = 0.0
+
+        def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
+            super().on_estimate(estimate, log_time_s)
+            self.last_estimate_s = log_time_s
+
+        def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+            super().on_maneuver(maneuver, log_time_s)
+            self.times.append(log_time_s)
+
+    threaded = Timed()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        Pipeline(cfg, [threaded], maneuver_executor=pool).run(records)
+    assert [m.as_row() for m in threaded.maneuvers] == [m.as_row() for m in sync.maneuvers]
+    assert len(threaded.maneuvers) == 4 and threaded.times == sorted(threaded.times)

@@ -8,9 +8,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import datetime as dt
+import os
 import signal
 import sys
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
@@ -40,6 +43,10 @@ class _Stop(Exception):
     """Raised inside the TaskGroup to end the run cleanly."""
 
 
+SUMMARY_NICE = 10
+"""The nice value of the thread that computes each maneuver's summary (its fits), beside the reading loop."""
+
+
 @dataclass
 class RunResult:
     log_path: Path
@@ -57,6 +64,12 @@ class RunResult:
     """What the estimator measured in this run (for the calibration file)."""
     maneuvers: list[Maneuver] = field(default_factory=list)
     """The run's maneuvers (/maneuver), in order."""
+
+
+def _lower_priority() -> None:
+    """The maneuver summaries' thread below the readers (Linux: a thread's own nice value; elsewhere nothing)."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), SUMMARY_NICE)
 
 
 def open_bus(config: Config, **overrides: object) -> can.BusABC:
@@ -196,7 +209,8 @@ async def run_daemon(
         if config.imu.source == "serial" and config.imu.port is not None else None
     sink.extra += [can_source.status] + ([gps_source.status] if gps_source is not None else []) + \
         ([live.status] if live is not None else [])
-    pipeline = Pipeline(config, [sink, status], calibration=calibration)
+    summaries = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slipdaq-maneuvers", initializer=_lower_priority)
+    pipeline = Pipeline(config, [sink, status], calibration=calibration, maneuver_executor=summaries)
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
@@ -233,6 +247,7 @@ async def run_daemon(
         for sig in installed:
             loop.remove_signal_handler(sig)
         pipeline.finish()
+        summaries.shutdown(wait=True)
         sink.close()
         if live is not None:  # after the log's last message; a client that stopped reading is not waited for
             live.close()

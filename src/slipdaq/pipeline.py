@@ -10,7 +10,9 @@ times), counters and diagnostics snapshots as its frames one by one.
 from __future__ import annotations
 
 from bisect import bisect_right
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import replace
 
 import numpy as np
@@ -25,6 +27,7 @@ from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.decode.xbus import MtiAccel
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
 from slipdaq.records import (
     FLAG_ERROR,
@@ -101,11 +104,15 @@ class _Parts:
 
 class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
-                 frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True) -> None:
+                 frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True,
+                 maneuver_executor: Executor | None = None) -> None:
         """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
         gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
         pass's smoothed speeds); the sinks get the fixes as decoded. maneuvers=False: no maneuver is summarized (a
-        pass whose sinks take no /maneuver record; the events are still closed)."""
+        pass whose sinks take no /maneuver record; the events are still closed). maneuver_executor: where a decided
+        maneuver's summary is computed (a live run: a thread, so that its fits never hold up reading); its record goes
+        to the sinks, in order, with the first record processed after it is ready (its log time then); without one,
+        at once (replay, import: the log time of the record that decided it)."""
         self.config = config
         self.sinks = list(sinks)
         self.wheels = WheelDecoder(config)
@@ -121,6 +128,9 @@ class Pipeline:
         self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
         self.maneuver_count = 0
+        self._executor = maneuver_executor
+        self._summaries: deque[Future[ManeuverSummary]] = deque()
+        """Maneuvers being summarized on the executor, in the order they were decided."""
         self._gps_speeds = gps_speeds
         self.fixes = 0
         self.valid_fixes = 0
@@ -341,16 +351,33 @@ class Pipeline:
             self._maneuvers(log_time_s)
 
     def _maneuvers(self, log_time_s: float, final: bool = False) -> None:
-        """The maneuvers decided now, as /maneuver records, to every sink at this log time."""
-        for m in self.maneuvers.finish() if final else self.maneuvers.take():
-            self.maneuver_count += 1
-            record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
-            for s in self.sinks:
-                s.on_maneuver(record, log_time_s)
+        """The maneuvers decided now, as /maneuver records, to every sink at this log time (with an executor: their
+        summaries started there; final: every one, waited for)."""
+        jobs = self.maneuvers.finish_jobs() if final else self.maneuvers.take_jobs()
+        if self._executor is not None and not final:
+            self._summaries.extend(self._executor.submit(job) for job in jobs)
+            return
+        while self._summaries:
+            self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
+        for job in jobs:
+            self._deliver_maneuver(job(), log_time_s)
+
+    def _summarized(self, log_time_s: float) -> None:
+        """The maneuvers whose summaries the executor has finished, in order, at this log time."""
+        while self._summaries and self._summaries[0].done():
+            self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
+
+    def _deliver_maneuver(self, m: ManeuverSummary, log_time_s: float) -> None:
+        self.maneuver_count += 1
+        record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
+        for s in self.sinks:
+            s.on_maneuver(record, log_time_s)
 
     def _tick(self, t: float) -> None:
         """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""
         self.last_time_s = t
+        if self._summaries:
+            self._summarized(t)
         if self._next_diag_s is None:
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
         elif t >= self._next_diag_s:

@@ -13,7 +13,8 @@ Rows older than any open event's span are let go, so a long run keeps little.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from functools import partial
 from typing import Any
 
 from slipdaq import WHEELS
@@ -68,8 +69,8 @@ class ManeuverDetector:
         self._fast: deque[tuple[float, Any]] = deque()
         self._fast_last_s = float("-inf")
         self._brake: deque[tuple[float, float]] = deque()
-        self.decided: list[ManeuverSummary] = []
-        """Summarized maneuvers not taken yet (take())."""
+        self.decided: list[Callable[[], ManeuverSummary]] = []
+        """Maneuvers decided and not taken yet: each the summary's computation, on its own data (take(), take_jobs())."""
 
     def add_estimate(self, row: dict[str, Any], phase: str | None = None) -> None:
         """One estimate row (Estimate.as_row()); phase: its phase when the row has none of its own."""
@@ -98,15 +99,25 @@ class ManeuverDetector:
         self._brake.append((time_s, value))
 
     def take(self) -> list[ManeuverSummary]:
+        """The maneuvers decided since the last take, summarized here."""
+        return [job() for job in self.take_jobs()]
+
+    def take_jobs(self) -> list[Callable[[], ManeuverSummary]]:
+        """The maneuvers decided since the last take, each as the computation of its summary (pure, on data of its
+        own: it may run on another thread)."""
         out, self.decided = self.decided, []
         return out
 
     def finish(self) -> list[ManeuverSummary]:
         """Every event still open closed and summarized with what has come (the end of a log)."""
+        return [job() for job in self.finish_jobs()]
+
+    def finish_jobs(self) -> list[Callable[[], ManeuverSummary]]:
+        """finish, each maneuver as the computation of its summary (take_jobs)."""
         if self._rows:
             self._close(*close_events(self._phase, self._times, final=True))
         self._decide(final=True)
-        return self.take()
+        return self.take_jobs()
 
     # ---- internals ----
     def _close(self, found: list[tuple[str | None, list[int]]], closed: int) -> None:
@@ -134,8 +145,8 @@ class ManeuverDetector:
             fast = [r for t, r in self._fast if t_from <= t <= t_to]
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
             assert self.t0_s is not None
-            self.decided.append(summarize_maneuver(
-                p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
+            self.decided.append(partial(
+                summarize_maneuver, p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
                 anchors=anchors, fast=fast, brake=brake,
                 vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max))
         self._prune()
