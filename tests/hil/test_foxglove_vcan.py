@@ -74,9 +74,10 @@ DURATION_S = 14.0
 GPS_LINK = "/tmp/hil-gps-foxglove"
 TOPIC_ESTIMATE, TOPIC_GPS_LOCATION, TOPIC_MANEUVER = "/estimate", "/gps/location", "/maneuver"
 CONNECT_TIMEOUT_S = 120.0
-MANEUVER_WAIT_S = 60.0
-"""After the daemon has processed every frame sent: how long the client may still take to get the maneuvers the
-daemon has printed (each was published when decided; the client, emulated Python, may be behind on its socket)."""
+MANEUVER_WAIT_S = 180.0
+"""After the daemon has processed every frame sent: how long the stop's maneuver may still take to reach the client
+(its summary is computed on the daemon's own thread, slowly in the emulated VM, and published when ready; the client,
+emulated Python, may be behind on its socket)."""
 
 
 @dataclass
@@ -157,12 +158,14 @@ async def _live_run(zygote: Zygote, d: Path) -> tuple[str, DaemonResult, dict[st
         r = await asyncio.to_thread(sender_result, sender, 10 * DURATION_S + 900)
         await asyncio.to_thread(daemon.wait_frames, r["sent"], 900)
         await asyncio.sleep(1.0)  # a maneuver decided with the last frames is printed 0.25 s later
-        # the maneuvers the daemon decided during the run: the client should get each of them before it stops
-        decided = printed_maneuvers(daemon)
+        # the drive's stop is over: its summary is computed on the daemon's own thread (slow in the emulated VM) and
+        # goes out when ready; the client should get it, and every maneuver the daemon printed, before it stops
         deadline = time.monotonic() + MANEUVER_WAIT_S
-        while len(client.messages.get(TOPIC_MANEUVER, [])) < len(decided) and time.monotonic() < deadline \
-                and not reading.done():
+        while (not client.messages.get(TOPIC_MANEUVER)
+               or len(client.messages[TOPIC_MANEUVER]) < len(printed_maneuvers(daemon))) \
+                and time.monotonic() < deadline and not reading.done():
             await asyncio.sleep(0.25)
+        decided = printed_maneuvers(daemon)
         times["stop_s"] = time.monotonic() - t0
         result = await asyncio.to_thread(daemon.stop)
         await asyncio.wait_for(reading, 120)  # read_all ends when the daemon closes the server
@@ -296,8 +299,8 @@ def test_gps_location_arrives_live(run: Run) -> None:
 
 
 def test_the_stop_s_maneuver_arrives_live(run: Run) -> None:
-    """The daemon decided the stop's brake maneuver during the run (it printed it before it was stopped), and the
-    client got every maneuver decided during the run, in order, each one of the log's /maneuver records."""
+    """The stop's brake maneuver reached the client live, before the daemon was stopped, and so did every maneuver the
+    daemon printed during the run, in order, each one of the log's /maneuver records."""
     maneuvers = _live_and_valid(run, TOPIC_MANEUVER)
     kinds = [m["kind"] for m in maneuvers]
     decided = run.decided
@@ -306,7 +309,7 @@ def test_the_stop_s_maneuver_arrives_live(run: Run) -> None:
     runs = [f"{p} x{n}" for p, n in _runs(phases)]
     report(f"foxglove: maneuvers decided during the run {decided}, live {kinds}, logged {logged}; "
            f"estimates' phases: {', '.join(runs)}")
-    assert "brake" in decided, f"the daemon decided {decided} during the run, {logged} in all"
+    assert "brake" in kinds, f"live {kinds}; the daemon printed {decided} during the run, {logged} in all"
     assert kinds[:len(decided)] == decided, f"live {kinds}, decided during the run {decided}"
     brake = next(m for m in maneuvers if m["kind"] == "brake")
     assert brake["speed_to_kmh"] < 5.0 < brake["speed_from_kmh"], brake  # a stop

@@ -60,6 +60,15 @@ def crc24q(data: bytes) -> bytes:
     return crc.to_bytes(3, "big")
 
 
+def arrival_s(reads: deque[tuple[int, float]], end: int) -> float:
+    """The time of the read that brought the byte before offset `end`: reads are (end offset, time) of each read held,
+    in order (the framers' one rule: a record takes the time of the read that brought its last byte)."""
+    for stop, t in reads:
+        if stop >= end:
+            return t
+    return reads[-1][1]
+
+
 class GpsFramer:
     """Splits a receiver's byte stream into UbxFrame, RtcmFrame and NmeaLine records (see the module docstring)."""
 
@@ -87,11 +96,7 @@ class GpsFramer:
         return self._frame(final=True)
 
     def _arrival(self, end: int) -> float:
-        """The time of the read that brought the byte before offset `end`."""
-        for stop, t in self._reads:
-            if stop >= end:
-                return t
-        return self._reads[-1][1]
+        return arrival_s(self._reads, end)
 
     def _frame(self, final: bool) -> list[NmeaLine | UbxFrame | RtcmFrame]:
         out: list[NmeaLine | UbxFrame | RtcmFrame] = []

@@ -27,6 +27,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
+from slipdaq.decode.framing import arrival_s
 from slipdaq.records import XbusBytes
 
 PREAMBLE = 0xFA
@@ -367,11 +368,7 @@ class XbusFramer:
         return self._frame(final=True)
 
     def _arrival(self, end: int) -> float:
-        """The time of the read that brought the byte before offset `end`."""
-        for stop, t in self._reads:
-            if stop >= end:
-                return t
-        return self._reads[-1][1]
+        return arrival_s(self._reads, end)
 
     def _frame(self, final: bool) -> list[XbusBytes]:
         out: list[XbusBytes] = []

@@ -111,9 +111,9 @@ class AbsBraking:
         phase = ((tau - BRAKE_ONSET_S) * ABS_RATE_HZ) % 1.0
         return -abs_cycle(phase) * self.tire.peak_slip
 
-    def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
-        """Limiting axle: limiting_slip(t); other axle: Fx = Fx_limiting*b_other/b_limiting split evenly, its slip from
-        the inverse tire curve (stable branch). Below ABS_MIN_SPEED_MPS every wheel ramps to lock."""
+    def _before_or_locked(self, time_s: float, speed_mps: float) -> SlipCommand | None:
+        """Before the onset: no brake; below ABS_MIN_SPEED_MPS (from then on): every wheel ramps from its last slip
+        to lock in ABS_LOCK_RAMP_S; else None (ABS at work)."""
         if time_s < self.onset_s:
             return SlipCommand([0.0] * len(WHEELS), False)
         if self._cutout is None and speed_mps < ABS_MIN_SPEED_MPS:
@@ -122,6 +122,14 @@ class AbsBraking:
             start_s, slips = self._cutout
             k = min(1.0, (time_s - start_s) / ABS_LOCK_RAMP_S)
             return SlipCommand([s + (-1.0 - s) * k for s in slips], True)
+        return None
+
+    def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
+        """Limiting axle: limiting_slip(t); other axle: Fx = Fx_limiting*b_other/b_limiting split evenly, its slip from
+        the inverse tire curve (stable branch). Below ABS_MIN_SPEED_MPS every wheel ramps to lock."""
+        held = self._before_or_locked(time_s, speed_mps)
+        if held is not None:
+            return held
         slips = [0.0] * len(WHEELS)
         s_limiting = self.limiting_slip(time_s)
         limiting_n = 0.0
@@ -140,14 +148,9 @@ class AbsBrakingAll(AbsBraking):
     wheel k - 1 (the onset ramp the same for all)."""
 
     def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
-        if time_s < self.onset_s:
-            return SlipCommand([0.0] * len(WHEELS), False)
-        if self._cutout is None and speed_mps < ABS_MIN_SPEED_MPS:
-            self._cutout = (time_s, list(self._last))
-        if self._cutout is not None:
-            start_s, slips = self._cutout
-            k = min(1.0, (time_s - start_s) / ABS_LOCK_RAMP_S)
-            return SlipCommand([s + (-1.0 - s) * k for s in slips], True)
+        held = self._before_or_locked(time_s, speed_mps)
+        if held is not None:
+            return held
         tau = time_s - self.onset_s
         if tau < BRAKE_ONSET_S:
             slips = [-ABS_SLIP_LOW * self.tire.peak_slip * tau / BRAKE_ONSET_S] * len(WHEELS)
