@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from slipdaq.maneuver.mu_slip import (
+    MIN_EXPLAINED,
     MIN_PEAK_REGION_POINTS,
     MIN_PEAK_SIDE_POINTS,
     MIN_POINTS,
@@ -41,6 +42,7 @@ from slipdaq.maneuver.mu_slip import (
     PEAK_REGION,
     PEAK_WINDOW,
     PEAK_WINDOW_ITERATIONS,
+    explained,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -258,7 +260,8 @@ def fit_joint(
 ) -> JointFit | None:
     """The joint fit (module docstring) of one maneuver's high-rate samples: each wheel's slip and normal load, the
     total force (all finite, the maneuver's samples only); sign −1 braking, +1 driving. None without a wheel that
-    carries force or with fewer than MIN_POINTS samples."""
+    carries force, with fewer than MIN_POINTS samples, or when the curve explains less than MIN_EXPLAINED of the force's
+    variance (a steady maneuver: the force hardly varies, its slips are noise)."""
     t = np.asarray(time_s, dtype=float)
     y = sign * np.asarray(force_n, dtype=float)
     active = [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP)
@@ -325,6 +328,9 @@ def fit_joint(
             models, sse = [("magic formula", (mf[0].b, mf[0].c, mf[0].d))], mf[1]
         else:
             mf_basis = None
+    w_used = weights > 0
+    if explained(sse, y[w_used]) < MIN_EXPLAINED:  # the force hardly varies: no curve to read a peak off
+        return None
     intervals = _bootstrap(prob, t, len(gs), weights, mf_basis)
     fz_total = float(np.mean(np.sum([np.asarray(fz_n[w], dtype=float) for w in slips], axis=0)))
     curves: dict[str, GroupCurve] = {}

@@ -179,7 +179,8 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     noise about s = 0 stays unbiased) and points of the other sign beyond OPPOSITE_SLIP_MAX are dropped. c2 is
     searched on C2_GRID, then on 200 values between the best one's neighbours; (c1, c3) by least squares, >= 0.
     The peak s* = ln(c1·c2/c3)/c2 counts as observed only with points on both sides of it (MIN_PEAK_SIDE_POINTS
-    below s*, and beyond PEAK_MARGIN·s*) and MIN_PEAK_REGION_POINTS around it; else mu_peak and slip_at_mu_peak
+    below s*, and beyond PEAK_MARGIN·s*), MIN_PEAK_REGION_POINTS around it, and a curve that explains the points
+    (MIN_EXPLAINED); else mu_peak and slip_at_mu_peak
     are None: the linear region alone does not identify a peak (its points fit a family of curves with peaks
     anywhere beyond them).
     With a peak observed and points beyond peak_window·s*, the fit is repeated on the points up to it until s*
@@ -218,6 +219,18 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     return fit
 
 
+MIN_EXPLAINED = 0.3
+"""A peak counts as observed only where the curve explains at least this share of the points' variance about their
+mean (R²): slip noise spreads a force that hardly changes (a gentle, steady maneuver) across slips, and a curve through
+such a cloud has a peak anywhere."""
+
+
+def explained(sse: float, y: FloatArray) -> float:
+    """R² = 1 − sse / Σ(y − ȳ)²; 0 when y does not vary."""
+    sst = float(np.sum((y - np.mean(y)) ** 2)) if y.size else 0.0
+    return 1.0 - sse / sst if sst > 0 else 0.0
+
+
 def _fit_points(x: FloatArray, y: FloatArray, sign: float) -> MuSlipFit | None:
     """The grid fit on mirrored points (x >= −OPPOSITE_SLIP_MAX); None as fit_mu_slip says."""
     n = int(x.size)
@@ -245,7 +258,7 @@ def _fit_points(x: FloatArray, y: FloatArray, sign: float) -> MuSlipFit | None:
         below = int(np.count_nonzero((x > 0) & (x < s_star)))
         near = int(np.count_nonzero((x >= PEAK_REGION[0] * s_star) & (x <= PEAK_REGION[1] * s_star)))
         observed = beyond >= max(MIN_PEAK_SIDE_POINTS, 0.05 * n) and below >= MIN_PEAK_SIDE_POINTS \
-            and near >= MIN_PEAK_REGION_POINTS
+            and near >= MIN_PEAK_REGION_POINTS and explained(sse, y) >= MIN_EXPLAINED
         if observed:
             s_peak = s_star
             mu_peak = float(_burckhardt(np.array([s_star]), c1, c2, c3)[0])
