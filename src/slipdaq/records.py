@@ -88,9 +88,8 @@ class RtcmFrame:
 
 @dataclass(frozen=True, slots=True)
 class XbusBytes:
-    """One raw record of an Xsens MTi's serial stream (decode/xbus.py), with its host receive time: a complete Xbus
-    message (preamble to checksum) or a run of bytes between messages that frame none (noise, kept so that the raw
-    log is lossless)."""
+    """One raw record of an Xsens MTi's serial stream (decode/xbus.py) and its host receive time: an Xbus message, or
+    bytes between messages that frame none (kept: the raw log is lossless)."""
 
     timestamp_s: float
     data: bytes
@@ -484,9 +483,8 @@ class SourceEvent:
     source: str = field(metadata={"enum": ("gps", "can", "log", "clock", "calibration", "imu")})
     event: str
     """gps (and imu, an MTi on serial): connected, disconnected, silent, unreadable, readable, emit_error; can:
-    reader_error, down, up;
-    log: write_failed, resumed, rotated; clock: stepped; calibration: replaced (the run contradicted a stored value
-    beyond its uncertainty and uses its own)."""
+    reader_error, down, up; log: write_failed, resumed, rotated; clock: stepped; calibration: replaced (the run
+    contradicted a stored value beyond its uncertainty and uses its own)."""
     detail: str = ""
     gap_s: float | None = None
     """For connected/resumed/up/readable: how long the outage lasted."""
