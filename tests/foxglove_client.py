@@ -13,6 +13,7 @@ import json
 import socket
 import struct
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import websockets
@@ -76,3 +77,21 @@ class Client:
 
     def advertised(self) -> dict[str, dict[str, Any]]:
         return {ch["topic"]: ch for ch in self.channels.values()}
+
+
+def read_log(path: Path) -> tuple[dict[str, tuple[str, str, str, bytes]], dict[str, list[tuple[int, bytes]]]]:
+    """A log as the live view should see it, read by the mcap library: its channels (topic -> message encoding, schema
+    name, schema encoding, schema data) and its messages by topic ((log time, bytes) in file order)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = {c.topic: (c.message_encoding, summary.schemas[c.schema_id].name,
+                              summary.schemas[c.schema_id].encoding, summary.schemas[c.schema_id].data)
+                    for c in summary.channels.values()}
+        messages: dict[str, list[tuple[int, bytes]]] = {}
+        for _s, channel, message in reader.iter_messages(log_time_order=False):
+            messages.setdefault(channel.topic, []).append((message.log_time, message.data))
+    return channels, messages

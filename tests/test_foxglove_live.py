@@ -28,9 +28,8 @@ websockets = pytest.importorskip("websockets")
 pytest.importorskip("foxglove")
 jsonschema = pytest.importorskip("jsonschema")
 
-from mcap.reader import make_reader  # noqa: E402
 
-from foxglove_client import Client  # noqa: E402  (tests/foxglove_client.py)
+from foxglove_client import Client, read_log  # noqa: E402  (tests/foxglove_client.py)
 from slipdaq.config import ConfigError, parse_config, parse_host_port  # noqa: E402
 from slipdaq.logformat.registry import TOPIC_FORMATS  # noqa: E402
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE, TOPIC_GPS_LOCATION, log_time_ns  # noqa: E402
@@ -97,25 +96,10 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> LiveRun:
     return asyncio.run(_live_run(tmp_path_factory.mktemp("foxglove")))
 
 
-def _log(path: Path) -> tuple[dict[str, tuple[str, str, str, bytes]], dict[str, list[tuple[int, bytes]]]]:
-    """The log's channels (topic -> message encoding, schema name, encoding, data) and messages by topic."""
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        channels = {c.topic: (c.message_encoding, summary.schemas[c.schema_id].name,
-                              summary.schemas[c.schema_id].encoding, summary.schemas[c.schema_id].data)
-                    for c in summary.channels.values()}
-        messages: dict[str, list[tuple[int, bytes]]] = {}
-        for _s, channel, message in reader.iter_messages(log_time_order=False):
-            messages.setdefault(channel.topic, []).append((message.log_time, message.data))
-    return channels, messages
-
-
 # ---- tests ----------------------------------------------------------------------------------------------------
 def test_every_logged_topic_is_advertised_with_the_log_s_encoding_and_schema(live: LiveRun) -> None:
     assert live.returncode == 0, live.output
-    log_channels, _ = _log(live.log_path)
+    log_channels, _ = read_log(live.log_path)
     advertised = live.reader.advertised()
     assert set(log_channels) == set(TOPIC_FORMATS) <= set(advertised)
     for topic, (encoding, schema_name, schema_encoding, schema_data) in log_channels.items():
@@ -126,7 +110,7 @@ def test_every_logged_topic_is_advertised_with_the_log_s_encoding_and_schema(liv
 
 
 def test_the_reader_gets_the_log_s_messages_byte_for_byte(live: LiveRun) -> None:
-    _, logged = _log(live.log_path)
+    _, logged = read_log(live.log_path)
     got = live.reader.messages
     schemas = {t: json.loads(ch["schema"]) for t, ch in live.reader.advertised().items() if ch["encoding"] == "json"}
     estimates = got.get(TOPIC_ESTIMATE, [])
@@ -142,7 +126,7 @@ def test_the_reader_gets_the_log_s_messages_byte_for_byte(live: LiveRun) -> None
 
 
 def test_the_gps_track_is_live_and_in_the_log_as_location_fixes(live: LiveRun) -> None:
-    _, logged = _log(live.log_path)
+    _, logged = read_log(live.log_path)
     fixes = live.reader.messages.get(TOPIC_GPS_LOCATION, [])
     assert len(fixes) >= 20 and len(logged[TOPIC_GPS_LOCATION]) >= len(fixes)
     schema = json.loads(live.reader.advertised()[TOPIC_GPS_LOCATION]["schema"])
@@ -158,7 +142,7 @@ def test_the_gps_track_is_live_and_in_the_log_as_location_fixes(live: LiveRun) -
 def test_the_maneuver_is_live(live: LiveRun) -> None:
     if TOPIC_MANEUVER not in TOPIC_FORMATS:
         pytest.skip("no /maneuver topic in the log's registry yet")
-    _, logged = _log(live.log_path)
+    _, logged = read_log(live.log_path)
     got = live.reader.messages.get(TOPIC_MANEUVER, [])
     assert got and set(got) <= set(logged[TOPIC_MANEUVER])
     schema = json.loads(live.reader.advertised()[TOPIC_MANEUVER]["schema"])
@@ -170,7 +154,7 @@ def test_a_client_that_never_reads_stalls_neither_reading_nor_logging(live: Live
     assert live.returncode == 0, live.output
     # the daemon ended on time (its stop does not wait for the stuck client's close handshake)
     assert live.wall_s < DEMO_S + 30, live.wall_s
-    _, logged = _log(live.log_path)
+    _, logged = read_log(live.log_path)
     estimates = logged[TOPIC_ESTIMATE]
     m = re.search(r"estimates:\s+(\d+)", live.output)
     assert m and int(m.group(1)) == len(estimates)  # every estimate the pipeline made is in the log
@@ -219,7 +203,7 @@ def test_the_tap_gets_what_the_log_gets(tmp_path: Path) -> None:
     sink.on_fix(GpsFix(1_700_000_000.45, 12.0))
     sink.on_source_event(SourceEvent(1_700_000_000.5, "gps", "connected", "", None, {}))
     sink.close()
-    _, logged = _log(tmp_path / "t.mcap")
+    _, logged = read_log(tmp_path / "t.mcap")
     assert sorted((t, lt, d) for t, msgs in logged.items() for lt, d in msgs) == sorted(tapped)
     assert [t for t, _lt, _d in tapped].count(TOPIC_GPS_LOCATION) == 1
     fix = json.loads(logged[TOPIC_GPS_LOCATION][0][1])

@@ -63,7 +63,7 @@ jsonschema = pytest.importorskip("jsonschema")
 if importlib.util.find_spec("foxglove") is None:  # the daemon's server; not imported here (slow in the VM)
     pytest.skip("foxglove-sdk is not installed", allow_module_level=True)
 
-from foxglove_client import Client  # noqa: E402  (tests/foxglove_client.py; tests/ is on sys.path via its conftest)
+from foxglove_client import Client, read_log  # noqa: E402  (tests/foxglove_client.py; tests/ is on sys.path via its conftest)
 
 RATE_HZ = 25.0
 """WPT frames per second per wheel (case 1's rate: the VM keeps it in real time)."""
@@ -180,22 +180,6 @@ async def _live_run(zygote: Zygote, d: Path) -> tuple[str, DaemonResult, dict[st
     return url, result, r, client, times, decided
 
 
-def _read_log(path: Path) -> tuple[dict[str, tuple[str, str, str, bytes]], dict[str, list[tuple[int, bytes]]]]:
-    from mcap.reader import make_reader
-
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        channels = {c.topic: (c.message_encoding, summary.schemas[c.schema_id].name,
-                              summary.schemas[c.schema_id].encoding, summary.schemas[c.schema_id].data)
-                    for c in summary.channels.values()}
-        messages: dict[str, list[tuple[int, bytes]]] = {}
-        for _s, channel, message in reader.iter_messages(log_time_order=False):
-            messages.setdefault(channel.topic, []).append((message.log_time, message.data))
-    return channels, messages
-
-
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory, pytestconfig: pytest.Config) -> Iterator[Run]:
     bind_pytest(pytestconfig)
@@ -213,7 +197,7 @@ def run(tmp_path_factory: pytest.TempPathFactory, pytestconfig: pytest.Config) -
             target = Path(os.environ["SLIPDAQ_HIL_ARTIFACTS"])
             target.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(result.log, target / "foxglove-live.mcap")
-        channels, logged = _read_log(result.log)
+        channels, logged = read_log(result.log)
         yield Run(url, result, sender, client, channels, logged, times, decided)
     finally:
         zygote.close()
