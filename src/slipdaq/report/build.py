@@ -172,6 +172,58 @@ def make_report(
                         plot=lambda log, d: place_log(log, d, pages[log.name], png, say))
 
 
+class ReportBuild:
+    """write_report in two steps, in a directory being built (`build`, moved to `out` by the caller): each log's plots
+    placed as the log comes (add), then the comparison, the tables and the index over the logs in their order
+    (finish). `slipdaq batch` adds each log as its task ends."""
+
+    def __init__(self, build: Path, out: Path, *, plot: PlotMaker | None = None, png: bool = False,
+                 say: Callable[[str], None] = lambda msg: None) -> None:
+        self.build, self.out, self.png, self.say = build, out, png, say
+        self.plot: PlotMaker = plot or (lambda log, d: place_log(log, d, log_page(log), png, say))
+        self.links: dict[str, LogLinks] = {}
+        self.pngs: list[Path] = []
+
+    def add(self, log: LogSummary) -> None:
+        placed = self.plot(log, self.build / log.name)
+        rel = {k: {s: p.relative_to(self.build).as_posix() for s, p in v.items()} for k, v in placed.pngs.items()}
+        self.links[log.name] = LogLinks(placed.page, rel)
+        self.pngs += (self.out / p for v in rel.values() for p in v.values())
+
+    def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
+        """The comparison (two or more logs), the tables and index.html over `logs` (each one added before)."""
+        from slipdaq.report import page, page_data, write
+
+        build, logs, links = self.build, list(logs), self.links
+        comparisons = compare(logs) if len(logs) > 1 else []
+        compare_pngs: dict[str, str] = {}
+        if comparisons:
+            (build / COMPARE_SCRIPT).write_bytes(page_data.compare_script(comparisons, logs))
+        for c in comparisons:
+            if self.png:
+                from slipdaq.report import plots
+
+                p = plots.plot_comparison(c.phase, logs, build / f"compare-{c.phase}-fx-slip.png")
+                compare_pngs[c.phase] = p.relative_to(build).as_posix()
+                self.pngs.append(self.out / compare_pngs[c.phase])
+            self.say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
+        page_data.write_assets(build)
+        rows = table_rows(logs)
+        cs, js, index = (build / name for name in TABLES)
+        write.write_csv(rows, cs)
+        write.write_json(logs, comparisons, rows, {n.name: links[n.name].page.plots for n in logs},
+                         {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
+                         overviews={n.name: links[n.name].page.overview for n in logs})
+        page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index)
+        cs, js, index = (self.out / name for name in TABLES)
+        return ReportResult(self.out, logs, comparisons, self.pngs, index, js, cs)
+
+    def wrote(self, result: ReportResult) -> str:
+        n_plots = sum(len(v) for n in result.logs for v in self.links[n.name].page.plots.values())
+        pngs = f", {len(self.pngs)} PNGs" if self.png else ""
+        return f"wrote {result.index} ({n_plots} plots{pngs}), {result.summary_json}, {result.summary_csv}"
+
+
 def write_report(
     logs: Sequence[LogSummary],
     out_dir: str | Path,
@@ -185,40 +237,11 @@ def write_report(
     (`plot`, default: laid out from the summary alone, then place_log), the comparison, the tables, plotly.js and the
     page's script, index.html last; built in a temporary directory in DIR and moved into place when all are done
     (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too."""
-    from slipdaq.report import page, page_data, write
-
-    out = Path(out_dir)
-    say = _sayer(progress)
-    logs = list(logs)
+    out, say = Path(out_dir), _sayer(progress)
     with atomic_tree(out, inputs=inputs, last=TABLES) as build:
-        links: dict[str, LogLinks] = {}
-        pngs: list[Path] = []
+        report = ReportBuild(build, out, plot=plot, png=png, say=say)
         for log in logs:
-            placed = plot(log, build / log.name) if plot else place_log(log, build / log.name, log_page(log), png, say)
-            rel = {k: {s: p.relative_to(build).as_posix() for s, p in v.items()} for k, v in placed.pngs.items()}
-            links[log.name] = LogLinks(placed.page, rel)
-            pngs += (out / p for v in rel.values() for p in v.values())
-        comparisons = compare(logs) if len(logs) > 1 else []
-        compare_pngs: dict[str, str] = {}
-        if comparisons:
-            (build / COMPARE_SCRIPT).write_bytes(page_data.compare_script(comparisons, logs))
-        for c in comparisons:
-            if png:
-                from slipdaq.report import plots
-
-                p = plots.plot_comparison(c.phase, logs, build / f"compare-{c.phase}-fx-slip.png")
-                compare_pngs[c.phase] = p.relative_to(build).as_posix()
-                pngs.append(out / compare_pngs[c.phase])
-            say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
-        page_data.write_assets(build)
-        rows = table_rows(logs)
-        cs, js, index = (build / name for name in TABLES)
-        write.write_csv(rows, cs)
-        write.write_json(logs, comparisons, rows, {n: lk.page.plots for n, lk in links.items()},
-                         {n: lk.pngs for n, lk in links.items()}, compare_pngs, js,
-                         overviews={n: lk.page.overview for n, lk in links.items()})
-        page.write_html(logs, comparisons, links, compare_pngs, index)
-    cs, js, index = (out / name for name in TABLES)
-    n_plots = sum(len(v) for lk in links.values() for v in lk.page.plots.values())
-    say(f"wrote {index} ({n_plots} plots" + (f", {len(pngs)} PNGs" if png else "") + f"), {js}, {cs}")
-    return ReportResult(out, logs, comparisons, pngs, index, js, cs)
+            report.add(log)
+        result = report.finish(logs)
+    say(report.wrote(result))
+    return result
