@@ -57,6 +57,12 @@ EFFECTIVE_SAMPLE_S = 0.1
 """High-rate samples this far apart count as independent in the F test (the slip's noise is correlated over it)."""
 F_CRITICAL = 4.0
 """The per-axle fit is taken when its F statistic (3 more parameters) exceeds this (about p = 0.01)."""
+LAG_MAX_S = 0.05
+"""force_lag_s searches the force's delay behind the slips within ±this."""
+LAG_SHARPNESS = 1.1
+LAG_SHARPNESS_S = 0.02
+"""... and takes the best delay only where the fit LAG_SHARPNESS_S either side of it leaves LAG_SHARPNESS times its
+residual (a force that varies slowly, a launch, does not pin a delay down)."""
 BLOCK_S = 0.2
 BOOTSTRAP_RESAMPLES = 40
 BOOTSTRAP_SEED = 20261125
@@ -252,6 +258,41 @@ def _refine_mf(p: _Problem, y: FloatArray, w: FloatArray, coarse: tuple[MagicFor
         return coarse
     ci, bj = divmod(k, bs.size)
     return MagicFormula(float(bs[bj]), float(cs[ci]), float(d[k])), float(max(sse[k], 0.0))
+
+
+def force_lag_s(time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n: Mapping[str, npt.ArrayLike],
+                force_n: npt.ArrayLike, sign: float) -> float:
+    """How far the force lags the slips (s): the delay that lets one curve shared by the wheels that carry force
+    explain it best. The acceleration reaches the force through causal filters (the IMU's, vehicle_speed.py's), the
+    slips come from centred lines (fast_slip.py): in an ABS cycle a delay of one 10 ms sample moves the fitted peak by
+    1-2 points of slip. Searched over whole samples within ±LAG_MAX_S (the sample pairs shifted by k), refined by the
+    parabola through the best three; 0 with too few samples or no wheel carrying force, with the best at the search's
+    edge, or with a flat minimum (LAG_SHARPNESS): nothing found."""
+    t = np.asarray(time_s, dtype=float)
+    y = sign * np.asarray(force_n, dtype=float)
+    active = [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP)
+              >= MIN_POINTS]
+    if not active or t.size < 3:
+        return 0.0
+    dt = float(np.median(np.diff(t)))
+    k_max = int(round(LAG_MAX_S / dt)) if dt > 0 else 0
+    n = t.size - 2 * k_max
+    if k_max < 1 or n < MIN_POINTS:
+        return 0.0
+    x = np.array([sign * np.asarray(slips[w], dtype=float)[k_max:k_max + n] for w in active])
+    fz = np.array([np.asarray(fz_n[w], dtype=float)[k_max:k_max + n] for w in active])
+    sse = np.full(2 * k_max + 1, np.inf)
+    for j in range(sse.size):  # the force k = j - k_max samples later than the slips
+        got = _fit(_Problem(y[j:j + n], [(x, fz, np.sign(x))]), np.ones(n))
+        if got is not None:
+            sse[j] = got[2]
+    j = int(np.argmin(sse))
+    k2 = max(1, int(round(LAG_SHARPNESS_S / dt)))
+    if not np.isfinite(sse[j]) or not k2 <= j < sse.size - k2 or min(sse[j - k2], sse[j + k2]) < LAG_SHARPNESS * sse[j]:
+        return 0.0
+    curvature = sse[j - 1] - 2.0 * sse[j] + sse[j + 1]
+    frac = 0.5 * (sse[j - 1] - sse[j + 1]) / curvature if curvature > 0 else 0.0
+    return (j - k_max + float(np.clip(frac, -0.5, 0.5))) * dt
 
 
 def fit_joint(

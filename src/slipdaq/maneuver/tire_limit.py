@@ -31,7 +31,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import VehicleConfig
 from slipdaq.estimator.force import tire_forces
-from slipdaq.maneuver.mu_joint import JointFit, fit_joint
+from slipdaq.maneuver.mu_joint import JointFit, fit_joint, force_lag_s
 from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n
 
 MU_MIN_SPEED_MPS = 3.0
@@ -50,6 +50,8 @@ class TireCurves:
     """Per wheel: (slip, mu) of the points behind its curve."""
     method: str
     joint: JointFit | None = None
+    lag_s: float = 0.0
+    """How far the force was found to lag the slips (mu_joint.force_lag_s); the curves take it aligned."""
 
 
 def _interval_too_wide(value: float | None, lo: float | None, hi: float | None) -> bool:
@@ -75,9 +77,34 @@ def flagged(fit: MuSlipFit, mu_max: float, split_excess: bool = False) -> MuSlip
                                slip_at_mu_peak=None if gone else fit.slip_at_mu_peak)
 
 
+def _usable(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], sign: float) -> np.ndarray:
+    """The samples where the maneuver's force acts, above MU_MIN_SPEED_MPS, every wheel's slip defined."""
+    return (a * sign > 0) & (v >= MU_MIN_SPEED_MPS) & np.logical_and.reduce([np.isfinite(slips[w]) for w in WHEELS])
+
+
+def _near_limit(every: np.ndarray, slips: Mapping[str, np.ndarray]) -> int:
+    """How many of those samples have some wheel's |slip| above LIMIT_SLIP."""
+    return int(np.count_nonzero(np.max(np.abs(np.array([slips[w][every] for w in WHEELS])), axis=0) > LIMIT_SLIP))
+
+
 def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehicle: VehicleConfig,
                 sign: float, mu_max: float, time_s: np.ndarray | None = None) -> TireCurves:
-    """Each wheel's curve over a maneuver's high-rate samples (v, a, slips per wheel; sign −1 braking)."""
+    """Each wheel's curve over a maneuver's high-rate samples (v, a, slips per wheel; sign −1 braking). Where some
+    tire nears its limit, the acceleration is first aligned with the slips by the force's delay behind them
+    (mu_joint.force_lag_s), `lag_s` in the result."""
+    lag = 0.0
+    every = _usable(v, a, slips, sign)
+    if time_s is not None and every.sum() >= 20 and _near_limit(every, slips) >= 20:
+        fz = {w: normal_loads_n(w, a[every], vehicle.mass_kg, vehicle.front_axle_load_share, vehicle.cg_height_m,
+                                vehicle.wheelbase_m) for w in WHEELS}
+        lag = force_lag_s(time_s[every], {w: slips[w][every] for w in WHEELS}, fz, vehicle.mass_kg * a[every], sign)
+        if lag:
+            a = np.interp(time_s + lag, time_s, a)
+    return dataclasses.replace(_curves(v, a, slips, vehicle, sign, mu_max, time_s), lag_s=lag)
+
+
+def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehicle: VehicleConfig,
+            sign: float, mu_max: float, time_s: np.ndarray | None) -> TireCurves:
     mass = vehicle.mass_kg
     split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
     fz = {w: normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
@@ -96,11 +123,11 @@ def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], v
         excess[w] = bool(use.sum()) and float(np.mean(np.abs(mu[use]) > mu_max)) > SPLIT_EXCESS_SHARE
     hydraulic = TireCurves({w: None if f is None else flagged(f, mu_max, excess[w]) for w, f in hyd.items()},
                            points, "hydraulic split")
-    every = moving & np.logical_and.reduce([np.isfinite(slips[w]) for w in WHEELS])
+    every = _usable(v, a, slips, sign)
     if int(every.sum()) < 20:
         return hydraulic
-    near_limit = np.count_nonzero(np.max(np.abs(np.array([slips[w][every] for w in WHEELS])), axis=0) > LIMIT_SLIP)
-    if near_limit < 20 and not any(excess.values()) and not any(f is not None and f.peak_observed for f in hyd.values()):
+    observed = any(f is not None and f.peak_observed for f in hyd.values())
+    if _near_limit(every, slips) < 20 and not any(excess.values()) and not observed:
         return hydraulic  # every tire far from its limit: the split is the brake's, no joint fit needed
     t = time_s[every] if time_s is not None else np.arange(int(every.sum())) * 0.01
     s_e = {w: slips[w][every] for w in WHEELS}
