@@ -50,13 +50,18 @@ def test_every_wheel_at_its_limit(road: str) -> None:
 
 def test_one_axle_at_its_limit_keeps_the_split() -> None:
     """brake-abs: only the rear axle cycles, the front stays on its hydraulic share in the linear region: the rear's
-    peak right, the front's none (its points never passed it), and no mu above the tire's."""
+    peak right, with its 95 % interval, the front's none (its points never passed it), and no mu above the tire's."""
     m, _sink = stop("brake-abs", "paved")
     truth = tire_peak("paved")
     for w in ("RL", "RR"):
         mw = m.wheels[w]
+        assert mw.mu_slip_method == "hydraulic split"
         assert mw.mu_peak is not None and abs(mw.mu_peak / truth.mu_peak - 1.0) <= 0.05
         assert mw.slip_at_mu_peak is not None and abs(mw.slip_at_mu_peak - truth.slip_at_mu_peak) <= 0.02
+        assert mw.mu_peak_lo is not None and mw.mu_peak_hi is not None  # the split's fit carries its interval too
+        assert mw.mu_peak_lo <= mw.mu_peak <= mw.mu_peak_hi and mw.mu_peak_hi - mw.mu_peak_lo < 0.2
+        assert mw.slip_at_mu_peak_lo is not None and mw.slip_at_mu_peak_hi is not None
+        assert mw.slip_at_mu_peak_lo <= mw.slip_at_mu_peak <= mw.slip_at_mu_peak_hi
     for w in ("FL", "FR"):
         assert m.wheels[w].mu_peak is None and m.wheels[w].mu_flag == "peak not passed"
     assert all((m.wheels[w].mu_peak or 0.0) <= 1.5 for w in WHEELS)

@@ -34,6 +34,9 @@ import numpy as np
 import numpy.typing as npt
 
 from slipdaq.maneuver.mu_slip import (
+    BOOTSTRAP_FOUND_SHARE,
+    BOOTSTRAP_RESAMPLES,
+    BOOTSTRAP_SEED,
     MIN_EXPLAINED,
     MIN_PEAK_REGION_POINTS,
     MIN_PEAK_SIDE_POINTS,
@@ -43,6 +46,7 @@ from slipdaq.maneuver.mu_slip import (
     PEAK_WINDOW,
     PEAK_WINDOW_ITERATIONS,
     explained,
+    robust_interval,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,8 +68,6 @@ LAG_SHARPNESS_S = 0.02
 """... and takes the best delay only where the fit LAG_SHARPNESS_S either side of it leaves LAG_SHARPNESS times its
 residual (a force that varies slowly, a launch, does not pin a delay down)."""
 BLOCK_S = 0.2
-BOOTSTRAP_RESAMPLES = 40
-BOOTSTRAP_SEED = 20261125
 
 
 @dataclass(frozen=True)
@@ -400,14 +402,6 @@ def _model_peak(model: str, params: tuple[float, float, float]) -> tuple[float, 
     return _peak(*params)
 
 
-def _robust_interval(x: FloatArray) -> tuple[float, float]:
-    """median ± 1.96·1.4826·MAD: a 95 % interval that a few degenerate resamples (a curve with no real peak) do not
-    stretch as they stretch the percentiles."""
-    m = float(np.median(x))
-    half = 1.959963984540054 * 1.4826 * float(np.median(np.abs(x - m)))
-    return m - half, m + half
-
-
 def _sse_at(p: _Problem, w: FloatArray, fit: tuple[FloatArray, FloatArray, float]) -> float:
     """The weighted sse of a fitted curve (its own c2, c1 and c3 per group) on other weights."""
     pred = np.zeros_like(p.y)
@@ -420,7 +414,7 @@ def _sse_at(p: _Problem, w: FloatArray, fit: tuple[FloatArray, FloatArray, float
 def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray,
                mf_basis: tuple[FloatArray, FloatArray] | None
                ) -> list[tuple[float | None, float | None, float | None, float | None]]:
-    """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap of the chosen model (_robust_interval)
+    """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap of the chosen model (robust_interval)
     (mf_basis given: the Magic Formula; None when fewer than 80 % of the resamples find a peak)."""
     n = t.size
     dt = float(np.median(np.diff(t))) if n > 1 else 0.01
@@ -447,9 +441,9 @@ def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray,
                 peaks[g].append(pk)
     out: list[tuple[float | None, float | None, float | None, float | None]] = []
     for g in range(n_groups):
-        if len(peaks[g]) < 0.8 * BOOTSTRAP_RESAMPLES:
+        if len(peaks[g]) < BOOTSTRAP_FOUND_SHARE * BOOTSTRAP_RESAMPLES:
             out.append((None, None, None, None))
             continue
         mu, s = np.array([a for a, _ in peaks[g]]), np.array([b for _, b in peaks[g]])
-        out.append((*_robust_interval(mu), *_robust_interval(s)))
+        out.append((*robust_interval(mu), *robust_interval(s)))
     return out

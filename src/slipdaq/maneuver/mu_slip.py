@@ -225,6 +225,42 @@ mean (R²): slip noise spreads a force that hardly changes (a gentle, steady man
 such a cloud has a peak anywhere."""
 
 
+def robust_interval(x: FloatArray) -> tuple[float, float]:
+    """median ± 1.96·1.4826·MAD: a 95 % interval that a few degenerate resamples (a curve with no real peak) do not
+    stretch as they stretch the percentiles."""
+    m = float(np.median(x))
+    half = 1.959963984540054 * 1.4826 * float(np.median(np.abs(x - m)))
+    return m - half, m + half
+
+
+BOOTSTRAP_RESAMPLES = 40
+BOOTSTRAP_SEED = 20261125
+BOOTSTRAP_FOUND_SHARE = 0.8
+"""An interval is given only where this share of the resamples find a peak."""
+
+
+def peak_interval(slip: npt.ArrayLike, mu: npt.ArrayLike, block: int
+                  ) -> tuple[float | None, float | None, float | None, float | None]:
+    """(mu peak lo, hi, slip at peak lo, hi) of fit_mu_slip over time-ordered points: a moving-block bootstrap
+    (blocks of `block` consecutive points, BOOTSTRAP_RESAMPLES resamples, a fixed seed so live and report agree),
+    robust_interval of the resamples' peaks; all None unless BOOTSTRAP_FOUND_SHARE of them find one."""
+    s, m = np.asarray(slip, dtype=float), np.asarray(mu, dtype=float)
+    n = s.size
+    block = max(1, min(block, n))
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    peaks = []
+    for _ in range(BOOTSTRAP_RESAMPLES):
+        starts = rng.integers(0, n - block + 1, size=int(math.ceil(n / block)))
+        idx = (starts[:, None] + np.arange(block)[None, :]).ravel()[:n]
+        fit = fit_mu_slip(s[idx], m[idx])
+        if fit is not None and fit.mu_peak is not None and fit.slip_at_mu_peak is not None:
+            peaks.append((fit.mu_peak, fit.slip_at_mu_peak))
+    if len(peaks) < BOOTSTRAP_FOUND_SHARE * BOOTSTRAP_RESAMPLES:
+        return None, None, None, None
+    arr = np.array(peaks)
+    return (*robust_interval(arr[:, 0]), *robust_interval(arr[:, 1]))
+
+
 def explained(sse: float, y: FloatArray) -> float:
     """R² = 1 − sse / Σ(y − ȳ)²; 0 when y does not vary."""
     sst = float(np.sum((y - np.mean(y)) ** 2)) if y.size else 0.0

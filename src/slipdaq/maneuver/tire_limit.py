@@ -16,8 +16,9 @@ Method
     The joint fit's per-wheel points for the plot: the total force split in proportion to each tire's fitted
     mu(s_w)·Fz_w, over Fz_w.
 Flags (`flag`, mu_flag in the tables): a peak above mu_max ('mu above 1.5'), or hydraulic points above mu_max in more
-than SPLIT_EXCESS_SHARE of them ('split exceeds the load'), or a 95 % interval wider than the value ('not
-determined'): mu_peak and slip_at_mu_peak are then None; a curve whose points never passed its peak: 'peak not
+than SPLIT_EXCESS_SHARE of them ('split exceeds the load'), or a 95 % interval wider than the value, or none (most
+bootstrap resamples find no peak: mu_slip.peak_interval, mu_joint's) ('not determined'): mu_peak and slip_at_mu_peak
+are then None; a curve whose points never passed its peak: 'peak not
 passed'.
 """
 
@@ -31,8 +32,8 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import VehicleConfig
 from slipdaq.estimator.force import tire_forces
-from slipdaq.maneuver.mu_joint import JointFit, fit_joint, force_lag_s
-from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n
+from slipdaq.maneuver.mu_joint import BLOCK_S, JointFit, fit_joint, force_lag_s
+from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n, peak_interval
 
 MU_MIN_SPEED_MPS = 3.0
 """The mu-slip fits take high-rate rows from this speed on: below it a count's quantisation is a large slip, and
@@ -66,7 +67,8 @@ def flagged(fit: MuSlipFit, mu_max: float, split_excess: bool = False) -> MuSlip
     elif split_excess:
         flag = "split exceeds the load"
     elif _interval_too_wide(fit.mu_peak, fit.mu_peak_lo, fit.mu_peak_hi) or \
-            _interval_too_wide(fit.slip_at_mu_peak, fit.slip_at_mu_peak_lo, fit.slip_at_mu_peak_hi):
+            _interval_too_wide(fit.slip_at_mu_peak, fit.slip_at_mu_peak_lo, fit.slip_at_mu_peak_hi) or \
+            (fit.mu_peak is not None and fit.mu_peak_lo is None):  # most resamples found no peak
         flag = "not determined"
     elif fit.mu_peak is None:
         flag = "peak not passed"
@@ -106,6 +108,8 @@ def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], v
 def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehicle: VehicleConfig,
             sign: float, mu_max: float, time_s: np.ndarray | None) -> TireCurves:
     mass = vehicle.mass_kg
+    dt = float(np.median(np.diff(time_s))) if time_s is not None and time_s.size > 1 else 0.01
+    block = max(1, int(round(BLOCK_S / max(dt, 1e-6))))
     split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
     fz = {w: normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
           for w in WHEELS}
@@ -119,7 +123,12 @@ def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehic
         mu = mu_from_force(fx, fz[w])
         use = np.isfinite(slips[w]) & np.isfinite(mu) & moving
         points[w] = (slips[w][use], mu[use])
-        hyd[w] = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
+        fit = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
+        if fit is not None and fit.mu_peak is not None:  # its 95 % interval (mu_slip.peak_interval)
+            lo_hi = peak_interval(slips[w][use], mu[use], block)
+            fit = dataclasses.replace(fit, mu_peak_lo=lo_hi[0], mu_peak_hi=lo_hi[1], slip_at_mu_peak_lo=lo_hi[2],
+                                      slip_at_mu_peak_hi=lo_hi[3])
+        hyd[w] = fit
         excess[w] = bool(use.sum()) and float(np.mean(np.abs(mu[use]) > mu_max)) > SPLIT_EXCESS_SHARE
     hydraulic = TireCurves({w: None if f is None else flagged(f, mu_max, excess[w]) for w, f in hyd.items()},
                            points, "hydraulic split")
