@@ -181,3 +181,31 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
     assert len(imu) >= 0.95 * len(written) / len(mti_message(0, 0, (0.0, 0.0, 0.0), utc=utc_time(0.0)))
     rows = [r for r in iter_estimates(log) if r["speed_mps"] > 5 and r["force_n"] is not None]
     assert rows and sum(r["accel_source"] == "imu" for r in rows) >= 0.8 * len(rows)
+
+
+def test_an_mti_read_at_the_wrong_baud_rate_is_unreadable() -> None:
+    """The MTi's framer keeps the bytes between messages as records (the raw log is lossless), but they are not
+    messages: an MTi read at the wrong baud rate (its bytes as a UART misreads them) is `unreadable`, with a
+    diagnostic that names the IMU and its config key; its messages at the right rate make it readable again."""
+    from reliability_support import uart_misread
+    from slipdaq.decode.xbus import XbusFramer
+    from slipdaq.records import SourceEvent
+    from slipdaq.sources.serial_gps import SerialGpsSource
+
+    good = b"".join(mti_message(k, k * 100, (0.5, 0.0, 9.81)) for k in range(200))
+    garbage = uart_misread(good, 115200, 921600, idle_bits=10)
+    clock = [10.0]
+    events: list[SourceEvent] = []
+    src = SerialGpsSource("/dev/ttyUSB1", 921600, on_event=events.append, monotonic=lambda: clock[0],
+                          framer=XbusFramer, name="imu")
+    src._port_opened()
+    records: list[object] = []
+    for i in range(0, len(garbage), 256):
+        clock[0] += 0.05
+        src.feed(garbage[i:i + 256], records.append)
+    assert records, "the framer keeps the misread bytes as records"
+    assert src.state == "unreadable" and src.unreadable_periods == 1
+    assert "IMU data unreadable: wrong baud rate?" in (src.diagnostic or "")
+    assert "Xbus message" in (src.diagnostic or "") and "imu.baudrate is 921600" in (src.diagnostic or "")
+    src.feed(good[:2000], records.append)
+    assert src.state == "connected" and src.diagnostic is None and events[-1].event == "readable"

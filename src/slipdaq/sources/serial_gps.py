@@ -13,9 +13,9 @@ not reach the records). What the car does to a GPS, and what the source does abo
   status() (logged with every /diagnostics record of a live run, shown in the live view).
 - Silent (open, but no byte for SILENT_AFTER_S): an event and a state, not a reconnect.
 - Wrong baud rate: bytes come, but over QUALITY_WINDOW_S seconds at least UNREADABLE_MIN_BYTES of them without a
-  single NMEA sentence whose checksum checks out: state `unreadable`, the diagnostic "GPS data unreadable: wrong baud
-  rate?" (with the share of bytes that are not text) in the events and the live view, and a counter. It clears with
-  the next valid sentence.
+  single NMEA sentence whose checksum checks out (an MTi: an Xbus message): state `unreadable`, the diagnostic "GPS
+  data unreadable: wrong baud rate?" ("IMU ..." for the MTi; with the share of bytes that are not text) in the events
+  and the live view, and a counter. It clears with the next valid sentence (message).
 - A pipeline that raises on a line does not stop the source: the error is counted and reported, the next line goes on.
 """
 
@@ -36,7 +36,8 @@ from typing import Any, Protocol
 import serial
 
 from slipdaq.decode.framing import GpsFramer
-from slipdaq.records import EventHandler, NmeaLine, SourceEvent
+from slipdaq.decode.xbus import parse_message
+from slipdaq.records import EventHandler, NmeaLine, SourceEvent, XbusBytes
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,16 @@ WATCH_S = 0.25
 
 _NOT_TEXT = bytes(b for b in range(256) if b >= 0x7F or (b < 0x20 and b not in (0x09, 0x0A, 0x0D)))
 _SENTENCE = re.compile(r"[$!]([^$!*]{1,120})\*([0-9A-Fa-f]{2})\s*$")
+
+
+def valid_record(record: object) -> bool:
+    """An NMEA line whose checksum checks out, an Xbus message (not the noise between messages the MTi's framer
+    keeps), any other record a framer made (a binary frame whose framer checked it)."""
+    if isinstance(record, NmeaLine):
+        return valid_sentence(record.line)
+    if isinstance(record, XbusBytes):
+        return parse_message(record.data) is not None
+    return True
 
 
 def valid_sentence(line: str) -> bool:
@@ -94,12 +105,11 @@ class LineQuality:
         return self._buckets[-1]
 
     def feed(self, data: bytes, lines: list, now: float) -> int:
-        """Count a chunk of bytes and the records framed from it; returns how many were valid: NMEA lines whose
-        checksum checks out, and any other record a framer made (a binary frame whose framer checked it)."""
+        """Count a chunk of bytes and the records framed from it; returns how many were valid (valid_record)."""
         b = self._bucket(now)
         b[1] += len(data)
         b[2] += len(data) - len(data.translate(None, _NOT_TEXT))
-        valid = sum(valid_sentence(x.line) if isinstance(x, NmeaLine) else 1 for x in lines)
+        valid = sum(valid_record(x) for x in lines)
         b[3] += valid
         return valid
 
@@ -130,8 +140,11 @@ class SerialGpsSource:
     ) -> None:
         """clock stamps the lines (the log's clock); monotonic measures gaps, backoff and the quality window;
         framer makes the byte -> record framer for each connection (UBX frames and NMEA lines by default; an Xsens
-        MTi's Xbus messages: decode.xbus.XbusFramer); name: the source its events name ("gps", "imu")."""
+        MTi's Xbus messages: decode.xbus.XbusFramer); name: the source its events name ("gps", "imu"), and the
+        config section of its port."""
         self.name = name
+        self.label = name.upper()
+        self.expects, self.device = ("Xbus message", "sensor") if name == "imu" else ("NMEA sentence", "receiver")
         self.port = port
         self.baudrate = baudrate
         self.clock = clock
@@ -189,7 +202,7 @@ class SerialGpsSource:
         try:
             self.on_event(SourceEvent(self.clock(), self.name, event, detail, gap_s, self._counters()))
         except Exception:  # a sink that fails must not stop the GPS
-            log.exception("GPS event handler failed")
+            log.exception("%s event handler failed", self.label)
 
     def _set_state(self, state: str) -> float:
         """Enter a state; returns how long the previous one lasted."""
@@ -224,7 +237,7 @@ class SerialGpsSource:
         detail = f"{self.port}" + (f" -> {where}" if where != self.port else "")
         if gap is not None:
             self.last_gap_s = gap
-            log.warning("GPS port %s back after %.2f s", detail, gap)
+            log.warning("%s port %s back after %.2f s", self.label, detail, gap)
             self._event("connected", f"{detail}: back after {gap:.2f} s", gap)
         else:
             self._event("connected", detail)
@@ -234,17 +247,17 @@ class SerialGpsSource:
         if self._confirmed:  # a working connection broke: a gap starts
             self.gaps += 1
             self._lost_at = self._mono()
-            log.warning("GPS port %s lost: %s; reopening with backoff", self.port, text)
+            log.warning("%s port %s lost: %s; reopening with backoff", self.label, self.port, text)
             self._event("disconnected", text)
         elif self.last_error is None:  # the first failure since the start or since the last good connection
             if self._lost_at is None:
                 self._lost_at = self._mono()
-            log.warning("GPS port %s: %s; retrying", self.port, text)
+            log.warning("%s port %s: %s; retrying", self.label, self.port, text)
             self._event("disconnected", text)
         self._confirmed = False
         self.connected = False
         self.last_error = text
-        self.diagnostic = f"GPS DISCONNECTED: {text}"
+        self.diagnostic = f"{self.label} DISCONNECTED: {text}"
         if self.state != "disconnected":
             self._set_state("disconnected")
 
@@ -253,16 +266,16 @@ class SerialGpsSource:
             if self.state == "unreadable":
                 lasted = self._set_state("connected")
                 self.diagnostic = None
-                log.warning("GPS data readable again after %.1f s", lasted)
-                self._event("readable", f"valid NMEA again after {lasted:.1f} s", lasted)
+                log.warning("%s data readable again after %.1f s", self.label, lasted)
+                self._event("readable", f"a valid {self.expects} again after {lasted:.1f} s", lasted)
             return
         if self.state in ("connected", "silent") and self.quality.unreadable(now):
             n, bad, _ = self.quality.totals(now)
             self.unreadable_periods += 1
             self._set_state("unreadable")
-            self.diagnostic = (f"GPS data unreadable: wrong baud rate? ({n} bytes in {self.quality.window_s:.0f} s "
-                               f"without one valid NMEA sentence, {100 * bad / max(n, 1):.0f}% of them not text; "
-                               f"gps.baudrate is {self.baudrate})")
+            self.diagnostic = (f"{self.label} data unreadable: wrong baud rate? ({n} bytes in "
+                               f"{self.quality.window_s:.0f} s without one valid {self.expects}, "
+                               f"{100 * bad / max(n, 1):.0f}% of them not text; {self.name}.baudrate is {self.baudrate})")
             log.warning("%s", self.diagnostic)
             self._event("unreadable", self.diagnostic)
 
@@ -276,7 +289,7 @@ class SerialGpsSource:
         if self.state in ("connected", "unreadable") and now - self._last_byte_at >= SILENT_AFTER_S:
             self.silent_periods += 1
             self._set_state("silent")
-            self.diagnostic = f"no data from the GPS for {SILENT_AFTER_S:.0f} s (receiver off or muted?)"
+            self.diagnostic = f"no data from the {self.label} for {SILENT_AFTER_S:.0f} s ({self.device} off or muted?)"
             self._event("silent", self.diagnostic)
 
     # ---- reading ----
@@ -331,7 +344,7 @@ class SerialGpsSource:
             except Exception as e:  # the pipeline failed on this line: count it, keep reading
                 self.emit_errors += 1
                 shown = repr(getattr(line, "line", line))[:100]
-                log.exception("GPS record not processed: %s", shown)
+                log.exception("%s record not processed: %s", self.label, shown)
                 if self.emit_errors == 1 or self.emit_errors % 1000 == 0:
                     self._event("emit_error", f"{type(e).__name__}: {e} ({shown[:60]})")
 
