@@ -316,5 +316,6 @@ def _task_lost(e: BaseException) -> str:
     from distributed import KilledWorker
 
     if isinstance(e, KilledWorker):
-        return "its worker died while processing it, and again on the retry (out of memory, killed, a crash)"
+        return "its worker died each time it was tried (once, and once again on another worker on the local cluster): " \
+               "out of memory, killed, a crash in a library"
     return error_text(e)
