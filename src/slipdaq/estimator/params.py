@@ -19,6 +19,8 @@ class EstimatorParams:
     min_speed_mps: float
     cx_slip_min: float
     cx_slip_max: float
+    cx_fit_slip_spread_max: float
+    """A window whose wheel slip varies more than this within it stays out of the stiffness fit (linear_region.py)."""
     mass_kg: float
     driven_axle: str
     brake_front_share: float
@@ -48,6 +50,7 @@ class EstimatorParams:
         v, e = cfg.vehicle, cfg.estimator
         return replace(cls(
             window_s=e.window_s, min_speed_mps=e.min_speed_mps, cx_slip_min=e.cx_slip_min, cx_slip_max=e.cx_slip_max,
+            cx_fit_slip_spread_max=e.cx_fit_slip_spread_max,
             mass_kg=v.mass_kg, driven_axle=v.driven_axle, brake_front_share=v.brake_front_share,
             pulses_per_rev=cfg.wpt.pulses_per_rev, r_ref_m=cfg.tire.radius_m,
             r_ref_configured=cfg.tire.free_radius_m is not None, gps_latency_s=cfg.latency_fixed_s,

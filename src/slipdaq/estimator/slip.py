@@ -34,6 +34,7 @@ from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
+from slipdaq.estimator.linear_region import WindowSpread
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2, STANDSTILL_SPEED_MPS, phase_of
 from slipdaq.estimator.readiness import (
@@ -255,8 +256,10 @@ class SlipEstimator:
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
+        spread = WindowSpread(self._windows.rings, win.t0, win.t1)
         wheels = {w: wheel_estimate(p, cal.stiffness[w], win.arcs[w], r0[w], win.d_slip_m, win.tire_force_n.get(w),
-                                    win.speed_mps, win.weight, slip_nd.get(w), cal.stored_cx.get(w))
+                                    win.speed_mps, win.weight, slip_nd.get(w), cal.stored_cx.get(w),
+                                    spread)
                   for w in WHEELS}
         self._last_center_s = win.t_c
         return win.estimate(wheels, lat, p.window_s)

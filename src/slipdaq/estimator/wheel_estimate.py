@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+from slipdaq.estimator.linear_region import enters_fit
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.stiffness import StiffnessFit
 from slipdaq.estimator.windows import slip_from_distances
@@ -11,10 +14,11 @@ from slipdaq.records import WheelEstimate
 def wheel_estimate(
     p: EstimatorParams, fit: StiffnessFit, arc: float | None, r0: tuple[float, str], d_gps: float | None,
     force: float | None, speed: float, weight: float = 1.0, slip_nd: float | None = None,
-    stored_cx: tuple[float, float] | None = None,
+    stored_cx: tuple[float, float] | None = None, spread: Callable[[], float | None] = lambda: None,
 ) -> WheelEstimate:
-    """One wheel's slip, Re, Cx over the window (arc: 2*pi*N; d_gps: the GPS distance); feeds its stiffness fit.
-    The fitted Cx reported is the run's own, else the stored one."""
+    """One wheel's slip, Re, Cx over the window (arc: 2*pi*N; d_gps: the GPS distance); feeds its stiffness fit when
+    the window is on the linear region (spread: the wheels' largest slip spread over it, linear_region.py). The fitted Cx
+    reported is the run's own, else the stored one."""
     r0_m, r0_source = r0
     cx_fit: float | None
     cx_conf: float | None
@@ -30,7 +34,8 @@ def wheel_estimate(
     cx = None
     if force is not None and force != 0 and p.cx_slip_min <= abs(slip) <= p.cx_slip_max and force / slip > 0:
         cx = force / slip
-    if force is not None and speed >= p.fit_min_speed_mps and abs(slip) <= p.cx_slip_max:
+    if enters_fit(p, force, slip, speed, spread):
+        assert force is not None
         fit.add(force, arc / d_gps, weight)
     if fit.cx_n is not None or stored_cx is None:
         cx_fit, cx_conf = fit.cx_n, (fit.confidence if fit.cx_n is not None else None)

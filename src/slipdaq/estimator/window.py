@@ -27,6 +27,8 @@ UNCALIBRATED_R0 = ("tire_size", "other_wheels")
 @dataclass(frozen=True, slots=True)
 class Window:
     t_c: float
+    t0: float
+    t1: float
     speed_mps: float
     """GPS distance / W, else the fix's speed."""
     accel_mps2: float | None
@@ -87,7 +89,7 @@ def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, wi
     per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
     arcs, gapped = windows.window(t0, t1)
     weight = track.weight(fix_times, t0, t1)
-    return Window(t_c, speed, accel, accel_source, force, per_tire, arcs, weight, d_gps, d_slip,
+    return Window(t_c, t0, t1, speed, accel, accel_source, force, per_tire, arcs, weight, d_gps, d_slip,
                   bool(gapped) or gps_gap, latency_unknown)
 
 
