@@ -199,6 +199,8 @@ class EstimatorConfig(_Section):
     min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
     cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
     cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
+    cx_fit_slip_spread_max: float = Field(0.015, gt=0, description="a window whose wheel slip varies more than this "
+                                          "within it (RMS, ABS cycling) stays out of the stiffness fit")
     calibrate_r0: bool = Field(True, description="calibrate the free-rolling radius online (else the tire's)")
     r0_min_speed_mps: float = Field(3.0, ge=0.5, description="slowest window used to calibrate r0")
     fit_min_speed_mps: float = Field(5.0, ge=0.5, description="slowest window used in the stiffness fit")

@@ -32,26 +32,31 @@ ABS_WPT_RATE_HZ = 500.0
 """WPT frames per second per wheel in the brake-abs demo: several samples per ABS cycle."""
 
 
-def demo_config(gps_port: str, channel: str, scenario: str = "cycle") -> Config:
+def demo_config(gps_port: str, channel: str, scenario: str = "cycle", imu_port: str | None = None) -> Config:
     """The packaged example config, on a virtual bus and the given GPS port; for the sensor scenarios also the DBC
-    of the sensors (sensors.dbc) and its IMU (IMU_ACCEL.AccelX) and brake switch (BRAKE.BrakePressed)."""
+    of the sensors (sensors.dbc) and its IMU (IMU_ACCEL.AccelX) and brake switch (BRAKE.BrakePressed). imu_port: the
+    IMU is an Xsens MTi on that serial port instead ([imu] source = "serial", x forward), in every scenario."""
     cfg = load_config(packaged_config_path())
     cfg = cfg.with_overrides(can={"interface": "virtual", "channel": channel}, gps={"port": gps_port})
+    if imu_port is not None:
+        cfg = cfg.with_overrides(imu={"source": "serial", "port": imu_port, "axis": "x", "sign": 1})
     if scenario not in SENSOR_SCENARIOS:
         return cfg
     wheels_dbc = [cfg.can.dbc] if isinstance(cfg.can.dbc, str) else list(cfg.can.dbc)
     return cfg.with_overrides(
         can={"dbc": [*wheels_dbc, SENSORS_DBC]},
-        imu={"message": "IMU_ACCEL", "signal": "AccelX"},
+        imu={"message": "IMU_ACCEL", "signal": "AccelX"} if imu_port is None else {},
         brake={"message": "BRAKE", "signal": "BrakePressed"},
     )
 
 
-def demo_settings(scenario: str) -> SimSettings:
+def demo_settings(scenario: str, imu: str = "can") -> SimSettings:
     """The simulator's settings for the demo: the defaults; the sensor scenarios add the IMU (IMU_RATE_HZ) and the
-    brake switch (BRAKE_RATE_HZ), brake-abs and brake-abs-all also WPT at ABS_WPT_RATE_HZ."""
+    brake switch (BRAKE_RATE_HZ), brake-abs and brake-abs-all also WPT at ABS_WPT_RATE_HZ; imu "serial": the IMU
+    (an MTi) in every scenario."""
+    imu_rate_hz = IMU_RATE_HZ if imu == "serial" else 0.0
     if scenario not in SENSOR_SCENARIOS:
-        return SimSettings()
+        return SimSettings(imu_rate_hz=imu_rate_hz)
     wpt_rate_hz = ABS_WPT_RATE_HZ if scenario in ("brake-abs", "brake-abs-all") else SimSettings().wpt_rate_hz
     return SimSettings(imu_rate_hz=IMU_RATE_HZ, brake_rate_hz=BRAKE_RATE_HZ, wpt_rate_hz=wpt_rate_hz)
 
@@ -59,17 +64,20 @@ def demo_settings(scenario: str) -> SimSettings:
 async def run_demo_async(
     duration_s: float, scenario: str, road: str, log_dir: Path, *, status_stream: TextIO | None = None,
     status_every_s: float = 5.0, settings: SimSettings | None = None, labels: dict[str, str] | None = None,
-    calibration: Calibration | None = None, foxglove: str | None = None,
+    calibration: Calibration | None = None, foxglove: str | None = None, imu: str = "can",
+    truth: list[TruthSample] | None = None,
 ) -> tuple[RunResult, SlipError, Config]:
     """labels: free-form {KEY: VALUE} stored in the log's metadata as `label.KEY` (`--label KEY=VALUE`);
     calibration: the stored calibration the daemon starts from; foxglove: `[HOST:]PORT` of a Foxglove live server
-    (live.foxglove)."""
+    (live.foxglove); imu: "serial" sends the IMU as an MTi's messages on a second pseudo-terminal (demo_config);
+    truth: a list the simulator's truth samples are appended to."""
     gps = PtyGps()
+    mti = PtyGps() if imu == "serial" else None
     channel = f"slipdaq-demo-{os.getpid()}-{id(gps)}"
-    cfg = demo_config(gps.path, channel, scenario)
+    cfg = demo_config(gps.path, channel, scenario, mti.path if mti is not None else None)
     if foxglove is not None:
         cfg = cfg.with_overrides(live={"foxglove": foxglove})
-    truth: list[TruthSample] = []
+    truth = [] if truth is None else truth
     started: list[SimSettings] = []
     log_path = new_log_path(log_dir, "demo")
 
@@ -78,11 +86,11 @@ async def run_demo_async(
         while not log_path.exists():
             await asyncio.sleep(0.02)
         await asyncio.sleep(0.2)
-        run = replace(settings or demo_settings(scenario), start_utc_s=time.time() + 0.1)
+        run = replace(settings or demo_settings(scenario, imu), start_utc_s=time.time() + 0.1)
         started.append(run)
         events = generate(cfg, scenario, road, run, duration_s=duration_s)  # type: ignore[arg-type]  # the scenario and road names are the Literal's values
         await play(events, bus=bus, nmea_write=gps.write, on_truth=truth.append, start_wall_s=run.start_utc_s,
-                   stamp_frames=True)
+                   stamp_frames=True, imu_write=mti.write if mti is not None else None)
 
     try:
         # The simulator stamps each frame with its nominal time, as a CAN adapter's hardware timestamp would; the
@@ -100,6 +108,8 @@ async def run_demo_async(
                 sim.cancel()
     finally:
         gps.close()
+        if mti is not None:
+            mti.close()
     error = slip_error(iter_estimates(result.log_path), truth_series(truth, started[0].start_utc_s)) if truth else \
         SlipError(0, *[float("nan")] * 4)
     return result, error, cfg
@@ -107,17 +117,19 @@ async def run_demo_async(
 
 def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: TextIO = sys.stdout,
              labels: dict[str, str] | None = None, calibration_path: Path | None = None,
-             no_calibration: bool = False, foxglove: str | None = None) -> int:
+             no_calibration: bool = False, foxglove: str | None = None, imu: str = "can") -> int:
     """calibration_path: the calibration file (default calibration.toml in log_dir); no_calibration: start cold and
-    save nothing; foxglove: `[HOST:]PORT` of a Foxglove live server."""
+    save nothing; foxglove: `[HOST:]PORT` of a Foxglove live server; imu: "serial" for an MTi on a pseudo-terminal."""
+    mti = " and an Xsens MTi on a second one" if imu == "serial" else ""
     print(f"demo: {scenario} on {road} road for {duration_s:.0f} s — simulator and daemon on a virtual CAN bus "
-          f"and a pseudo-terminal GPS; Ctrl-C stops early.", file=out, flush=True)
+          f"and a pseudo-terminal GPS{mti}; Ctrl-C stops early.", file=out, flush=True)
     cfg = load_config(packaged_config_path())
     cal = for_run(None if no_calibration else calibration_path or default_path(log_dir, cfg), cfg)
     if cal.note:
         print(cal.note, file=out, flush=True)
     result, err, _ = asyncio.run(run_demo_async(duration_s, scenario, road, log_dir, status_stream=out,
-                                                labels=labels, calibration=cal.start, foxglove=foxglove))
+                                                labels=labels, calibration=cal.start, foxglove=foxglove,
+                                                imu=imu))
     saved = cal.finish(result.learned, cfg, str(result.log_path))
     rate = result.can_frames / result.duration_s if result.duration_s > 0 else 0.0
     print(

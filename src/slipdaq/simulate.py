@@ -1,5 +1,6 @@
 """`slipdaq simulate`: the vehicle model's WPT frames onto a python-can bus and its NMEA onto a serial port; the IMU,
-brake switch and reference speed on CAN too when the config names them ([imu], [brake], [gps] message/signal)."""
+brake switch and reference speed on CAN too when the config names them ([imu], [brake], [gps] message/signal), the
+IMU as an Xsens MTi's MTData2 messages on a second serial port with [imu] source = "serial"."""
 
 from __future__ import annotations
 
@@ -38,6 +39,9 @@ class SimOptions:
     gps_link: str | None = None
     duration_s: float | None = None
     settings: SimSettings = SimSettings()
+    imu_port: str | None = None
+    """[imu] source = "serial": the serial device to write the MTi's messages to (None: a new pseudo-terminal)."""
+    imu_link: str | None = None
 
     @classmethod
     def from_args(cls, a: argparse.Namespace) -> SimOptions:
@@ -45,11 +49,11 @@ class SimOptions:
             wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz, gps_latency_s=a.gps_latency_s,
             gps_noise_mps=a.gps_noise_mps, seed=a.seed, imu_rate_hz=IMU_RATE_HZ, brake_rate_hz=BRAKE_RATE_HZ,
             ref_speed_rate_hz=a.gps_rate_hz, ref_speed_latency_s=a.gps_latency_s, ref_speed_noise_mps=a.gps_noise_mps,
-        ))
+        ), a.imu_port, a.imu_link)
 
 
 class PtyGps:
-    """A pseudo-terminal standing in for a GPS receiver's serial port: write to it, read its `path`."""
+    """A pseudo-terminal standing in for a GPS receiver's (or an MTi's) serial port: write to it, read its `path`."""
 
     def __init__(self, link: str | None = None) -> None:
         self.master_fd, self.slave_fd = pty.openpty()
@@ -92,25 +96,31 @@ def serial_writer(port: str, baudrate: int) -> tuple[Callable[[bytes], object], 
     return write, s.close
 
 
+def _port(port: str | None, link: str | None, baudrate: int) -> tuple[Callable[[bytes], object], Callable[[], None], str]:
+    """A writer to the serial device `port`, else to a new pseudo-terminal (linked at `link`): write, close, where."""
+    if port:
+        write, close = serial_writer(port, baudrate)
+        return write, close, port
+    pty_port = PtyGps(link)
+    return pty_port.write, pty_port.close, pty_port.path + (f" (linked at {link})" if link else "")
+
+
 def run_simulate(cfg: Config, opts: SimOptions, out=sys.stdout) -> int:
-    pty_gps: PtyGps | None = None
-    if opts.gps_port:
-        write, close = serial_writer(opts.gps_port, cfg.gps.baudrate)
-        where = opts.gps_port
-    else:
-        pty_gps = PtyGps(opts.gps_link)
-        write, close = pty_gps.write, pty_gps.close
-        where = pty_gps.path + (f" (linked at {opts.gps_link})" if opts.gps_link else "")
-    print(f"simulate: {opts.scenario} on {opts.road}; WPT frames on {cfg.can.interface}:{cfg.can.channel}, "
-          f"NMEA on {where}", file=out, flush=True)
-    refused = Refused(out)
-    try:
+    with contextlib.ExitStack() as ports:
+        write, close, where = _port(opts.gps_port, opts.gps_link, cfg.gps.baudrate)
+        ports.callback(close)
+        imu_write: Callable[[bytes], object] | None = None
+        if cfg.imu.source == "serial":
+            imu_write, imu_close, imu_where = _port(opts.imu_port, opts.imu_link, cfg.imu.baudrate)
+            ports.callback(imu_close)
+            where += f", MTi (Xbus MTData2, {IMU_RATE_HZ:.0f} Hz) on {imu_where}"
+        print(f"simulate: {opts.scenario} on {opts.road}; WPT frames on {cfg.can.interface}:{cfg.can.channel}, "
+              f"NMEA on {where}", file=out, flush=True)
+        refused = Refused(out)
         with open_bus(cfg) as bus:
             # the drive's UTC starts now, after the bus is open: the NMEA's UTC is its send time (GPS latency 0)
             settings = replace(opts.settings, start_utc_s=time.time())
-            frames = asyncio.run(_play(cfg, opts, settings, bus, write, refused))
-    finally:
-        close()
+            frames = asyncio.run(_play(cfg, opts, settings, bus, write, refused, imu_write))
     print(f"simulate: sent {frames} CAN frames" + (f", {refused.count} refused by the bus" if refused.count else ""),
           file=out, flush=True)
     return 0
@@ -130,7 +140,7 @@ class Refused:
                   file=self.out, flush=True)
 
 
-async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write, on_refused) -> int:
+async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write, on_refused, imu_write=None) -> int:
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     assert task is not None
@@ -140,7 +150,7 @@ async def _play(cfg: Config, opts: SimOptions, settings: SimSettings, bus, write
     sent = 0
     try:
         sent = await play(events, bus=bus, nmea_write=write, duration_s=opts.duration_s,
-                          start_wall_s=settings.start_utc_s, on_refused=on_refused)
+                          start_wall_s=settings.start_utc_s, on_refused=on_refused, imu_write=imu_write)
     except asyncio.CancelledError:
         pass
     return sent

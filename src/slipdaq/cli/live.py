@@ -45,6 +45,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--gps-port", metavar="P", help="serial device to write NMEA to (default: a new pseudo-terminal)")
     p.add_argument("--gps-link", metavar="L", help="with a pseudo-terminal: make L a symlink to it")
+    p.add_argument("--imu-port", metavar="P", help='with [imu] source = "serial": serial device to write the MTi\'s '
+                   "MTData2 messages to (100 Hz; default: a new pseudo-terminal)")
+    p.add_argument("--imu-link", metavar="L", help="with the MTi on a pseudo-terminal: make L a symlink to it")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--wpt-rate-hz", type=float, default=100.0, help="WPT frames per second per wheel (default 100)")
     p.add_argument("--gps-rate-hz", type=float, default=10.0, help="GPS epochs per second (default 10)")
@@ -60,6 +63,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", choices=SCENARIOS, default="cycle")
     p.add_argument("--road", choices=("paved", "sand"), default="paved")
     p.add_argument("--log-dir", metavar="D", default="logs", help="where the MCAP log goes (default ./logs)")
+    p.add_argument("--imu", choices=("can", "serial"), default="can",
+                   help="serial: an Xsens MTi's MTData2 messages (100 Hz) on a second pseudo-terminal, [imu] source = "
+                   '"serial", in every scenario; can (default): the IMU on CAN in the sensor scenarios')
     _add_label(p)
     _add_calibration(p, "the log directory")
     _add_foxglove(p)
@@ -105,7 +111,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir),
                     labels=parse_labels(args.label),
                     calibration_path=Path(args.calibration) if args.calibration else None,
-                    no_calibration=args.no_calibration, foxglove=args.foxglove)
+                    no_calibration=args.no_calibration, foxglove=args.foxglove, imu=args.imu)
 
 
 COMMANDS = {"run": cmd_run, "simulate": cmd_simulate, "demo": cmd_demo}

@@ -7,6 +7,8 @@ CAN sensors (each only with its SimSettings rate > 0 and the config naming its m
        IMU at k/imu_rate: truth a + N(0, imu_noise); brake switch at k/brake_rate: truth brake_pressed;
        reference speed measured at k/ref_rate: truth V + N(0, ref_noise), sent ref_speed_latency_s later.
        Their frames arrive with CAN jitter from their own generator; the WPT's random draws are not disturbed.
+MTi:   with [imu] source = "serial", the IMU's samples (the same values and arrival jitter) are an Xsens MTi's MTData2
+       messages instead (XbusBytes; xbus_encode.SimulatedMti), not affected by a CAN stall.
 Truth: a TruthSample every 10 ms and at every GPS epoch.
 Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
 Stall: with SimSettings.can_stall, frames are stamped when a stalled reader reads them (_StalledReader).
@@ -28,11 +30,12 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import load_dbc
-from slipdaq.records import CanFrame, NmeaLine, UbxFrame
+from slipdaq.records import CanFrame, NmeaLine, UbxFrame, XbusBytes
 from slipdaq.sim import Scenario
 from slipdaq.sim.scenarios import vehicle_model
 from slipdaq.sim.sensors import SensorEncoder
 from slipdaq.sim.vehicle import Road, TruthSample
+from slipdaq.sim.xbus_encode import SimulatedMti
 
 TRUTH_RATE_HZ = 100.0
 """Truth samples per second (plus one at every GPS epoch)."""
@@ -91,7 +94,7 @@ class SimSettings:
 class SimEvent:
     time_s: float
     """Seconds since the simulation start at which the record arrives (or the truth holds)."""
-    record: CanFrame | NmeaLine | UbxFrame | None
+    record: CanFrame | NmeaLine | UbxFrame | XbusBytes | None
     truth: TruthSample | None
 
 
@@ -290,7 +293,9 @@ def generate(
     encoder = WptEncoder(config)
     wants_sensors = settings.imu_rate_hz > 0 or settings.brake_rate_hz > 0 or settings.ref_speed_rate_hz > 0
     sensors = SensorEncoder(config) if wants_sensors else None
-    imu_rate_hz = settings.imu_rate_hz if sensors is not None and sensors.imu is not None else 0.0
+    mti = SimulatedMti(config.imu.axis, config.imu.sign, settings.start_utc_s, settings.heading_deg) \
+        if config.imu.source == "serial" and settings.imu_rate_hz > 0 else None
+    imu_rate_hz = settings.imu_rate_hz if mti is not None or (sensors is not None and sensors.imu is not None) else 0.0
     brake_rate_hz = settings.brake_rate_hz if sensors is not None and sensors.brake is not None else 0.0
     ref_rate_hz = settings.ref_speed_rate_hz if sensors is not None and sensors.reference is not None else 0.0
     sensor_jitter = _Jitter(settings.can_jitter_s, np.random.default_rng([settings.seed, 5]))
@@ -307,7 +312,8 @@ def generate(
     stall = None if settings.can_stall is None else _StalledReader(*settings.can_stall)
     held_order = itertools.count()
 
-    def push(time_s: float, record: CanFrame | NmeaLine | UbxFrame | None, truth: TruthSample | None = None) -> None:
+    def push(time_s: float, record: CanFrame | NmeaLine | UbxFrame | XbusBytes | None,
+             truth: TruthSample | None = None) -> None:
         heapq.heappush(pending, (time_s, next(order), SimEvent(time_s, record, truth)))
 
     def push_can(arrival_s: float, make: FrameMaker) -> None:
@@ -361,7 +367,11 @@ def generate(
         if sensors is not None:
             if t_imu == t:
                 accel_mps2 = sim.state.accel_mps2 + float(imu_rng.normal(0.0, settings.imu_noise_mps2))
-                push_can(t + sensor_jitter.next_s(), partial(sensors.imu_frame, accel_mps2=accel_mps2))
+                arrival_s = t + sensor_jitter.next_s()
+                if mti is not None:
+                    push(arrival_s, XbusBytes(host_t0_s + arrival_s, mti.message(t, accel_mps2)))
+                else:
+                    push_can(arrival_s, partial(sensors.imu_frame, accel_mps2=accel_mps2))
                 n_imu += 1
                 t_imu = _instant(n_imu, imu_rate_hz)
             if t_brake == t:

@@ -1,4 +1,5 @@
-"""Plays generated simulator events in real time: CAN frames on a python-can bus, NMEA lines on a byte writer.
+"""Plays generated simulator events in real time: CAN frames on a python-can bus, NMEA lines on a byte writer, an
+MTi's messages on another.
 
 Sim time 0 maps to the event loop's monotonic time when play() starts. Events closer than BATCH_S to "now" are
 sent without sleeping, so 400+ frames/s do not cost one sleep each.
@@ -13,7 +14,7 @@ from collections.abc import Callable, Iterator
 
 import can
 
-from slipdaq.records import CanFrame, NmeaLine, UbxFrame
+from slipdaq.records import CanFrame, NmeaLine, UbxFrame, XbusBytes
 from slipdaq.sim.emit import SimEvent
 from slipdaq.sim.vehicle import TruthSample
 from slipdaq.sources.can_bus import to_message
@@ -71,6 +72,7 @@ async def play(
     start_wall_s: float | None = None,
     stamp_frames: bool = False,
     on_refused: Callable[[can.CanError], None] | None = None,
+    imu_write: Callable[[bytes], object] | None = None,
 ) -> int:
     """Send each event at its time_s after the start; stop at duration_s (sim time) or when events run out.
 
@@ -81,6 +83,7 @@ async def play(
     then carries it to the reader however late the event loop sends it.
     on_refused: a frame the bus refuses (link down, transmit queue full for CAN_RETRY_LIMIT_S) goes to it and the
     play goes on; without it the error is raised.
+    imu_write: where the MTi's messages go ([imu] source = "serial"), each in one write; without it they are dropped.
     """
     loop = asyncio.get_running_loop()
     start = loop.time()
@@ -115,6 +118,9 @@ async def play(
             await _write_line(nmea_write, (record.line + "\r\n").encode("ascii"))
         elif isinstance(record, UbxFrame):
             await _write_line(nmea_write, record.data)
+        elif isinstance(record, XbusBytes):
+            if imu_write is not None:
+                await _write_line(imu_write, record.data)
         elif event.truth is not None and on_truth is not None:
             on_truth(event.truth)
     return frames_sent

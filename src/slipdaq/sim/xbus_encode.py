@@ -1,8 +1,9 @@
 """MTData2 encoding for the simulator's MTi: the inverse of decode/xbus.py. No I/O, no clock.
 
 `mti_message` builds the packet the simulated MTi sends (PacketCounter, SampleTimeFine, UTCTime, Acceleration and
-optionally FreeAcceleration, in that order as a real MTi orders them); `encode_packet` re-encodes any decoded packet
-item by item in its own order and formats, byte for byte where its values came from a real message.
+optionally FreeAcceleration, in that order as a real MTi orders them); `SimulatedMti` the simulator's stream of them
+from its forward acceleration; `encode_packet` re-encodes any decoded packet item by item in its own order and
+formats, byte for byte where its values came from a real message.
 """
 
 from __future__ import annotations
@@ -113,3 +114,34 @@ def mti_message(packet_counter: int, sample_time_fine: int, acceleration_mps2: S
     if free_acceleration_mps2 is not None:
         items.append(encode_item(XDI_FREE_ACCELERATION | precision, tuple(free_acceleration_mps2)))
     return xbus_message(MID_MTDATA2, b"".join(items))
+
+
+GRAVITY_MPS2 = 9.80665
+
+
+class SimulatedMti:
+    """The simulator's MTi, mounted with `axis` forward (`sign` -1: backward, as the config's [imu] axis and sign) and
+    another axis up: z, or x where z points forward; the car drives straight on `heading_deg` (from north, clockwise).
+    Its messages carry the forward acceleration a as Acceleration (a * sign on the forward axis, +g on the up one: an
+    accelerometer's specific force in the sensor's axes) and FreeAcceleration (gravity taken out, in ENU: a along the
+    heading), PacketCounter counting from 0, SampleTimeFine the sim time, UTCTime the true UTC (start_utc_s + sim
+    time)."""
+
+    def __init__(self, axis: str, sign: int, start_utc_s: float, heading_deg: float) -> None:
+        self.forward = "xyz".index(axis)
+        self.up = 2 if axis != "z" else 0
+        self.sign = sign
+        self.start_utc_s = start_utc_s
+        self.east_north = (math.sin(math.radians(heading_deg)), math.cos(math.radians(heading_deg)))
+        self.count = 0
+
+    def message(self, time_s: float, accel_mps2: float) -> bytes:
+        """The message of the sample at sim time time_s."""
+        acc = [0.0, 0.0, 0.0]
+        acc[self.forward] = self.sign * accel_mps2
+        acc[self.up] += GRAVITY_MPS2
+        east, north = self.east_north
+        msg = mti_message(self.count, round(time_s * SAMPLE_TICKS_PER_S), acc, utc=self.start_utc_s + time_s,
+                          free_acceleration_mps2=(accel_mps2 * east, accel_mps2 * north, 0.0))
+        self.count += 1
+        return msg
