@@ -348,15 +348,18 @@ def start_replay_bus(zygote: Zygote, log: Path, gps_link: str, *, go: str, delay
 def start_sender(rate_hz: float, duration_s: float, *, go: str, delay_s: float = 1.0, record: Path | None = None,
                  then_burst: int = 0, burst_rate_hz: float = 0.0, drive: Path | None = None,
                  nmea: Path | None = None, gps_link: str | None = None, nmea_record: Path | None = None,
-                 gps_reader_pid: int | None = None, name: str = "wpt_sender") -> ExecProc:
+                 gps_reader_pid: int | None = None, mti: Path | None = None, mti_link: str | None = None,
+                 name: str = "wpt_sender") -> ExecProc:
     """wpt_sender.py: WPT frames at rate_hz per wheel for duration_s, then optionally `then_burst` more frames at
     burst_rate_hz per wheel; with `drive`, each frame's PulseCount is the drive's count at the moment it is sent;
-    with `nmea`, those lines on a pseudo-terminal linked at gps_link. It starts when `go` matches a file and (with
-    gps_reader_pid) that process has the pseudo-terminal open, plus delay_s."""
+    with `nmea`, those lines on a pseudo-terminal linked at gps_link; with `mti`, an MTi's messages (`T HEX` lines)
+    on another, linked at mti_link. It starts when `go` matches a file and (with gps_reader_pid) that process has
+    the pseudo-terminals open, plus delay_s."""
     argv = [PY, str(HERE / "wpt_sender.py"), "--go", go, "--delay", f"{delay_s:g}", "--channel", CHANNEL,
             "--rate-hz", f"{rate_hz:g}", "--duration", f"{duration_s:g}"]
     for flag, value in (("--record", record), ("--drive", drive), ("--nmea", nmea), ("--gps-link", gps_link),
-                        ("--nmea-record", nmea_record), ("--gps-reader-pid", gps_reader_pid)):
+                        ("--nmea-record", nmea_record), ("--gps-reader-pid", gps_reader_pid), ("--mti", mti),
+                        ("--mti-link", mti_link)):
         if value is not None:
             argv += [flag, str(value)]
     if then_burst:

@@ -16,6 +16,7 @@ are sent back to back until caught up (the achieved rate is reported).
 
     wpt_sender.py --channel vcan0 --rate-hz 100 --duration 10 [--record sent.csv] [--drive drive.json]
                   [--then-burst N [--burst-rate-hz R]] [--nmea lines.txt --gps-link L [--nmea-record nmea.csv]]
+                  [--mti messages.txt --mti-link L]
                   [--go GLOB [--gps-reader-pid PID] [--delay S]]
 
 --then-burst N: after the schedule, N more frames (same numbering) at R frames/s per wheel (0: back to back).
@@ -26,6 +27,9 @@ slipdaq.sim.emit.pulse_count), taken just before each send() (and again before a
 pseudo-terminal in raw mode; --gps-link makes a symlink to it. The pty exists from the sender's start; with
 --gps-reader-pid the sender also waits (after --go) until that process has it open. At the end the sender waits
 (up to 60 s) until its reader has read everything written before it closes the pty.
+--mti: an Xsens MTi's messages, lines `T HEX` (the message's bytes in hex), written one write each T seconds after
+the start to a second pseudo-terminal (--mti-link), as --nmea's lines; with --gps-reader-pid that process must have
+both open.
 
 --record writes one line per sent frame: `can_id,n,t_before,t_after[,PulseCount]` (time.time() just before and just
 after the send() that the kernel stamped; PulseCount with --drive); --nmea-record one line per written line:
@@ -178,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nmea", help="NMEA lines `T SENTENCE` to write to a pseudo-terminal (needs --gps-link)")
     ap.add_argument("--gps-link", help="the pseudo-terminal's symlink")
     ap.add_argument("--nmea-record", help="write every written line's index and write-time bounds to this file")
+    ap.add_argument("--mti", help="MTi messages `T HEX` to write to a second pseudo-terminal (needs --mti-link)")
+    ap.add_argument("--mti-link", help="that pseudo-terminal's symlink")
     ap.add_argument("--start-at", type=float, help="wall-clock time (time.time()) of slot 0 (default: now)")
     ap.add_argument("--go", help="glob: start once a file matches it (e.g. the daemon's log)")
     ap.add_argument("--gps-reader-pid", type=int, help="and once this process has the pseudo-terminal open")
@@ -185,16 +191,22 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.nmea and not a.gps_link:
         ap.error("--nmea needs --gps-link")
+    if a.mti and not a.mti_link:
+        ap.error("--mti needs --mti-link")
     drive = Drive(a.drive) if a.drive else None
     nmea = [(t, line.encode("ascii") + b"\r\n") for t, line in read_nmea(a.nmea)] if a.nmea else []
     gps = PtyWriter(a.gps_link) if a.gps_link else None
     if gps is not None:
         print(f"sender: gps {gps.path} linked at {a.gps_link}", flush=True)
+    mti = [(t, bytes.fromhex(h)) for t, h in read_nmea(a.mti)] if a.mti else []
+    imu = PtyWriter(a.mti_link) if a.mti_link else None
+    if imu is not None:
+        print(f"sender: mti {imu.path} linked at {a.mti_link}", flush=True)
     if a.go:
         while not glob.glob(a.go):
             time.sleep(0.05)
-    if gps is not None and a.gps_reader_pid is not None:
-        while not gps.opened_by(a.gps_reader_pid):
+    if a.gps_reader_pid is not None:
+        while not all(w.opened_by(a.gps_reader_pid) for w in (gps, imu) if w is not None):
             time.sleep(0.05)
     time.sleep(a.delay)
     print(f"sender: go {time.time():.6f}", flush=True)
@@ -212,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     sock.setsockopt(socket.SOL_CAN_RAW, socket.CAN_RAW_FILTER, b"")  # send only: receive nothing
     record = open(a.record, "w") if a.record else None
     nmea_record = open(a.nmea_record, "w") if a.nmea_record else None
-    sent = failed = retries = nmea_written = 0
+    sent = failed = retries = nmea_written = mti_written = 0
     first_error: str | None = None
     fail_first: float | None = None
     fail_last: float | None = None
@@ -226,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     t_first = time.time()
     lines: list[str] = []
     nmea_lines: list[str] = []
-    next_nmea = 0
+    next_nmea = next_mti = 0
     next_progress = t_first
 
     def progress(now: float) -> None:
@@ -236,8 +248,8 @@ def main(argv: list[str] | None = None) -> int:
             next_progress = now + PROGRESS_EVERY_S
 
     def write_due_nmea(now: float) -> None:
-        """Every NMEA line due by now, one write each."""
-        nonlocal next_nmea, nmea_written
+        """Every NMEA line and MTi message due by now, one write each."""
+        nonlocal next_nmea, nmea_written, next_mti, mti_written
         while gps is not None and next_nmea < len(nmea) and zero + nmea[next_nmea][0] <= now:
             w0 = time.time()
             if gps.write(nmea[next_nmea][1]):
@@ -245,6 +257,14 @@ def main(argv: list[str] | None = None) -> int:
                 nmea_lines.append(f"{next_nmea},{w0:.9f},{time.time():.9f}\n")
             next_nmea += 1
             now = time.time()
+        while imu is not None and next_mti < len(mti) and zero + mti[next_mti][0] <= now:
+            mti_written += imu.write(mti[next_mti][1])
+            next_mti += 1
+            now = time.time()
+
+    def next_serial_due() -> float:
+        return min(zero + nmea[next_nmea][0] if next_nmea < len(nmea) else math.inf,
+                   zero + mti[next_mti][0] if next_mti < len(mti) else math.inf)
 
     def wait_until(due: float) -> None:
         """Sleep until due, writing the NMEA lines that fall due meanwhile."""
@@ -252,8 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             now = time.time()
             write_due_nmea(now)
             progress(now)
-            nmea_due = zero + nmea[next_nmea][0] if next_nmea < len(nmea) else math.inf
-            ahead = min(due, nmea_due) - time.time()
+            ahead = min(due, next_serial_due()) - time.time()
             if due - time.time() <= SLEEP_MIN_S:
                 return
             if ahead > SLEEP_MIN_S:
@@ -298,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
                         lines.clear()
                 break
         phase_times.append((phase_start, time.time(), sent - phase_sent))
-    while gps is not None and next_nmea < len(nmea) and not stop:  # the NMEA lines due after the last frame
-        wait_until(zero + nmea[next_nmea][0])
+    while next_serial_due() < math.inf and not stop:  # the NMEA lines and MTi messages due after the last frame
+        wait_until(next_serial_due())
     t_last = time.time()
     next_progress = -math.inf
     progress(t_last)
@@ -309,16 +328,20 @@ def main(argv: list[str] | None = None) -> int:
     if nmea_record is not None:
         nmea_record.writelines(nmea_lines)
         nmea_record.close()
-    unread = 0
+    unread = mti_unread = 0
     if gps is not None:
         unread = gps.drain(DRAIN_S)
         gps.close()
+    if imu is not None:
+        mti_unread = imu.drain(DRAIN_S)
+        imu.close()
     elapsed = t_last - t_first
     print(json.dumps({
         "sent": sent, "failed": failed, "retries": retries, "slots": k, "elapsed_s": elapsed,
         "rate_fps": sent / elapsed if elapsed > 0 else 0.0, "first_error": first_error,
         "fail_first_s": fail_first, "fail_last_s": fail_last, "start_s": t_first, "end_s": t_last, "zero_s": zero,
         "nmea_written": nmea_written, "nmea_dropped": gps.dropped if gps is not None else 0, "nmea_unread": unread,
+        "mti_written": mti_written, "mti_dropped": imu.dropped if imu is not None else 0, "mti_unread": mti_unread,
         "phases": [{"start_s": a0, "end_s": a1, "sent": n, "rate_fps": n / (a1 - a0) if a1 > a0 else 0.0}
                    for a0, a1, n in phase_times],
     }), flush=True)
