@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from operator import attrgetter
 from typing import Any
 
 import orjson
 
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup, record_values
 from slipdaq.logformat.topics import log_time_ns
 from slipdaq.records import CanFrame, GpsFix, NmeaLine, WheelSample
 
@@ -75,61 +75,26 @@ def _dumps_row(row: dict[str, Any], values: Sequence[object]) -> bytes:
     return out
 
 
-_Plan = tuple[list[str], list[tuple[str | None, Callable[[Any], Any], bool]]]
-"""A record's JSON keys in order, and per column group (and wheel): (wheel or None, getter of its attributes, one
-attribute)."""
-
-
 class ColumnsJson:
-    """The JSON of a record declared as column groups (ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS): dumps(record.as_row()),
-    the keys and getters built once per order of wheels. `columns` gives a run of records as one columnar message
-    (each key: its values in the records' order)."""
+    """The JSON of a record declared as column groups (ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS): dumps(record.as_row());
+    `columns` gives a run of records as one message of columns (each name: its values in the records' order)."""
 
     def __init__(self, groups: tuple[ColumnGroup, ...]) -> None:
         self.groups = groups
-        self._plans: dict[tuple[str, ...], _Plan] = {}
-
-    def _plan(self, wheels: tuple[str, ...]) -> _Plan:
-        plan = self._plans.get(wheels)
-        if plan is None:
-            keys: list[str] = []
-            getters: list[tuple[str | None, Callable[[Any], Any], bool]] = []
-            for g in self.groups:
-                attrs = [c.attribute for c in g.columns]
-                get = attrgetter(*attrs)
-                for w in wheels if g.per_wheel else (None,):
-                    keys += [c.key(w) if w is not None else c.name for c in g.columns]
-                    getters.append((w, get, len(attrs) == 1))
-            plan = self._plans[wheels] = (keys, getters)
-        return plan
-
-    def values(self, record: Any) -> tuple[list[str], list[object]]:
-        """The record's keys and values in as_row's order (a key twice: both values, as_row keeps the last)."""
-        wheels = record.wheels
-        keys, getters = self._plan(tuple(wheels))
-        values: list[object] = []
-        for w, get, single in getters:
-            got = get(record if w is None else wheels[w])
-            if single:
-                values.append(got)
-            else:
-                values += got
-        return keys, values
 
     def __call__(self, record: Any) -> bytes:
-        keys, values = self.values(record)
+        keys, values = record_values(record, self.groups)
         return _dumps_row(dict(zip(keys, values)), values)
 
     def columns(self, records: Sequence[Any]) -> bytes:
-        """Records with the same wheels (in the same order) as one JSON object of lists: key -> the records' values
+        """Records with the same wheels (in the same order) as one JSON object of lists: name -> the records' values
         (rows_of_columns gives the rows back)."""
         wheels = tuple(records[0].wheels)
         if any(tuple(r.wheels) != wheels for r in records):
             raise ValueError("records with other wheels (or in another order) in one message of columns")
-        keys, _ = self._plan(wheels)
-        table = [self.values(r)[1] for r in records]
-        columns = dict(zip(keys, (list(c) for c in zip(*table))))
-        return _dumps_row(columns, [v for row in table for v in row])
+        table = [record_values(r, self.groups) for r in records]
+        columns = dict(zip(table[0][0], (list(c) for c in zip(*[values for _keys, values in table]))))
+        return _dumps_row(columns, [v for _keys, values in table for v in values])
 
 
 def rows_of_columns(columns: dict[str, list[Any]]) -> list[dict[str, Any]]:
