@@ -32,7 +32,7 @@ def _plan(groups: tuple[ColumnGroup, ...], wheels: tuple[str, ...]) -> tuple[lis
 def record_values(record: Any, groups: tuple[ColumnGroup, ...]) -> tuple[list[str], list[Any]]:
     """A record's column names and values in order (a per-wheel group: each of record.wheels in its order); a name
     that comes twice has both values (record_row keeps the last in the first's place)."""
-    wheels = record.wheels if any(g.per_wheel for g in groups) else {}
+    wheels = getattr(record, "wheels", None) or {}
     keys, getters = _plan(groups, tuple(wheels))
     values: list[Any] = []
     for w, get, single in getters:

@@ -49,8 +49,11 @@ def _non_finite(x: object) -> bool:
 
 
 def _flat_non_finite(values: Iterable[object]) -> bool:
-    """A NaN or an infinity among values (numbers, None, texts; lists of texts)."""
-    return any(isinstance(v, float) and v - v != 0.0 for v in values)
+    """A NaN or an infinity among values (numbers, None, texts; lists of texts) that orjson wrote: their floats are
+    floats, not subclasses (orjson refuses those). Their sum is finite only if they all are (a sum too large for a
+    float says True too: the message is then json.dumps's, the same values)."""
+    total = sum([v for v in values if type(v) is float], 0.0)
+    return total - total != 0.0
 
 
 def dumps(payload: object) -> bytes:

@@ -36,19 +36,21 @@ _MESSAGE = struct.Struct("<BQHIQQ")
 _MESSAGE_INDEX = struct.Struct("<BQHI")
 
 
-def _compress(data: bytes) -> bytes:
-    return zstandard.compress(data)  # mcap.Writer's call: zstd at its default level (3)
+def _compress(data: bytes) -> tuple[bytes, int]:
+    """The chunk's records compressed as mcap.Writer does (zstd at its default level, 3), and their CRC-32 (both
+    release the GIL)."""
+    return zstandard.compress(data), zlib.crc32(data)
 
 
 class _Finished:
     """A chunk closed and being compressed: what its Chunk, MessageIndex and ChunkIndex records need."""
 
-    __slots__ = ("compressed", "crc", "end_ns", "indexes", "size", "start_ns")
+    __slots__ = ("compressed", "end_ns", "indexes", "size", "start_ns")
 
     def __init__(self, data: bytes, start_ns: int, end_ns: int, indexes: dict[int, list[int]],
                  pool: ThreadPoolExecutor | None) -> None:
-        self.compressed: Future[bytes] | bytes = pool.submit(_compress, data) if pool is not None else _compress(data)
-        self.crc = zlib.crc32(data)
+        self.compressed: Future[tuple[bytes, int]] | tuple[bytes, int] = \
+            pool.submit(_compress, data) if pool is not None else _compress(data)
         self.size = len(data)
         self.start_ns, self.end_ns, self.indexes = start_ns, end_ns, indexes
 
@@ -168,9 +170,9 @@ class McapWriter:
         """The closed chunk's Chunk record, then its MessageIndex records, as mcap.Writer writes them."""
         done, self._finished = self._finished, None
         assert done is not None
-        compressed = done.compressed if isinstance(done.compressed, bytes) else done.compressed.result()
+        compressed, crc = done.compressed if isinstance(done.compressed, tuple) else done.compressed.result()
         chunk = Chunk(compression="zstd", data=compressed, message_start_time=done.start_ns,
-                      message_end_time=done.end_ns, uncompressed_crc=done.crc, uncompressed_size=done.size)
+                      message_end_time=done.end_ns, uncompressed_crc=crc, uncompressed_size=done.size)
         self._flush_records()
         chunk_offset = self._stream.tell()
         chunk.write(self._records)
