@@ -12,11 +12,13 @@ Each log is then replayed by both sides (`python -m slipdaq replay`, the base fr
 PYTHONPATH) and the two output files are compared byte for byte, except the value of the `created_utc` metadata
 key (the wall-clock time of the run: the only part that legitimately differs; it has the same length, so every
 other byte, offset and CRC of the summary must match). The RAV4 import (`slipdaq import`) is compared the same way.
-On a difference, the first differing message (topic, log time, bytes) is shown. Also checked: the replay's
+On a difference, the first differing message (topic, log time, bytes) is shown. --values: where the bytes differ (an
+encoding changed on purpose), the messages' decoded values are compared instead: each at the same log time and in
+the same order, floats bit for bit, /slip/fast row by row however its rows are cut into messages. Also checked: the replay's
 estimates, fixes, wheel samples and diagnostics equal those the live pipeline logged when it wrote the input
 (live = replay, whatever the batching).
 
-    python benchmarks/replay_check.py [--base REV] [--work /tmp/replay-check] [--quick]
+    python benchmarks/replay_check.py [--base REV] [--work /tmp/replay-check] [--quick] [--values]
 
 REV defaults to the merge base of HEAD with main.
 """
@@ -208,9 +210,51 @@ def _schema_order_only(a: Path, b: Path) -> list[str] | None:
     return out
 
 
-def compare(a: Path, b: Path) -> str:
+def _exact(x: Any) -> Any:
+    """A decoded JSON value with each float by its bits (NaN, infinities, -0.0 told apart)."""
+    if isinstance(x, float):
+        return ("float", x.hex())
+    if isinstance(x, dict):
+        return {k: _exact(v) for k, v in x.items()}
+    return [_exact(v) for v in x] if isinstance(x, list) else x
+
+
+def _values(path: Path, topics: tuple[str, ...] | None = None) -> list[tuple[str, int, Any]]:
+    """(topic, log time, value) of every message in file order: JSON decoded (floats by their bits), a /slip/fast
+    message of rows as its rows (each at the message's log time), CDR as its bytes."""
+    from mcap.reader import make_reader
+
+    out: list[tuple[str, int, Any]] = []
+    with open(path, "rb") as f:
+        for _s, c, m in make_reader(f).iter_messages(log_time_order=False):
+            if topics is not None and c.topic not in topics:
+                continue
+            if c.message_encoding != "json":
+                out.append((c.topic, m.log_time, m.data))
+                continue
+            d = json.loads(m.data, parse_constant=lambda name: float(name.replace("Infinity", "inf")))
+            if c.topic == "/slip/fast" and isinstance(d.get("time_s"), list):
+                keys = list(d)
+                out += [(c.topic, m.log_time, _exact(dict(zip(keys, row)))) for row in zip(*d.values())]
+            else:
+                out.append((c.topic, m.log_time, _exact(d)))
+    return out
+
+
+def compare_values(a: Path, b: Path) -> str:
+    """'' when every message decodes to the same values at the same log time, in the same order (the /slip/fast rows
+    however they are cut into messages), else the first that differs."""
+    va, vb = _values(a), _values(b)
+    for i, (p, q) in enumerate(zip(va, vb)):
+        if p != q:
+            return f"value {i} differs: base {str(p)[:300]} / new {str(q)[:300]}"
+    return "" if len(va) == len(vb) else f"value counts differ: {len(va)} != {len(vb)}"
+
+
+def compare(a: Path, b: Path, values: bool = False) -> str:
     """'' when identical (but for EXCLUDED_METADATA), "same: ..." when the messages and metadata are identical and
-    a JSON Schema differs only in the order of its keys, else what differs first."""
+    a JSON Schema differs only in the order of its keys (values: or the messages' bytes differ and their decoded
+    values are the same, compare_values), else what differs first."""
     ma, mb = _metadata(a), _metadata(b)
     da, db = a.read_bytes(), b.read_bytes()
     for key in EXCLUDED_METADATA:
@@ -225,6 +269,12 @@ def compare(a: Path, b: Path) -> str:
     if ma != mb:
         return f"metadata differs: {ma} != {mb}"
     xa, xb = _messages(a), _messages(b)
+    if values and xa != xb:
+        diff = compare_values(a, b)
+        topics = sorted({m[0] for m in xa + xb})
+        changed = [t for t in topics if [m[4] for m in xa if m[0] == t] != [m[4] for m in xb if m[0] == t]]
+        return diff or (f"same: every value equal ({len(_values(b))} messages and rows); the bytes of "
+                        f"{', '.join(changed) or 'no topic'} differ")
     for i, (p, q) in enumerate(zip(xa, xb)):
         if p != q:
             return f"message {i} differs: base {p[:4]} {p[4][:200]!r} / new {q[:4]} {q[4][:200]!r}"
@@ -236,8 +286,8 @@ def compare(a: Path, b: Path) -> str:
     return f"messages equal ({len(xa)}), but the files differ (chunking or summary): {len(da)} vs {len(db)} bytes"
 
 
-def live_vs_replay(inp: Path, out: Path) -> str:
-    """The derived topics the live pipeline logged into inp against the replay's."""
+def live_vs_replay(inp: Path, out: Path, values: bool = False) -> str:
+    """The derived topics the live pipeline logged into inp against the replay's (values: decoded, _values)."""
     from collections import defaultdict
 
     from slipdaq.logformat.reader import is_finished
@@ -245,12 +295,12 @@ def live_vs_replay(inp: Path, out: Path) -> str:
     if not is_finished(inp):
         return "n/a (unfinished input)"
     topics = ("/estimate", "/gps/fix", "/gps/location", "/wpt/count", "/diagnostics")
-    got: dict[Path, dict[str, list[tuple[int, bytes]]]] = {}
+    got: dict[Path, dict[str, list[tuple[int, Any]]]] = {}
     for p in (inp, out):
-        d: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
-        for topic, log_time, _pt, _seq, data in _messages(p):
-            if topic in topics:
-                d[topic].append((log_time, data))
+        d: dict[str, list[tuple[int, Any]]] = defaultdict(list)
+        for topic, log_time, data in (_values(p, topics) if values else
+                                      ((m[0], m[1], m[4]) for m in _messages(p) if m[0] in topics)):
+            d[topic].append((log_time, data))
         got[p] = d
     if not got[inp]:
         return "n/a (raw-only log)"
@@ -273,6 +323,9 @@ def main() -> int:
     add_base_argument(ap)
     ap.add_argument("--work", type=Path, help="directory for the logs (default: a temporary one, removed)")
     ap.add_argument("--quick", action="store_true", help="fewer and shorter drives")
+    ap.add_argument("--values", action="store_true",
+                    help="where the bytes differ (an encoding changed on purpose), compare the decoded values: every "
+                         "message's at the same log time, /slip/fast row by row")
     ap.add_argument("--make-inputs", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.make_inputs:
@@ -289,6 +342,7 @@ def main() -> int:
         subprocess.run([sys.executable, __file__, "--make-inputs", str(work)] + (["--quick"] if a.quick else []),
                        env=env_base, check=True)
         for side, env in (("base", env_base), ("new", env_new)):
+            (work / "calibration.toml").unlink(missing_ok=True)  # each side starts cold (import saves what it learned)
             code, text = run(side, env, ["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea",
                                          str(RAV4 / "rav4_ublox.nmea"), "--config",
                                          str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"),
@@ -296,7 +350,7 @@ def main() -> int:
             assert code == 0, text
         shutil.copy(work / "import-rav4-base.mcap", work / "in-rav4.mcap")
     failures = 0
-    diff = compare(work / "import-rav4-base.mcap", work / "import-rav4-new.mcap")
+    diff = compare(work / "import-rav4-base.mcap", work / "import-rav4-new.mcap", a.values)
     print(f"{'import rav4':<22} {_verdict(diff)}")
     failures += bool(diff) and not diff.startswith("same:")
     reordered = int(diff.startswith("same:"))
@@ -307,17 +361,17 @@ def main() -> int:
             code, texts[side] = run(side, env, ["replay", str(inp), "-o", str(out)], work)
             assert code == 0, texts[side]
             outs[side] = out
-        diff = compare(outs["base"], outs["new"])
+        diff = compare(outs["base"], outs["new"], a.values)
         if texts["base"] != texts["new"]:
             diff += f" output text differs: {texts['base']!r} != {texts['new']!r}"
-        lvr = live_vs_replay(inp, outs["new"])
+        lvr = live_vs_replay(inp, outs["new"], a.values)
         n = len(_messages(outs["new"]))
         print(f"replay {inp.stem[3:]:<15} {_verdict(diff)} ({n} messages);"
               f" live vs replay: {lvr}", flush=True)
         failures += bool(diff) and not diff.startswith("same:")
         reordered += diff.startswith("same:")
     print(f"{failures} DIFFERENT" if failures else "all identical" if not reordered else
-          f"all identical but for the order of JSON Schema keys in {reordered} files (the same schemas)")
+          f"all identical but for {reordered} files with the same content (see 'same:' above)")
     if a.work is None:
         shutil.rmtree(work)
     return 1 if failures else 0

@@ -1,24 +1,59 @@
-"""The per-epoch JSON written directly (estimate_json, fix_json) is byte for byte json.dumps of the records' dicts."""
+"""The log's JSON (json_codec, written with orjson) holds the values json.dumps writes, bit for bit: floats of every
+kind (NaN, infinities, -0.0, subnormals, numpy scalars), integers beyond 64 bits, texts; a /slip/fast message of rows
+reads back as the rows."""
 
 from __future__ import annotations
+
+import json
+from typing import Any
 
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
 from slipdaq import WHEELS
-from slipdaq.logformat.json_codec import dumps, estimate_json, fix_json
-from slipdaq.records import Estimate, GpsFix, WheelEstimate
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
+from slipdaq.logformat.json_codec import (
+    dumps,
+    estimate_json,
+    fast_slip_json,
+    fix_json,
+    nmea_line_json,
+    rows_of_columns,
+    std_dumps,
+)
+from slipdaq.records import Estimate, FastSlip, FastWheel, GpsFix, NmeaLine, WheelEstimate
 
 FLOAT = st.floats(allow_nan=True, allow_infinity=True)
 OPT_FLOAT = st.one_of(st.none(), FLOAT, st.integers(-(2**70), 2**70), FLOAT.map(np.float64))
-TEXT = st.one_of(st.sampled_from(["calibrated", "tire_size", "other_wheels", "cruise", "gps", "utc", "none"]),
+TEXT = st.one_of(st.sampled_from(["calibrated", "tire_size", "other_wheels", "cruise", "gps", "utc", "none", "null"]),
                  st.text(max_size=8))
 
 WHEEL = st.builds(WheelEstimate, OPT_FLOAT, OPT_FLOAT, FLOAT, OPT_FLOAT, OPT_FLOAT, OPT_FLOAT, TEXT, OPT_FLOAT,
                   OPT_FLOAT, OPT_FLOAT)
 WHEEL_NAMES = st.one_of(st.permutations(WHEELS), st.lists(st.sampled_from(WHEELS), unique=True),
                         st.lists(st.text(max_size=4), unique=True, max_size=4))
+JSON_VALUES = st.recursive(
+    st.one_of(st.none(), st.booleans(), FLOAT, st.integers(-(2**70), 2**70), TEXT, FLOAT.map(np.float64)),
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(TEXT, inner, max_size=4)), max_leaves=12)
+
+
+def exact(data: bytes) -> Any:
+    """A JSON message's values, each float by its bits (NaN, infinities and -0.0 included)."""
+    def canon(x: Any) -> Any:
+        if isinstance(x, float):
+            return ("float", x.hex())
+        if isinstance(x, dict):
+            return {k: canon(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [canon(v) for v in x]
+        return x
+    return canon(json.loads(data, parse_constant=lambda name: float(name.replace("Infinity", "inf"))))
+
+
+@given(JSON_VALUES)
+def test_dumps_keeps_what_json_dumps_writes(payload: Any) -> None:
+    assert exact(dumps(payload)) == exact(std_dumps(payload))
 
 
 @st.composite
@@ -28,24 +63,49 @@ def estimates(draw: st.DrawFn) -> Estimate:
                     draw(TEXT), draw(FLOAT), draw(TEXT))
 
 
+def _row_by_hand(record: Any, groups: tuple[ColumnGroup, ...]) -> dict[str, Any]:
+    """The flat mapping as its definition says, one column at a time (columns.record_row builds getters once)."""
+    row: dict[str, Any] = {}
+    for group in groups:
+        for w, part in (record.wheels.items() if group.per_wheel else [("", record)]):
+            for c in group.columns:
+                row[c.key(w) if group.per_wheel else c.name] = getattr(part, c.attribute)
+    return row
+
+
 @given(estimates())
-def test_estimate_json_is_json_dumps(e: Estimate) -> None:
-    assert estimate_json(e) == dumps(e.as_row())
+def test_estimate_json_is_json_dumps_of_the_row(e: Estimate) -> None:
+    row = e.as_row()
+    assert list(row) == list(_row_by_hand(e, ESTIMATE_COLUMNS))
+    assert exact(std_dumps(row)) == exact(std_dumps(_row_by_hand(e, ESTIMATE_COLUMNS)))
+    assert exact(estimate_json(e)) == exact(std_dumps(row))
 
 
 @given(st.builds(GpsFix, FLOAT, FLOAT, OPT_FLOAT, st.booleans(), OPT_FLOAT, OPT_FLOAT, OPT_FLOAT, OPT_FLOAT,
                  st.one_of(st.none(), st.integers(-5, 2**40)), st.one_of(st.none(), st.integers(0, 99)),
                  st.one_of(st.sampled_from(["RMC", "VTG", "UBX"]), st.text(max_size=5)), OPT_FLOAT))
 def test_fix_json_is_json_dumps(fix: GpsFix) -> None:
-    assert fix_json(fix) == dumps({k: getattr(fix, k) for k in fix.__slots__})
+    assert exact(fix_json(fix)) == exact(std_dumps({k: getattr(fix, k) for k in fix.__slots__}))
 
 
 @given(st.one_of(FLOAT, FLOAT.map(np.float64)), st.one_of(st.text(max_size=90), st.sampled_from(
     ["$GPRMC,000012.10,A,5200.00000,N,01000.00000,E,25.123,90.0,010126,,,A*6B", 'a"b\\c\u00e9\u2028\x00'])),
        st.integers(0, 2**63))
 def test_nmea_line_json_is_json_dumps(t: float, line: str, can_index: int) -> None:
-    from slipdaq.logformat.json_codec import nmea_line_json
-    from slipdaq.records import NmeaLine
+    assert exact(nmea_line_json(NmeaLine(t, line), can_index)) == exact(std_dumps(
+        {"timestamp_s": t, "line": line, "can_index": can_index}))
 
-    assert nmea_line_json(NmeaLine(t, line), can_index) == dumps({"timestamp_s": t, "line": line,
-                                                                   "can_index": can_index})
+
+FAST_WHEEL = st.builds(FastWheel, OPT_FLOAT, OPT_FLOAT)
+
+
+@given(st.lists(st.builds(FastSlip, FLOAT, FLOAT, FLOAT, st.sampled_from(["imu", "gps"]),
+                          st.tuples(*[FAST_WHEEL] * len(WHEELS)).map(lambda ws: dict(zip(WHEELS, ws)))),
+                min_size=1, max_size=12))
+def test_fast_slip_rows_as_columns_read_back_as_the_rows(rows: list[FastSlip]) -> None:
+    message = fast_slip_json.columns(rows)
+    assert [exact(std_dumps(r)) for r in rows_of_columns(json.loads(message))] == \
+        [exact(std_dumps(r.as_row())) for r in rows]
+    assert exact(fast_slip_json(rows[0])) == exact(std_dumps(rows[0].as_row()))
+    assert [exact(std_dumps(r.as_row())) for r in rows] == [exact(std_dumps(_row_by_hand(r, FAST_SLIP_COLUMNS)))
+                                                            for r in rows]

@@ -3,23 +3,51 @@ high-rate slip's declarations: their JSON, JSON Schema, CSV columns and MF4 chan
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Any
 
+_Getter = tuple[str | None, Callable[[Any], Any], bool]
+"""Of one column group (of one wheel): the wheel (None: the record itself), the getter of its columns' attributes,
+whether it is one column (the getter then gives the value, not a tuple)."""
+_PLANS: dict[tuple[int, tuple[str, ...]], tuple[tuple[ColumnGroup, ...], list[str], list[_Getter]]] = {}
 
-def record_row(record: Any, groups: Sequence[ColumnGroup]) -> dict[str, float | str | None]:
-    """A record's flat mapping by its column groups (a per-wheel group: each of record.wheels in its order)."""
-    row: dict[str, float | str | None] = {}
-    for group in groups:
-        if group.per_wheel:
-            for w, we in record.wheels.items():
-                for c in group.columns:
-                    row[c.key(w)] = getattr(we, c.attribute)
+
+def _plan(groups: tuple[ColumnGroup, ...], wheels: tuple[str, ...]) -> tuple[list[str], list[_Getter]]:
+    """The column names in order and the getters of a record's values, built once per groups and order of wheels."""
+    got = _PLANS.get((id(groups), wheels))
+    if got is None or got[0] is not groups:
+        keys: list[str] = []
+        getters: list[_Getter] = []
+        for g in groups:
+            get = attrgetter(*[c.attribute for c in g.columns])
+            for w in wheels if g.per_wheel else (None,):
+                keys += [c.key(w) if w is not None else c.name for c in g.columns]
+                getters.append((w, get, len(g.columns) == 1))
+        got = _PLANS[(id(groups), wheels)] = (groups, keys, getters)
+    return got[1], got[2]
+
+
+def record_values(record: Any, groups: tuple[ColumnGroup, ...]) -> tuple[list[str], list[Any]]:
+    """A record's column names and values in order (a per-wheel group: each of record.wheels in its order); a name
+    that comes twice has both values (record_row keeps the last in the first's place)."""
+    wheels = getattr(record, "wheels", None) or {}
+    keys, getters = _plan(groups, tuple(wheels))
+    values: list[Any] = []
+    for w, get, single in getters:
+        got = get(record if w is None else wheels[w])
+        if single:
+            values.append(got)
         else:
-            for c in group.columns:
-                row[c.name] = getattr(record, c.attribute)
-    return row
+            values += got
+    return keys, values
+
+
+def record_row(record: Any, groups: tuple[ColumnGroup, ...]) -> dict[str, float | str | None]:
+    """A record's flat mapping by its column groups (a per-wheel group: each of record.wheels in its order)."""
+    keys, values = record_values(record, groups)
+    return dict(zip(keys, values))
 
 
 @dataclass(frozen=True, slots=True)

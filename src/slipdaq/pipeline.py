@@ -182,9 +182,10 @@ class Pipeline:
         if self.estimator.events:
             self._events()
         if self.estimator.fast_rows:
-            for row in self.estimator.take_fast():
-                for s in self.sinks:
-                    s.on_fast_slip(row, log_time_s)
+            rows = self.estimator.take_fast()
+            for s in self.sinks:
+                s.on_fast_slip_rows(rows, log_time_s)
+            for row in rows:
                 self.maneuvers.add_fast(row.time_s, row)
             if self.maneuvers.decided:
                 self._maneuvers(log_time_s)

@@ -1,13 +1,15 @@
-"""A file for mcap.Writer that is a complete MCAP file after every commit: what a killed daemon leaves is readable.
+"""A file for the log's MCAP writer that is a complete MCAP file after every commit: what a killed daemon leaves is
+readable.
 
-mcap.Writer writes whole records (header, metadata, a finished chunk and its message indexes) to its stream and only
-writes the summary and footer in finish(). CommitFile keeps those writes in memory and, on commit() (the Writer's
-flush(), at least once a second in live runs), appends them to the file followed by a provisional trailer
-(DataEnd, a Footer without summary, the closing magic) in one write; the next commit overwrites that trailer. So at
-any moment outside that one write() the file on disk is a valid MCAP file without a summary section, which the
-standard MCAP readers read linearly (mcap's SeekingReader falls back to its NonSeekingReader when the footer says
-there is no summary). A process killed inside the write, or a power loss before the data reached the disk, leaves a
-torn tail: `slipdaq recover` (logformat.salvage, slipdaq.recover) keeps everything before it.
+The writer (logformat.mcap_writer, which writes mcap.Writer's file) writes whole records (header, metadata, a
+finished chunk and its message indexes) to its stream and only writes the summary and footer in finish(). CommitFile
+keeps those writes in memory and, on commit() (the writer's flush(), at least once a second in live runs), appends
+them to the file followed by a provisional trailer (DataEnd, a Footer without summary, the closing magic) in one
+write; the next commit overwrites that trailer. So at any moment outside that one write() the file on disk is a
+valid MCAP file without a summary section, which the standard MCAP readers read linearly (mcap's SeekingReader falls
+back to its NonSeekingReader when the footer says there is no summary). A process killed inside the write, or a
+power loss before the data reached the disk, leaves a torn tail: `slipdaq recover` (logformat.salvage,
+slipdaq.recover) keeps everything before it.
 
 After each commit the file is fsynced in a background thread (with fsync=True), so that a power loss costs at most
 the data of the last second or two, without blocking the event loop on a slow disk.
@@ -61,7 +63,7 @@ class CommitFile:
 
     def __init__(self, path: str | Path, *, fsync: bool = False, auto_commit_bytes: int = 8 << 20,
                  new_file: bool = False) -> None:
-        """auto_commit_bytes: commit as soon as this much is buffered (mcap.Writer writes whole records only, so
+        """auto_commit_bytes: commit as soon as this much is buffered (the writer writes whole records only, so
         any write boundary is a valid place to commit), so that long offline runs do not pile up in memory.
         new_file: FileExistsError rather than overwrite a file that is there."""
         self.path = Path(path)
@@ -78,7 +80,7 @@ class CommitFile:
         self.commits = 0
         self.closed = False
 
-    # ---- the stream interface mcap.Writer uses ----
+    # ---- the stream interface the MCAP writer uses ----
     def write(self, data: bytes | bytearray | memoryview) -> int:
         self._pending += data
         if len(self._pending) >= self._auto_commit_bytes:

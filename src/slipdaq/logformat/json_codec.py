@@ -1,14 +1,19 @@
-"""The JSON messages of the log: records to dicts and to bytes (byte for byte what json.dumps with compact
-separators gives, written directly for the topics written at high rate or once per GPS epoch), and back."""
+"""The JSON messages of the log: records to bytes and back. Written with orjson: compact JSON whose values are those
+json.dumps writes (a float's shortest repr, read back bit for bit); where orjson cannot keep a value (a NaN or an
+infinity, which it writes as null; an integer over 64 bits; a numpy scalar; a key that is not a str) the message is
+json.dumps's (NaN, Infinity) instead, so every value reads back as it was."""
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable, Sequence
+from operator import attrgetter
 from typing import Any
 
-from slipdaq import WHEELS
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
+import orjson
+
+from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup, record_values
 from slipdaq.logformat.topics import log_time_ns
 from slipdaq.records import CanFrame, GpsFix, NmeaLine, WheelSample
 
@@ -22,106 +27,105 @@ def can_frame_from_dict(d: dict[str, Any]) -> CanFrame:
     return CanFrame(d["timestamp_s"], d["id"], bytes.fromhex(d["data"]), d["extended"], d["error"])
 
 
-
-def _jnum(x: object) -> str:
-    """A JSON number, null or boolean as json.dumps writes it."""
-    if x is None:
-        return "null"
-    if x is True:
-        return "true"
-    if x is False:
-        return "false"
-    if type(x) is float:
-        return float.__repr__(x) if x - x == 0.0 else json.dumps(x)  # nan/inf: json's NaN/Infinity
-    if type(x) is int:
-        return int.__repr__(x)
-    return json.dumps(x)
-
-
-_JSON_STR = {w: json.dumps(w) for w in WHEELS}
-_json_string = json.encoder.encode_basestring_ascii
-"""A str as json.dumps writes it (ensure_ascii: json's C function when there is one)."""
-
-
-
-
 def wheel_sample_to_dict(s: WheelSample) -> dict[str, Any]:
     return {"timestamp_s": s.timestamp_s, "wheel": s.wheel, "revolutions": s.revolutions, "count": s.count,
             "raw": s.raw, "seq": s.seq, "lost_frames": s.lost_frames}
 
 
-def dumps(payload: dict[str, Any]) -> bytes:
+def std_dumps(payload: object) -> bytes:
+    """json.dumps with compact separators: NaN and infinities as NaN, Infinity."""
     return json.dumps(payload, separators=(",", ":")).encode()
 
 
-# ---- fixes and estimates, once per GPS epoch: written directly, byte for byte what dumps of their dicts gives ----
-
-_JSON_TEXT = {t: json.dumps(t) for t in (
-    "standstill", "accelerate", "cruise", "brake", "gps", "wheels", "fixed", "utc", "none", "calibrated",
-    "calibrating", "other_wheels", "tire_size", "configured", "stored", "RMC", "VTG", "UBX", "ok", "uncalibrated",
-    "disturbed", "imu", "CAN")}
-
-
-def _jval(x: object) -> str:
-    """_jnum, and the known texts without json.dumps."""
-    return _JSON_TEXT[x] if type(x) is str and x in _JSON_TEXT else _jnum(x)
+def _non_finite(x: object) -> bool:
+    """A NaN or an infinity anywhere in x (dicts' values, lists' and tuples' items)."""
+    if isinstance(x, float):
+        return not math.isfinite(x)
+    if isinstance(x, dict):
+        return any(_non_finite(v) for v in x.values())
+    if isinstance(x, list | tuple):
+        return any(_non_finite(v) for v in x)
+    return False
 
 
-_FIX_KEYS = tuple((k, json.dumps(k) + ":") for k in GpsFix.__slots__)
+def _flat_non_finite(values: Iterable[object]) -> bool:
+    """A NaN or an infinity among values (numbers, None, texts; lists of texts) that orjson wrote: their floats are
+    floats, not subclasses (orjson refuses those). Their sum is finite only if they all are (a sum too large for a
+    float says True too: the message is then json.dumps's, the same values)."""
+    total = sum([v for v in values if type(v) is float], 0.0)
+    return total - total != 0.0
 
 
-def _json_key(name: str) -> str:
-    return json.dumps(name) + ":"
+def dumps(payload: object) -> bytes:
+    """payload as compact JSON, every value as json.dumps writes it (see the module docstring)."""
+    try:
+        out = orjson.dumps(payload)
+    except TypeError:  # orjson.JSONEncodeError: a big integer, a numpy scalar, a key not a str
+        return std_dumps(payload)
+    if b"null" in out and _non_finite(payload):
+        return std_dumps(payload)
+    return out
+
+
+def _dumps_row(row: dict[str, Any], values: Sequence[object]) -> bytes:
+    """dumps(row), row's values given flat (no nested dicts)."""
+    try:
+        out = orjson.dumps(row)
+    except TypeError:
+        return std_dumps(row)
+    if b"null" in out and _flat_non_finite(values):
+        return std_dumps(row)
+    return out
 
 
 class ColumnsJson:
-    """The JSON of a record declared as column groups (records.ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS): equal to
-    dumps(record.as_row()), written directly (the keys encoded once)."""
+    """The JSON of a record declared as column groups (ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS): dumps(record.as_row());
+    `columns` gives a run of records as one message of columns (each name: its values in the records' order)."""
 
     def __init__(self, groups: tuple[ColumnGroup, ...]) -> None:
         self.groups = groups
-        self._scalar = [None if g.per_wheel else [(_json_key(c.name), c.attribute) for c in g.columns]
-                        for g in groups]
-        self._wheel: dict[str, list[list[tuple[str, str]]]] = {}
-
-    def _wheel_keys(self, wheel: str) -> list[list[tuple[str, str]]]:
-        """Per column group: (JSON key and colon, attribute) of this wheel's columns."""
-        keys = self._wheel.get(wheel)
-        if keys is None:
-            keys = self._wheel[wheel] = [[(_json_key(c.key(wheel)), c.attribute) for c in g.columns] if g.per_wheel
-                                         else [] for g in self.groups]
-        return keys
 
     def __call__(self, record: Any) -> bytes:
-        j = _jval
-        wheels = [(self._wheel_keys(w), we) for w, we in record.wheels.items()]
-        parts: list[str] = []
-        for g, scalar in enumerate(self._scalar):
-            if scalar is not None:
-                parts += [k + j(getattr(record, a)) for k, a in scalar]
-            else:
-                for keys, we in wheels:
-                    parts += [k + j(getattr(we, a)) for k, a in keys[g]]
-        return ("{" + ",".join(parts) + "}").encode()
+        keys, values = record_values(record, self.groups)
+        return _dumps_row(dict(zip(keys, values)), values)
+
+    def columns(self, records: Sequence[Any]) -> bytes:
+        """Records with the same wheels (in the same order) as one JSON object of lists: name -> the records' values
+        (rows_of_columns gives the rows back)."""
+        wheels = tuple(records[0].wheels)
+        if any(tuple(r.wheels) != wheels for r in records):
+            raise ValueError("records with other wheels (or in another order) in one message of columns")
+        table = [record_values(r, self.groups) for r in records]
+        columns = dict(zip(table[0][0], (list(c) for c in zip(*[values for _keys, values in table]))))
+        return _dumps_row(columns, [v for _keys, values in table for v in values])
+
+
+def rows_of_columns(columns: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    """The rows of a columnar message (ColumnsJson.columns), each a dict in the columns' order."""
+    keys = list(columns)
+    return [dict(zip(keys, values)) for values in zip(*columns.values())]
 
 
 estimate_json = ColumnsJson(ESTIMATE_COLUMNS)
-"""/estimate payload: equal to dumps(e.as_row())."""
+"""/estimate payload: dumps(e.as_row())."""
 fast_slip_json = ColumnsJson(FAST_SLIP_COLUMNS)
-"""/slip/fast payload: equal to dumps(row.as_row())."""
+"""/slip/fast: fast_slip_json.columns(rows) is a message of rows (one row: dumps(row.as_row()) for the old per-row
+message)."""
 
 
 def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
-    """/nmea/raw payload: equal to dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
-    t, text = line.timestamp_s, line.line
-    if type(t) is float and type(text) is str and type(can_index) is int:
-        return f'{{"timestamp_s":{_jnum(t)},"line":{_json_string(text)},"can_index":{can_index}}}'.encode()
-    return dumps({"timestamp_s": t, "line": text, "can_index": can_index})
+    """/nmea/raw payload: dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
+    return dumps({"timestamp_s": line.timestamp_s, "line": line.line, "can_index": can_index})
+
+
+_FIX_FIELDS = GpsFix.__slots__
+_fix_values = attrgetter(*_FIX_FIELDS)
 
 
 def fix_json(fix: GpsFix) -> bytes:
-    """/gps/fix payload: equal to dumps of the fix's fields in order."""
-    return ("{" + ",".join([key + _jval(getattr(fix, name)) for name, key in _FIX_KEYS]) + "}").encode()
+    """/gps/fix payload: dumps of the fix's fields in order."""
+    values = _fix_values(fix)
+    return _dumps_row(dict(zip(_FIX_FIELDS, values)), values)
 
 
 LOCATION_FRAME_ID = "gps"

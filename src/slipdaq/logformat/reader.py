@@ -22,7 +22,12 @@ from slipdaq import WHEELS
 from slipdaq.config import Config, parse_config
 from slipdaq.logformat import cdr
 from slipdaq.logformat.errors import LogError
-from slipdaq.logformat.json_codec import can_frame_from_dict, can_frame_to_dict, wheel_sample_to_dict
+from slipdaq.logformat.json_codec import (
+    can_frame_from_dict,
+    can_frame_to_dict,
+    rows_of_columns,
+    wheel_sample_to_dict,
+)
 from slipdaq.logformat.salvage import DamageError, ScanResult, scan, scan_metadata, summary_intact
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
@@ -144,12 +149,18 @@ def iter_topic(
     path: str | Path, topics: tuple[str, ...], scan_result: ScanResult | None = None
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
     """(topic, log_time_ns, decoded JSON) in the order the messages were written. Batches (/can/raw, /wpt/count)
-    come one dict per frame or sample, with the keys of the old per-frame JSON and the frame's time as log time.
+    come one dict per frame or sample, with the keys of the old per-frame JSON and the frame's time as log time;
+    /slip/fast one dict per row (a message of rows, or an older log's message per row), at its message's log time.
 
     A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far."""
     for topic, encoding, log_time, data in iter_messages(path, topics, scan_result):
         if encoding != cdr.ENCODING:
-            yield topic, log_time, json.loads(data)
+            d = json.loads(data)
+            if topic == TOPIC_FAST_SLIP and isinstance(d.get("time_s"), list):  # a message of rows (columns)
+                for row in rows_of_columns(d):
+                    yield topic, log_time, row
+            else:
+                yield topic, log_time, d
         elif topic == TOPIC_CAN:
             for f in cdr.decode_can_batch(data)[1].frames():
                 yield topic, log_time_ns(f.timestamp_s), can_frame_to_dict(f)

@@ -60,6 +60,17 @@ def columns_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, Any
                         for g in groups for w in (WHEELS if g.per_wheel else ("",)) for c in g.columns})
 
 
+def columnar_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, Any]:
+    """The JSON Schema of a run of such records as columns (json_codec.ColumnsJson.columns): each property the
+    list of its column's values, one per record."""
+    flat = columns_schema(title, groups)
+    for name, prop in flat["properties"].items():
+        item = {k: v for k, v in prop.items() if k != "description"}
+        flat["properties"][name] = {"type": "array", "items": item} | (
+            {"description": prop["description"]} if "description" in prop else {})
+    return flat
+
+
 def _per_wheel(title: str) -> dict[str, Any]:
     return _obj(title, {w: _INT for w in WHEELS})
 
@@ -155,7 +166,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         }),
     } | LIVE_DIAGNOSTICS, optional=tuple(LIVE_DIAGNOSTICS)),
     TOPIC_EVENTS: dataclass_schema("slipdaq.SourceEvent", SourceEvent),
-    TOPIC_FAST_SLIP: columns_schema("slipdaq.FastSlip", FAST_SLIP_COLUMNS),
+    TOPIC_FAST_SLIP: columnar_schema("slipdaq.FastSlipRows", FAST_SLIP_COLUMNS),
     TOPIC_SENSORS: dataclass_schema("slipdaq.SensorSample", SensorSample),
     TOPIC_MANEUVER: columns_schema("slipdaq.Maneuver", MANEUVER_COLUMNS),
     TOPIC_GPS_LOCATION: LOCATION_FIX_SCHEMA,

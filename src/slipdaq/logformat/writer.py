@@ -11,10 +11,9 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
-
 import slipdaq
 from slipdaq.logformat.durable import CommitFile, LogWriteError, describe
+from slipdaq.logformat.mcap_writer import McapWriter
 from slipdaq.logformat.registry import TOPIC_FORMATS
 from slipdaq.logformat.rotation import RotationPolicy, segment_path
 from slipdaq.logformat.topics import METADATA_NAME, PROFILE, log_time_ns
@@ -69,7 +68,7 @@ class LogWriter:
         """While the log cannot be written: what failed (one line); None when writing."""
         self.closed = False
         self._file: CommitFile | None = None
-        self._writer: Writer | None = None
+        self._writer: McapWriter | None = None
         self._channels: dict[str, int] = {}
         self._seq = 0
         self._last_ns = 0
@@ -135,7 +134,7 @@ class LogWriter:
         path = segment_path(self.first_path, number)
         file = CommitFile(path, fsync=self._fsync, new_file=self._new_files_only)
         try:
-            writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]  # CommitFile is a binary file object, not an IO[bytes] subclass
+            writer = McapWriter(file, chunk_size=self._chunk_size)
             writer.start(profile=PROFILE, library=f"slipdaq {slipdaq.__version__}")
             channels: dict[str, int] = {}
             for fmt in TOPIC_FORMATS.values():
@@ -163,11 +162,14 @@ class LogWriter:
             writer.finish()
             file.close()
         except OSError as e:
+            writer.close_pool()
             file.abandon()
             self._fail(e if isinstance(e, LogWriteError) else LogWriteError(e.errno, describe(e), str(file.path)))
 
     def _fail(self, e: LogWriteError) -> None:
         """Writing failed: keep the file as it was at its last commit, drop this segment, retry later (or raise)."""
+        if self._writer is not None:
+            self._writer.close_pool()
         if not self._survive:
             if self._file is not None:
                 self._file.abandon()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from slipdaq import WHEELS
 from slipdaq.maneuver.record import Maneuver
@@ -51,6 +51,11 @@ class Sink:
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
         """One high-rate slip row, at the log time of the record that released it."""
+
+    def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
+        """The high-rate slip rows one record released, in time order: on_fast_slip for each."""
+        for row in rows:
+            self.on_fast_slip(row, log_time_s)
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         """One maneuver's results, at the log time it was decided (its end and its span's high-rate rows came)."""

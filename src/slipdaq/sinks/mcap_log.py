@@ -437,7 +437,17 @@ class McapLogSink(Sink):
         self._write(TOPIC_ESTIMATE, log_time_s, estimate_json(estimate))
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json(row))
+        self.on_fast_slip_rows((row,), log_time_s)
+
+    def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
+        """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice)."""
+        i, n = 0, len(rows)
+        while i < n:
+            wheels, k = tuple(rows[i].wheels), i + 1
+            while k < n and tuple(rows[k].wheels) == wheels:
+                k += 1
+            self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json.columns(rows[i:k]))
+            i = k
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))

@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""What writing the log costs in a replay, this tree against a base revision, side by side in one run.
+
+The raw log is benchmarks/replay_process.py's (written by the base's code into --work, made there if missing). Per
+round, one process per side (the order reversed every other round), after its imports and numba's kernels are
+loaded, replays the log: into a sink that takes nothing (its batch methods overridden too, so that no frame is
+turned into objects), into an MCAP log (`offline.process_to_log`), and into a sink that records every call; then the
+recorded calls are made on an McapLogSink alone, --repeats times (the least counts): the log's writing without the
+estimator around it, the steadiest figure on a busy machine. CPU is process_time (every thread of the process). The
+table shows medians over the rounds.
+
+    python benchmarks/log_cost.py --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
+
+WORKER = """
+import io, json, sys, time
+from pathlib import Path
+from slipdaq import compiled
+from slipdaq.logformat.reader import config_from_log, iter_raw_batches
+from slipdaq.offline import process, process_to_log
+from slipdaq.sinks import Sink
+from slipdaq.sinks.mcap_log import McapLogSink
+
+class Nothing(Sink):
+    def on_can_batch(self, batch): pass
+    def on_wheel_batch(self, samples): pass
+    def on_fast_slip_rows(self, rows, log_time_s): pass
+
+CALLS = ("on_raw", "on_can_batch", "on_wheel_batch", "on_fix", "on_estimate", "on_fast_slip", "on_fast_slip_rows",
+         "on_maneuver", "on_sensor", "on_diagnostics", "on_source_event")
+
+class Recorder(Nothing):
+    def __init__(self):
+        self.calls = []
+for name in CALLS:
+    setattr(Recorder, name, (lambda n: lambda self, *args: self.calls.append((n, args)))(name))
+
+raw, out, repeats = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
+cfg = config_from_log(raw)
+compiled.prepare()
+t0 = time.process_time()
+process(cfg, iter_raw_batches(raw), [Nothing()], stream=io.StringIO())
+t1 = time.process_time()
+process_to_log(cfg, iter_raw_batches(raw), out, "replay", stream=io.StringIO())
+t2 = time.process_time()
+recorder = Recorder()
+process(cfg, iter_raw_batches(raw), [recorder], stream=io.StringIO())
+sink_wall, sink_cpu = [], []
+for _ in range(repeats):
+    w0, c0 = time.perf_counter(), time.process_time()
+    sink = McapLogSink(out, cfg, "replay")
+    for name, args in recorder.calls:
+        getattr(sink, name)(*args)
+    sink.close()
+    sink_wall.append(time.perf_counter() - w0)
+    sink_cpu.append(time.process_time() - c0)
+print(json.dumps({"nothing": t1 - t0, "log": t2 - t1, "sink_wall": min(sink_wall), "sink_cpu": min(sink_cpu)}))
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_base_argument(ap)
+    ap.add_argument("--seconds", type=float, default=300.0)
+    ap.add_argument("--rate-hz", type=float, default=1000.0)
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=3, help="runs of the sink alone per round (the least counts)")
+    ap.add_argument("--work", type=Path, default=None, help="replay_process.py's directory (default: a new one)")
+    a = ap.parse_args()
+    base = resolve(a.base)
+    work = a.work or Path(tempfile.mkdtemp(prefix="log-cost-"))
+    work.mkdir(parents=True, exist_ok=True)
+    raw = work / f"raw-{a.seconds:g}s-{a.rate_hz:g}hz.mcap"
+    if not raw.exists():
+        subprocess.run([sys.executable, str(Path(__file__).parent / "replay_process.py"), "--base", base, "--seconds",
+                        str(a.seconds), "--rate-hz", str(a.rate_hz), "--rounds", "0", "--work", str(work)], check=True)
+    sides = {f"base {base}": unpack(base, work / f"base-{base}"), "this tree": ROOT / "src"}
+    got: dict[str, list[dict[str, float]]] = {name: [] for name in sides}
+    for r in range(a.rounds):
+        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
+            out = subprocess.run([sys.executable, "-c", WORKER, str(raw), str(work / "log-cost-out.mcap"),
+                                  str(a.repeats)],
+                                 env=dict(os.environ, PYTHONPATH=str(sides[name])), check=True, capture_output=True,
+                                 text=True).stdout
+            got[name].append(json.loads(out.strip().splitlines()[-1]))
+            print(f"  round {r + 1} {name}: {got[name][-1]}", flush=True)
+    frames = int(raw.with_suffix(".frames").read_text())
+    print(f"\nA replay of {raw.name} ({frames:,} frames; {a.rounds} interleaved rounds, medians)\n")
+    print("| side | CPU into a sink that takes nothing | CPU into an MCAP log | difference | the sink alone, wall "
+          "| the sink alone, CPU | frames written per second (wall) |\n|---|---:|---:|---:|---:|---:|---:|")
+    med = {}
+    for name, runs in got.items():
+        m = med[name] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        diff = statistics.median(r["log"] - r["nothing"] for r in runs)
+        print(f"| {name} | {m['nothing']:.2f} s | {m['log']:.2f} s | {diff:.2f} s | {m['sink_wall']:.2f} s "
+              f"| {m['sink_cpu']:.2f} s | {frames / m['sink_wall']:,.0f} |")
+    b, n = med[f"base {base}"], med["this tree"]
+    print(f"| this tree / base | {n['nothing'] / b['nothing']:.2f} | {n['log'] / b['log']:.2f} | "
+          f"| {n['sink_wall'] / b['sink_wall']:.2f} | {n['sink_cpu'] / b['sink_cpu']:.2f} | |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

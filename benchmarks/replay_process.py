@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""`slipdaq replay` as a whole process (interpreter start and imports included: the issue's definition of the replay
+target), this tree against a base revision, side by side in one run.
+
+A raw-only log (config, DBC, /can/raw batches, /nmea/raw) of --seconds of 4 WPT messages at --rate-hz each + 20 Hz
+NMEA from the simulator's cycle is written once by the base's code (so both read the same file). Then, per round,
+`python -m slipdaq replay RAW -o OUT` runs once for each side (the order reversed every other round, so that a busy
+spell of the machine falls on both), each side's `src` on PYTHONPATH (the base from `git archive`). Wall time and
+CPU time (user + system, of the child) per run; the table shows medians, frames/s of the median wall time, and the
+ratio. Each side's output is kept for the guard (benchmarks/replay_check.py compares outputs the same way).
+
+    python benchmarks/replay_process.py --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
+
+MAKE_LOG = """
+import sys
+from dataclasses import replace
+from pathlib import Path
+from slipdaq.config import load_config, packaged_config_path
+from slipdaq.records import CanFrame
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sinks.mcap_log import McapLogSink
+cfg = load_config(packaged_config_path())
+sink = McapLogSink(Path(sys.argv[1]), cfg, mode="bench-raw")
+settings = replace(SimSettings(), wpt_rate_hz=float(sys.argv[3]), gps_rate_hz=20.0, gps_latency_s=0.05,
+                   can_jitter_s=0.0002)
+frames = 0
+for ev in generate(cfg, "cycle", "paved", settings, duration_s=float(sys.argv[2])):
+    if ev.record is not None:
+        sink.on_raw(ev.record)
+        frames += isinstance(ev.record, CanFrame)
+sink.close()
+print(frames)
+"""
+
+
+def run_replay(src: Path, raw: Path, out: Path) -> tuple[float, float]:
+    """(wall s, CPU s of the child) of one `python -m slipdaq replay`."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(out)], check=True,
+                   env=dict(os.environ, PYTHONPATH=str(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_base_argument(ap)
+    ap.add_argument("--seconds", type=float, default=300.0, help="seconds of log (default 300)")
+    ap.add_argument("--rate-hz", type=float, default=1000.0, help="each WPT message's rate (default 1000)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
+    ap.add_argument("--work", type=Path, default=None, help="directory for the logs (default: a temporary one)")
+    a = ap.parse_args()
+    base = resolve(a.base)
+    work = a.work or Path(tempfile.mkdtemp(prefix="replay-process-"))
+    work.mkdir(parents=True, exist_ok=True)
+    sides = {f"base {base}": unpack(base, work / f"base-{base}"), "this tree": ROOT / "src"}
+    raw = work / f"raw-{a.seconds:g}s-{a.rate_hz:g}hz.mcap"
+    frames_file = raw.with_suffix(".frames")
+    if not raw.exists():
+        made = subprocess.run([sys.executable, "-c", MAKE_LOG, str(raw), str(a.seconds), str(a.rate_hz)], check=True,
+                              env=dict(os.environ, PYTHONPATH=str(sides[f"base {base}"])), capture_output=True,
+                              text=True)
+        frames_file.write_text(made.stdout.strip().splitlines()[-1])
+    frames = int(frames_file.read_text())
+    print(f"{raw.name}: {frames:,} frames, {raw.stat().st_size / 1e6:.1f} MB", flush=True)
+    for src in sides.values():  # numba's cache for each tree, imports warm
+        run_replay(src, raw, work / "warm.mcap")
+    got: dict[str, list[tuple[float, float]]] = {name: [] for name in sides}
+    for r in range(a.rounds):
+        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
+            got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap"))
+            print(f"  round {r + 1} {name}: {got[name][-1][0]:.2f} s wall, {got[name][-1][1]:.2f} s CPU", flush=True)
+    med = {name: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for name, v in got.items()}
+    b, n = med[f"base {base}"], med["this tree"]
+    print(f"\n`python -m slipdaq replay` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz + 20 Hz NMEA ({frames:,} frames), "
+          f"{a.rounds} interleaved rounds, medians\n")
+    print("| side | wall | CPU (user + sys) | frames/s (wall) | frames/s (CPU) |\n|---|---:|---:|---:|---:|")
+    for name, (w, c) in med.items():
+        print(f"| {name} | {w:.2f} s | {c:.2f} s | {frames / w:,.0f} | {frames / c:,.0f} |")
+    print(f"| this tree / base | {n[0] / b[0]:.2f} | {n[1] / b[1]:.2f} | {b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
