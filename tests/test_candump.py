@@ -56,6 +56,63 @@ def test_the_frames_python_can_reads(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert frames_of(list(iter_candump(path))) == expected
 
 
+@pytest.mark.parametrize("odd", [b"(1767225600.000066) can0 310#E0B1FFFF00000000 X\n",
+                                 b"(1767225600.000066) can0 310$E0B1FFFF00000000 R\n",
+                                 b"(1767225600.000066) can0 310#E0B1FFFF0000000g R\n",
+                                 b"(17672a5600.000066) can0 310#E0B1FFFF00000000 R\n",
+                                 b"(1767225600.000066) can1 310#E0B1FFFF00000000 R\n",
+                                 b"(1767225600.000066) can0 310#E0B1FFFF00000000 t\n",
+                                 b"(1767225600.000066) can0 310#E0B1FFFF00000000  \n",
+                                 b"(1767225600.000066) can0 310#E0B1FFFF0000000000\n",
+                                 b"(1767225600.000066) can00 20000080#E0B1FFFF00 R\n",
+                                 b"(176722560.0000066) can0 310#E0B1FFFF00000000 R\n",
+                                 b"(0000000000.000000) can0 310#E0B1FFFF00000000 R\n"])
+@pytest.mark.parametrize("where", [0, 1, 500, 999])
+def test_one_line_laid_out_otherwise_among_many_of_its_length(tmp_path: Path, odd: bytes, where: int) -> None:
+    """Lines of one length are read as rows of a table: a line of that length in another form or layout is read
+    as python-can reads it (or fails as it fails there)."""
+    lines = [b"(17672256%02d.%06d) can0 3%02X#%016X R\n" % (i // 1000, i * 997 % 10**6, i % 4, i * 7919 % 2**64)
+             for i in range(1000)]
+    assert {len(x) for x in lines} == {len(odd)}
+    lines[where] = odd
+    path = tmp_path / "x.log"
+    path.write_bytes(b"".join(lines))
+    try:
+        expected = python_can(path)
+    except Exception as e:
+        with pytest.raises(CandumpError) as ours:
+            list(iter_candump(path))
+        assert str(ours.value.error) == str(e) and ours.value.frames_before == where
+        return
+    assert frames_of(list(iter_candump(path))) == expected
+
+
+def test_lines_of_a_few_layouts_are_read_as_rows(tmp_path: Path) -> None:
+    """The table path itself (not the regular expression's) gives python-can's frames."""
+    lines = [b"(17672256%02d.%06d) can%d %s#%s T\n" % (i // 1000, i * 997 % 10**6, i % 2 * 3,
+                                                      b"%03X" % (i % 7) if i % 3 else b"%08X" % (i * 7919 % 2**29),
+                                                      b"%02X" % (i % 256) * (i % 9 if i % 3 else 8))
+             for i in range(3000)]
+    text = b"".join(lines)
+    assert candump._columns_batch(text) is not None
+    path = tmp_path / "x.log"
+    path.write_bytes(text)
+    assert frames_of(list(iter_candump(path))) == python_can(path)
+
+
+def test_stamps_equal_floats_of_their_text(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    lines = []
+    for width in (1, 3, 6, 9):  # fraction digits
+        for whole in rng.integers(0, 10**9, 300).tolist():
+            frac = int(rng.integers(0, 10**width))
+            lines.append(b"(%d.%0*d) can0 123#00\n" % (whole, width, frac))
+    path = tmp_path / "x.log"
+    path.write_bytes(b"".join(lines))
+    got = CanFrameBatch.concat(list(iter_candump(path))).timestamp_s.tolist()
+    assert got == [float(x[1 : x.index(b")")]) for x in lines]
+
+
 def test_python_cans_own_logs_written_as_candump(tmp_path: Path) -> None:
     path = tmp_path / "all.log"
     with can.Logger(str(path)) as writer:

@@ -126,7 +126,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from slipdaq.offline import process_to_log
+    from slipdaq.offline import frame_runs, process_to_log
     from slipdaq.sources.files import iter_can_logs, iter_nmea_log, merge_by_time
     from slipdaq.sources.xbus_file import iter_xbus_capture
 
@@ -141,7 +141,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         raise OutputError("import --imu-xbus: the config's IMU must be the MTi ([imu] source = \"serial\", axis, sign)")
     streams = [iter_can_logs(can_logs)] + ([iter_nmea_log(args.nmea)] if args.nmea else []) \
         + ([iter_xbus_capture(args.imu_xbus)] if args.imu_xbus else [])
-    records = merge_by_time(*streams)
+    records = frame_runs(merge_by_time(*streams))
     meta = {"import_can": " ".join(map(str, can_logs)), "import_nmea": str(args.nmea or ""),
             "import_imu_xbus": str(args.imu_xbus or "")} | _labels_meta(args)
     cal = _run_calibration(args, cfg, Path(args.output).resolve().parent)
