@@ -10,8 +10,8 @@ with this tree's src (and with --base REV's, `git archive`d, side by side); (b) 
 numba's kernel cache). Frames/s = CAN frames / median wall time; the ratio to BLF per round, and its median.
 --profile also runs this tree's import once under cProfile and splits its time by part (where the floor is).
 
-    python benchmarks/import_speed.py [--seconds 120] [--wpt-rate-hz 1000] [--rounds 5] [--base REV] [--profile]
-                                      [--write]
+    python benchmarks/import_speed.py [--seconds 120] [--short-seconds 1] [--wpt-rate-hz 1000] [--rounds 5]
+                                      [--base REV] [--profile] [--write]
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import argparse
 import os
 import platform
 import pstats
+import resource
 import shutil
 import statistics
 import subprocess
@@ -54,7 +55,7 @@ with can.LogReader(sys.argv[1]) as reader, can.BLFWriter(sys.argv[2]) as writer:
 """
 
 PARTS = (  # (label, path fragments of the functions whose own time counts), first match wins
-    ("candump parse (sources/candump)", ("slipdaq/sources/candump.py", "re.Pattern", "binascii")),
+    ("candump parse (sources/candump)", ("slipdaq/sources/candump.py",)),
     ("merge, batching (sources/files, offline)", ("slipdaq/sources/", "slipdaq/offline.py")),
     ("MCAP library (mcap, zstd)", ("site-packages/mcap/", "zstandard", "ZstdCompressor")),
     ("log writer, codecs (logformat, sinks)", ("slipdaq/logformat/", "slipdaq/sinks/")),
@@ -68,13 +69,16 @@ PARTS = (  # (label, path fragments of the functions whose own time counts), fir
 )
 
 
-def run_timed(cmd: list[str], env: dict[str, str]) -> float:
+def run_timed(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall seconds, CPU seconds: the child's user + system time) of one run of cmd."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    dt = time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr[-2000:]}")
-    return dt
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
 
 
 def frame_count(log: Path) -> int:
@@ -82,17 +86,26 @@ def frame_count(log: Path) -> int:
         return sum(block.count(b"\n") for block in iter(lambda: f.read(1 << 20), b""))
 
 
+def _part(file: str, name: str) -> str | None:
+    where = f"{file}:{name}"
+    return next((label for label, frags in PARTS if any(f in where for f in frags)), None)
+
+
 def profile_split(env: dict[str, str], cmd: list[str], tmp: Path) -> tuple[float, list[tuple[str, float]]]:
-    """This tree's import once under cProfile: total seconds and each part's own time (PARTS; the rest: other)."""
+    """This tree's import once under cProfile: total seconds and each part's own time (PARTS; a built-in function's
+    time goes to the part of the function that called it; the rest: other)."""
     prof = tmp / "import.prof"
     subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), *cmd[1:]], env=env, check=True,
                    capture_output=True)
     stats = pstats.Stats(str(prof)).stats  # type: ignore[attr-defined]
     split = dict.fromkeys([label for label, _ in PARTS] + ["other"], 0.0)
-    for (file, _line, name), (_cc, _nc, tottime, _ct, _callers) in stats.items():
-        where = f"{file}:{name}"
-        label = next((lb for lb, frags in PARTS if any(f in where for f in frags)), "other")
-        split[label] += tottime
+    for (file, _line, name), (_cc, _nc, tottime, _ct, callers) in stats.items():
+        label = _part(file, name)
+        if label is None and file == "~" and callers:  # a built-in: its callers' parts, by the time from each
+            for (cfile, _cline, cname), (_c, _n, tt, _ct2) in callers.items():
+                split[_part(cfile, cname) or "other"] += tt
+            continue
+        split[label or "other"] += tottime
     total = sum(split.values())
     return total, sorted(split.items(), key=lambda kv: -kv[1])
 
@@ -116,6 +129,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", default=None, metavar="REV", help="also time this revision's import, side by side")
     ap.add_argument("--seconds", type=float, default=120.0, help="the drive's length (default 120)")
+    ap.add_argument("--short-seconds", type=float, default=1.0,
+                    help="a short drive timed the same way: the fixed costs (default 1; 0: none)")
     ap.add_argument("--wpt-rate-hz", type=float, default=1000.0, help="frames per second per wheel (default 1000)")
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
     ap.add_argument("--profile", action="store_true", help="split this tree's import by part (cProfile)")
@@ -126,66 +141,79 @@ def main() -> int:
     load0 = os.getloadavg()[0]
     tmp = Path(tempfile.mkdtemp(prefix="slipdaq-import-", dir=a.tmp_dir))
     try:
-        env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-        can_log, nmea = tmp / "drive.log", tmp / "drive.nmea"
+        # bytecode cached (as an installed package has it), in the temp dir, not beside the sources
+        common = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        common["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
+        env = dict(common, PYTHONPATH=str(ROOT / "src"))
         cfg = tmp / "slipdaq.toml"
         for f in ("slipdaq.toml", "wpt.dbc", "sensors.dbc"):
             shutil.copy(ROOT / "config" / f, tmp / f)
-        print(f"writing {a.seconds:g} s of 4 x {a.wpt_rate_hz:g} Hz + 10 Hz NMEA ...", flush=True)
-        subprocess.run([sys.executable, "-c", MAKE_LOGS, str(can_log), str(nmea), str(a.wpt_rate_hz),
-                        str(a.seconds)], env=env, check=True)
-        frames = frame_count(can_log)
-        sides: dict[str, tuple[list[str], dict[str, str]]] = {
-            "python-can candump -> BLF": ([sys.executable, "-c", BLF, str(can_log), str(tmp / "out.blf")], env)}
-
-        def slipdaq_cmd(out: str) -> list[str]:
-            return [sys.executable, "-m", "slipdaq", "import", "--can", str(can_log), "--nmea", str(nmea),
-                    "--config", str(cfg), "-o", str(tmp / out), "--no-calibration"]
-
-        sides["`slipdaq import`, this tree"] = (slipdaq_cmd("this.mcap"), env)
+        inputs = {"long": a.seconds} | ({"short": a.short_seconds} if a.short_seconds > 0 else {})
+        frames: dict[str, int] = {}
+        for key, seconds in inputs.items():
+            print(f"writing {seconds:g} s of 4 x {a.wpt_rate_hz:g} Hz + 10 Hz NMEA ...", flush=True)
+            subprocess.run([sys.executable, "-c", MAKE_LOGS, str(tmp / f"{key}.log"), str(tmp / f"{key}.nmea"),
+                            str(a.wpt_rate_hz), str(seconds)], env=env, check=True)
+            frames[key] = frame_count(tmp / f"{key}.log")
+        envs = {"python-can candump -> BLF": env, "`slipdaq import`, this tree": env}
         if a.base:
-            base_src = unpack(a.base, tmp / f"base-{a.base}")
-            sides[f"`slipdaq import`, {a.base}"] = (slipdaq_cmd("base.mcap"),
-                                                     dict(os.environ, PYTHONPATH=str(base_src)))
-        names = list(sides)
-        for name in names:  # warm-up: page cache, numba's kernel cache, .pyc files
-            run_timed(*sides[name])
+            envs[f"`slipdaq import`, {a.base}"] = dict(common, PYTHONPATH=str(unpack(a.base, tmp / f"base-{a.base}")))
+        names = list(envs)
+
+        def command(name: str, key: str) -> list[str]:
+            if name == names[0]:
+                return [sys.executable, "-c", BLF, str(tmp / f"{key}.log"), str(tmp / "out.blf")]
+            return [sys.executable, "-m", "slipdaq", "import", "--can", str(tmp / f"{key}.log"), "--nmea",
+                    str(tmp / f"{key}.nmea"), "--config", str(cfg), "-o", str(tmp / f"{names.index(name)}-{key}.mcap"),
+                    "--no-calibration", "--allow-empty"]
+
+        runs = [(n, k) for k in inputs for n in names]
+        for n, k in runs:  # warm-up: page cache, numba's kernel cache, .pyc files
+            run_timed(command(n, k), envs[n])
         identical = ""
         if a.base:
             from replay_check import compare
 
-            diff = compare(tmp / "base.mcap", tmp / "this.mcap")
+            diff = compare(tmp / "2-long.mcap", tmp / "1-long.mcap")
             identical = "identical to the base's (but `created_utc`)" if not diff else f"DIFFERENT from the base's: {diff}"
             print(f"this tree's output is {identical}", flush=True)
-        times: dict[str, list[float]] = {n: [] for n in names}
+        wall: dict[tuple[str, str], list[float]] = {r: [] for r in runs}
+        cpu: dict[tuple[str, str], list[float]] = {r: [] for r in runs}
         for r in range(a.rounds):
-            order = names[r % len(names):] + names[: r % len(names)]
-            for name in order if r % 2 == 0 else order[::-1]:
-                times[name].append(run_timed(*sides[name]))
-            print(f"round {r + 1}: " + ", ".join(f"{n} {times[n][-1]:.2f} s" for n in names), flush=True)
-        blf = times[names[0]]
+            order = runs[r % len(runs):] + runs[: r % len(runs)]
+            for run in order if r % 2 == 0 else order[::-1]:
+                w, c = run_timed(command(*run), envs[run[0]])
+                wall[run].append(w)
+                cpu[run].append(c)
+            print(f"round {r + 1}: " + ", ".join(f"{n} {k} {wall[n, k][-1]:.2f} s" for n, k in runs), flush=True)
+        med = statistics.median
         rows = []
-        for n in names:
-            med = statistics.median(times[n])
-            per_round = [b / t for b, t in zip(blf, times[n])]
-            rows.append([n, f"{med:.2f} s", f"{min(times[n]):.2f}–{max(times[n]):.2f} s", f"{frames / med:,.0f}",
-                         f"{statistics.median(blf) / med:.3f}", f"{statistics.median(per_round):.3f} "
-                         f"({min(per_round):.2f}–{max(per_round):.2f})"])
+        for k in inputs:
+            blf_w, blf_c = wall[names[0], k], cpu[names[0], k]
+            for n in names:
+                w, c = wall[n, k], cpu[n, k]
+                per_round = [b / t for b, t in zip(blf_w, w)]
+                rows.append([f"{n}, {inputs[k]:g} s", f"{med(w):.2f} s ({min(w):.2f}–{max(w):.2f})",
+                             f"{frames[k] / med(w):,.0f}", f"{med(blf_w) / med(w):.3f}",
+                             f"{med(per_round):.3f} ({min(per_round):.2f}–{max(per_round):.2f})",
+                             f"{med(c):.2f} s", f"{med(blf_c) / med(c):.3f}"])
         cmd = "python benchmarks/import_speed.py " + " ".join(sys.argv[1:])
         head = (f"**Run.** `{cmd.strip()}` — {(time.time() - started) / 60:.1f} min, "
                 f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.processor() or platform.machine()}, "
                 f"{os.cpu_count()} CPUs, 1-minute load {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end. "
-                f"Input: {a.seconds:g} s of the simulator's cycle, {frames:,} CAN frames (4 × {a.wpt_rate_hz:g} Hz) "
-                f"in a candump -L log of {can_log.stat().st_size / 1e6:.1f} MB, {frame_count(nmea):,} NMEA lines. "
-                f"Whole processes, interpreter start included; median of {a.rounds} interleaved rounds."
-                + (f" This tree's log is {identical}." if identical else "") + "\n\n")
-        block = head + table(["run", "wall time (median)", "range", "CAN frames/s", "× BLF (medians)",
-                              "× BLF per round (median, range)"], rows)
+                f"Input: the simulator's cycle, 4 WPT messages × {a.wpt_rate_hz:g} Hz + 10 Hz NMEA, as a candump -L "
+                f"log: {a.seconds:g} s ({frames['long']:,} frames, {(tmp / 'long.log').stat().st_size / 1e6:.1f} MB)"
+                + (f" and {a.short_seconds:g} s ({frames['short']:,} frames: the fixed costs)" if "short" in inputs
+                   else "") + f". Whole processes, interpreter start included; medians of {a.rounds} interleaved "
+                "rounds; CPU = the process's user + system time." + (f" This tree's log is {identical}."
+                                                                     if identical else "") + "\n\n")
+        block = head + table(["run", "wall time (range)", "CAN frames/s", "× BLF, wall (medians)",
+                              "× BLF per round (range)", "CPU time", "× BLF, CPU"], rows)
         if a.profile:
-            total, split = profile_split(env, sides[names[1]][0], tmp)
-            block += (f"\n\nThis tree's import under cProfile ({total:.2f} s with the profiler's overhead), own time by "
-                      "part:\n\n" + table(["part", "seconds", "share"],
-                                          [[lb, f"{s:.2f}", f"{s / total:.0%}"] for lb, s in split]))
+            total, split = profile_split(env, command(names[1], "long"), tmp)
+            block += (f"\n\nThis tree's import of the {a.seconds:g} s log under cProfile ({total:.2f} s with the "
+                      "profiler's overhead), own time by part:\n\n"
+                      + table(["part", "seconds", "share"], [[lb, f"{s:.2f}", f"{s / total:.0%}"] for lb, s in split]))
         print("\n" + block)
         if a.write:
             write_doc(block)
