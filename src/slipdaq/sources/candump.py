@@ -25,6 +25,8 @@ CHUNK_BYTES = 1 << 20
 _PLAIN = re.compile(rb"^\((\d+\.\d+)\) ([A-Za-z][A-Za-z0-9_]*) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#((?:[0-9A-Fa-f]{2}){0,8})"
                     rb"(?: ([RTrt]))?\n", re.M)
 _CHANNEL = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_TEMPLATE_ROWS = 16
+"""A length's layout is that of the first of its first lines in the form _PLAIN matches."""
 _MAX_LAYOUTS = 16
 """More line lengths than this in a chunk: it is read by the regular expression."""
 _HEX = np.full(256, 255, dtype=np.uint8)
@@ -72,9 +74,25 @@ def iter_candump(path: str | Path) -> Iterator[CanFrameBatch]:
 
 def parse_chunk(text: bytes, encoding: str = "utf-8", frames_before: int = 0) -> CanFrameBatch:
     """The frames of whole lines of a candump -L log (the last may lack its newline)."""
-    batch = _columns_batch(text)
-    if batch is not None:
+    got = _table(text)
+    if got is None:
+        return _regex_batch(text, encoding, frames_before)
+    batch, ok, starts, ends = got
+    if ok.all():
         return batch
+    parts: list[CanFrameBatch] = []  # runs of rows read as a table, and of other lines, in file order
+    frames = frames_before
+    cuts = [0, *(np.flatnonzero(np.diff(ok.view(np.int8))) + 1).tolist(), len(ok)]
+    for i, j in zip(cuts[:-1], cuts[1:]):
+        part = batch.slice(i, j) if ok[i] else _regex_batch(text[starts[i] : ends[j - 1] + 1], encoding, frames)
+        parts.append(part)
+        frames += len(part)
+    parts = [p for p in parts if len(p)] or parts[:1]
+    return parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
+
+
+def _regex_batch(text: bytes, encoding: str, frames_before: int) -> CanFrameBatch:
+    """The lines by the regular expression (and python-can for the others)."""
     lines = _PLAIN.findall(text)
     if len(lines) == text.count(b"\n") and text.endswith(b"\n"):
         batch = _plain_batch(lines)
@@ -83,10 +101,11 @@ def parse_chunk(text: bytes, encoding: str = "utf-8", frames_before: int = 0) ->
     return _mixed_batch(text, encoding, frames_before)
 
 
-def _columns_batch(text: bytes) -> CanFrameBatch | None:
-    """Lines all in the form _PLAIN matches, read as numpy rows, the lines of one length at a time, each length's
-    layout (where each field is) taken from its first line; None when a line is not in that form, lines of one
-    length are laid out differently, there are many lengths or an error frame (the regular expression reads them)."""
+def _table(text: bytes) -> tuple[CanFrameBatch, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The lines read as numpy rows, those of one length at a time, each length's layout (where each field is) taken
+    from its first line in the form _PLAIN matches: (the frames, per line whether it was read so: in that layout,
+    not an error frame, line starts, line ends); the others' rows hold nothing. None when the text does not end with
+    a newline or has many lengths."""
     buf = np.frombuffer(text, dtype=np.uint8)
     ends = np.flatnonzero(buf == 10)
     n = len(ends)
@@ -98,12 +117,13 @@ def _columns_batch(text: bytes) -> CanFrameBatch | None:
     lengths = np.unique(widths)
     if len(lengths) > _MAX_LAYOUTS:
         return None
-    t = np.empty(n, dtype=np.float64)
-    ident = np.empty(n, dtype=np.uint32)
-    flags = np.empty(n, dtype=np.uint8)
-    dlc = np.empty(n, dtype=np.uint8)
+    t = np.zeros(n, dtype=np.float64)
+    ident = np.zeros(n, dtype=np.uint32)
+    flags = np.zeros(n, dtype=np.uint8)
+    dlc = np.zeros(n, dtype=np.uint8)
     payload = np.zeros((n, 8), dtype=np.uint8)
-    channel = np.empty(n, dtype=np.uint16)
+    channel = np.zeros(n, dtype=np.uint16)
+    ok = np.zeros(n, dtype=bool)
     names: list[str] = []
     for width in lengths.tolist():
         if len(lengths) == 1:
@@ -114,48 +134,66 @@ def _columns_batch(text: bytes) -> CanFrameBatch | None:
             rows = buf[starts[which, None] + np.arange(width + 1)]
         got = _rows(rows)
         if got is None:
-            return None
-        t[which], ident[which], flags[which], data, its_names, codes = got
+            continue
+        t[which], ident[which], flags[which], data, its_names, codes, ok[which] = got
         dlc[which] = data.shape[1]
         payload[which, : data.shape[1]] = data
         for name in its_names:
             if name not in names:
                 names.append(name)
         channel[which] = np.array([names.index(name) for name in its_names], dtype=np.uint16)[codes]
-    if ((ident & np.uint32(_ERROR_ID)) == _ERROR_ID).any():
-        return None
+    ok &= (ident & np.uint32(_ERROR_ID)) != _ERROR_ID
     if len(names) > 1:  # the names in order of appearance
-        order = np.argsort([int(np.argmax(channel == i)) for i in range(len(names))])
+        first = [int(np.argmax(ok & (channel == i))) if (ok & (channel == i)).any() else n for i in range(len(names))]
+        order = np.argsort(first, kind="stable")
         lut = np.zeros(len(names), dtype=np.uint16)
         lut[order] = np.arange(len(names), dtype=np.uint16)
         channel, names = lut[channel], [names[i] for i in order.tolist()]
-    return CanFrameBatch(t, ident & np.uint32(0x1FFFFFFF), flags, dlc, payload, channel, tuple(names))
+    batch = CanFrameBatch(t, ident & np.uint32(0x1FFFFFFF), flags, dlc, payload, channel, tuple(names) or (None,))
+    return batch, ok, starts, ends
 
 
-def _rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray] | None:
-    """Lines of one length as rows of bytes (newline included): (stamps, raw IDs, flags, payloads, channel names,
-    each row's index in them) when every row is laid out as the first, in the form _PLAIN matches; else None."""
-    m = _PLAIN.fullmatch(rows[0].tobytes())
-    if m is None:
-        return None
+_Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray, np.ndarray]
+
+
+def _rows(rows: np.ndarray) -> _Rows | None:
+    """Lines of one length as rows of bytes (newline included), laid out as the first of them _PLAIN matches, or,
+    when fewer than half are, as the first of the others: (stamps, raw IDs, flags, payloads, channel names, each
+    row's index in them, whether the row is laid out so); None when no row near the start matches."""
+    first = _first_plain(rows)
+    got = None if first is None else _laid_out_as(rows, first)
+    if got is not None and got[-1].sum() * 2 < len(rows):
+        second = _first_plain(rows[~got[-1]])
+        other = None if second is None else _laid_out_as(rows, second)
+        if other is not None and other[-1].sum() > got[-1].sum():
+            return other
+    return got
+
+
+def _first_plain(rows: np.ndarray) -> re.Match[bytes] | None:
+    return next(filter(None, (_PLAIN.fullmatch(row.tobytes()) for row in rows[:_TEMPLATE_ROWS])), None)
+
+
+def _laid_out_as(rows: np.ndarray, m: re.Match[bytes]) -> _Rows | None:
+    """_rows with the layout of the line m matched."""
+    template = np.frombuffer(m.string, dtype=np.uint8)
     stamp, chan, ident, data, direction = m.span(1), m.span(2), m.span(3), m.span(4), m.span(5)
     dot = m.start(1) + m[1].index(b".")
-    fixed = np.ones(rows.shape[1], dtype=bool)  # the columns every row has as the first: all but the fields'
+    fixed = np.ones(rows.shape[1], dtype=bool)  # the columns every row has as the template: all but the fields'
     for a, b in (stamp, chan, ident, data, direction):
         fixed[a:b] = False  # an absent direction: (-1, -1), no column
     fixed[dot] = True
     cols = np.flatnonzero(fixed)
-    if not (rows[:, cols] == rows[0, cols]).all():
-        return None
     digits = np.r_[stamp[0] : dot, dot + 1 : stamp[1]]
+    if len(digits) > 18:
+        return None
     d = rows[:, digits] - np.uint8(48)
     hex_id, hex_data = _HEX[rows[:, ident[0] : ident[1]]], _HEX[rows[:, data[0] : data[1]]]
-    if not ((d < 10).all() and (hex_id < 16).all() and (hex_data < 16).all()) or len(digits) > 18:
-        return None
+    ok = (rows[:, cols] == template[cols]).all(axis=1) & (d < 10).all(axis=1) & (hex_id < 16).all(axis=1) & (
+        hex_data < 16).all(axis=1)
     scale = np.int64(10) ** np.arange(len(digits) - 1, -1, -1, dtype=np.int64)
     whole = d.astype(np.int64) @ scale  # the stamp's digits as one integer (18 digits fit in 63 bits)
-    if whole.max() >= 2**53:
-        return None
+    ok &= whole < 2**53
     t = whole / float(10 ** (stamp[1] - dot - 1))  # both exact doubles: the quotient rounds as float() of the text
     value = np.zeros(len(rows), dtype=np.uint32)
     for j in range(hex_id.shape[1]):
@@ -164,17 +202,21 @@ def _rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     if direction[0] >= 0:
         letter = rows[:, direction[0]] | np.uint8(0x20)  # lower case
         tx = letter == ord("t")
-        if not (tx | (letter == ord("r"))).all():
-            return None
+        ok &= tx | (letter == ord("r"))
         flags |= tx.astype(np.uint8) * np.uint8(FLAG_TX)
     names, codes = [m[2].decode()], np.zeros(len(rows), dtype=np.intp)
     channels = rows[:, chan[0] : chan[1]]
     if not (channels == channels[0]).all():
         unique, codes = np.unique(channels, axis=0, return_inverse=True)
-        names = [row.tobytes().decode("latin-1") for row in unique]
-        if not all(_CHANNEL.fullmatch(name) for name in names):
-            return None
-    return t, value, flags, hex_data[:, 0::2] * np.uint8(16) + hex_data[:, 1::2], names, codes.reshape(-1)
+        codes = codes.reshape(-1)
+        valid = np.array([_CHANNEL.fullmatch(row.tobytes().decode("latin-1")) is not None for row in unique])
+        ok &= valid[codes]
+        keep = np.flatnonzero(valid)
+        lut = np.zeros(len(unique), dtype=np.intp)
+        lut[keep] = np.arange(len(keep))
+        codes = lut[codes]
+        names = [unique[i].tobytes().decode() for i in keep.tolist()] or [m[2].decode()]
+    return t, value, flags, hex_data[:, 0::2] * np.uint8(16) + hex_data[:, 1::2], names, codes, ok
 
 
 def _plain_batch(lines: list[tuple[bytes, bytes, bytes, bytes, bytes]]) -> CanFrameBatch | None:
