@@ -154,13 +154,18 @@ def _unfinished_note(path: str, scanned: object) -> None:
 
 @contextmanager
 def _imports_frozen() -> Iterator[None]:
-    """An offline run with numba's kernels loaded first and every object made so far (the imports': python-can's
-    asammdf with sympy and pandas, cantools, numba: about 200,000) out of the garbage collector's reach (gc.freeze)
-    until it ends: otherwise each full collection walks them all again (a quarter of an import's CPU time)."""
+    """An offline run with numba's kernels loaded first (the collector paused: its start makes many long-lived
+    objects) and every object made so far (the imports': python-can's asammdf with sympy and pandas, cantools, numba:
+    about 200,000) out of the garbage collector's reach (gc.freeze) until it ends: otherwise each full collection
+    walks them all again (a quarter of an import's CPU time)."""
     from slipdaq import compiled
 
-    compiled.prepare()
-    gc.freeze()
+    gc.disable()
+    try:
+        compiled.prepare()
+        gc.freeze()
+    finally:
+        gc.enable()
     try:
         yield
     finally:
