@@ -160,12 +160,14 @@ def _imports_frozen() -> Iterator[None]:
     walks them all again (a quarter of an import's CPU time)."""
     from slipdaq import compiled
 
+    enabled = gc.isenabled()
     gc.disable()
     try:
         compiled.prepare()
         gc.freeze()
     finally:
-        gc.enable()
+        if enabled:
+            gc.enable()
     try:
         yield
     finally:
