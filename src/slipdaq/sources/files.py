@@ -24,7 +24,7 @@ import numpy as np
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
-from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame
+from slipdaq.records import CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame
 from slipdaq.sources.candump import CandumpError, iter_candump
 from slipdaq.sources.read_errors import InputError, guarded, read_error
 
@@ -46,11 +46,13 @@ class ImportError_(InputError):
     """A file that cannot be imported; the message names the file."""
 
 
-def iter_can_log(path: str | Path) -> Iterator[CanFrame | CanFrameBatch]:
-    """A CAN log's frames in file order: a candump -L log (.log) in batches (sources/candump.py), any other format
-    frame by frame through python-can's LogReader."""
-    from slipdaq.sources.can_bus import to_frame  # here: the live source's imports (asyncio) only when needed
+MESSAGES_PER_BATCH = 4096
+"""python-can's messages of a log handed on as one CanFrameBatch."""
 
+
+def iter_can_log(path: str | Path) -> Iterator[CanFrameBatch]:
+    """A CAN log's frames in file order, in batches: a candump -L log (.log) through sources/candump.py, any other
+    format through python-can's LogReader; each stamp checked (_stamp_error)."""
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such CAN log")
@@ -62,12 +64,32 @@ def iter_can_log(path: str | Path) -> Iterator[CanFrame | CanFrameBatch]:
     except Exception as e:  # an unknown suffix, or a file that does not start like its format (BLFParseError)
         formats = "" if p.suffix.lower() in CAN_SUFFIXES else f"; formats: {', '.join(CAN_SUFFIXES)}"
         raise ImportError_(f"{p}: python-can cannot read it ({e}){formats}") from None
+    frames = 0
+    msgs: list[can.Message] = []
     with reader:
-        for n, msg in enumerate(guarded(p, reader), 1):
-            frame = to_frame(msg)
-            if (bad := _stamp_error(p, f"frame {n}", frame.timestamp_s)) is not None:
-                raise bad
-            yield frame
+        try:
+            for msg in guarded(p, reader):
+                msgs.append(msg)
+                if len(msgs) == MESSAGES_PER_BATCH:
+                    yield _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
+                    frames += len(msgs)
+                    msgs = []
+        except InputError:
+            if msgs:  # a stamp no log holds before the damage is named first, as frame by frame
+                _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
+            raise
+    if msgs:
+        yield _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
+
+
+def _checked(p: Path, batch: CanFrameBatch, frames_before: int) -> CanFrameBatch:
+    """The batch, when a log holds each of its stamps; else the error naming the first frame that it does not."""
+    t = batch.timestamp_s
+    bad = np.flatnonzero(~(np.isfinite(t) & (t < MAX_LOG_TIME_S)))
+    if len(bad):
+        i = int(bad[0])
+        raise _stamp_error(p, f"frame {frames_before + i + 1}", float(t[i])) or AssertionError(t[i])
+    return batch
 
 
 def _candump_batches(p: Path) -> Iterator[CanFrameBatch]:
@@ -84,25 +106,18 @@ def _candump_batches(p: Path) -> Iterator[CanFrameBatch]:
             raise read_error(p, e, frames) from None
         if batch is None:
             return
-        t = batch.timestamp_s
-        bad = np.flatnonzero(~(np.isfinite(t) & (t < MAX_LOG_TIME_S)))
-        if len(bad):
-            i = int(bad[0])
-            raise _stamp_error(p, f"frame {frames + i + 1}", float(t[i])) or AssertionError(t[i])
+        yield _checked(p, batch, frames)
         frames += len(batch)
-        yield batch
 
 
 def _first_time(p: str | Path) -> float | None:
     """The stamp of a CAN log's first frame (None: no frame)."""
-    for item in iter_can_log(p):
-        if isinstance(item, CanFrame):
-            return item.timestamp_s
-        return float(item.timestamp_s[0])
+    for batch in iter_can_log(p):
+        return float(batch.timestamp_s[0])
     return None
 
 
-def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame | CanFrameBatch]:
+def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrameBatch]:
     """The frames of several CAN logs of one session, file after file in the order of their first frame's time (the
     files' own names need not sort); a file that starts before the previous one ended is refused (not one session)."""
     if len(paths) == 1:
@@ -119,9 +134,9 @@ def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame | CanFrameBa
         if t0 < last_t:
             raise ImportError_(f"{p}: starts at {t0:.6f}, before {last_p} ends ({last_t:.6f}): the files are not "
                                f"one session's consecutive parts")
-        for item in iter_can_log(p):
-            last_t = max(last_t, item.timestamp_s if isinstance(item, CanFrame) else float(item.timestamp_s.max()))
-            yield item
+        for batch in iter_can_log(p):
+            last_t = max(last_t, float(batch.timestamp_s.max()))
+            yield batch
         last_p = p
 
 
