@@ -44,8 +44,9 @@ def python_can(path: Path) -> list[tuple]:
 
 
 @pytest.mark.parametrize("chunk", [1 << 20, 7, 100])
-@pytest.mark.parametrize("lines", [PLAIN, ODD, PLAIN + ODD[:-1] + PLAIN[::-1], ODD[:-1] + PLAIN],
-                         ids=["plain", "odd", "mixed", "odd-then-plain"])
+@pytest.mark.parametrize("lines", [PLAIN, ODD, PLAIN + ODD[:-1] + PLAIN[::-1], ODD[:-1] + PLAIN,
+                                   [x.replace(b"\n", b"\r\n") for x in PLAIN * 3]],
+                         ids=["plain", "odd", "mixed", "odd-then-plain", "crlf"])
 def test_the_frames_python_can_reads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int,
                                      lines: list[bytes]) -> None:
     monkeypatch.setattr(candump, "CHUNK_BYTES", chunk)

@@ -23,7 +23,7 @@ from slipdaq.records import FLAG_EXTENDED, FLAG_TX, CanFrameBatch
 CHUNK_BYTES = 1 << 20
 """Text read and parsed at once (cut after its last whole line)."""
 _PLAIN = re.compile(rb"^\((\d+\.\d+)\) ([A-Za-z][A-Za-z0-9_]*) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#((?:[0-9A-Fa-f]{2}){0,8})"
-                    rb"(?: ([RTrt]))?\n", re.M)
+                    rb"(?: ([RTrt]))?\r?\n", re.M)
 _CHANNEL = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 _TEMPLATE_ROWS = 16
 """A length's layout is that of the first of its first lines in the form _PLAIN matches."""
