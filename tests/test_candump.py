@@ -184,3 +184,14 @@ def test_merge_by_time_gives_heapq_merge_frame_by_frame(seed: int, monkeypatch: 
     for item in files.merge_by_time(*map(iter, streams[:k]), iter(batches), *map(iter, streams[k:])):
         got += [key(f) for f in item.frames()] if isinstance(item, CanFrameBatch) else [key(item)]
     assert got == expected
+
+
+def test_numbered_channels_as_python_can_names_them(tmp_path: Path) -> None:
+    """python-can makes a numeric channel an int ("007" gives 7): the table takes only the numbers it gives back as
+    written, the others are python-can's."""
+    lines = [b"(1767225600.%06d) %s 123#0011 R\n" % (i, (b"0", b"7", b"12", b"007")[i % 4]) for i in range(400)]
+    path = tmp_path / "x.log"
+    path.write_bytes(b"".join(lines))
+    table = candump._table(path.read_bytes())
+    assert table is not None and table[1].sum() == 300
+    assert frames_of(list(iter_candump(path))) == python_can(path)

@@ -1,10 +1,11 @@
 """candump -L logs (.log) read as batches of frames: the frames python-can's CanutilsLogReader gives, without a
 Message per line.
 
-A line in the form a logger writes (`(SECONDS) CHANNEL ID#DATA [R|T]`: a named channel, a 3- or 8-digit ID, up to
-8 data bytes) is parsed many lines at once by one regular expression into numpy columns; any other line (CAN FD,
-remote and error frames, numeric channels, odd spacing, damage) is handed to python-can's reader, so every line
-means what python-can makes of it and a line python-can cannot read raises what it raises there.
+Lines in the form a logger writes (`(SECONDS) CHANNEL ID#DATA [R|T]`: a named or numbered channel, a 3- or 8-digit
+ID, up to 8 data bytes) are read as a table of bytes, those of one length at a time (numpy); a run of lines that do
+not fit goes through a regular expression, and any line that is not in that form (CAN FD, remote and error frames,
+odd spacing, damage) through python-can's reader, so every line means what python-can makes of it and a line
+python-can cannot read raises what it raises there.
 """
 
 from __future__ import annotations
@@ -22,9 +23,11 @@ from slipdaq.records import FLAG_EXTENDED, FLAG_TX, CanFrameBatch
 
 CHUNK_BYTES = 1 << 20
 """Text read and parsed at once (cut after its last whole line)."""
-_PLAIN = re.compile(rb"^\((\d+\.\d+)\) ([A-Za-z][A-Za-z0-9_]*) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#((?:[0-9A-Fa-f]{2}){0,8})"
+_PLAIN = re.compile(rb"^\((\d+\.\d+)\) ([A-Za-z][A-Za-z0-9_]*|0|[1-9][0-9]*) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
+                    rb"((?:[0-9A-Fa-f]{2}){0,8})"
                     rb"(?: ([RTrt]))?\r?\n", re.M)
-_CHANNEL = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_CHANNEL = re.compile(r"[A-Za-z][A-Za-z0-9_]*|0|[1-9][0-9]*")
+"""A channel _PLAIN takes: a name, or a number python-can's int() gives back as written."""
 _TEMPLATE_ROWS = 16
 """A length's layout is that of the first of its first lines in the form _PLAIN matches."""
 _MAX_LAYOUTS = 16
