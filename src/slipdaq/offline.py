@@ -59,6 +59,51 @@ def batched(records: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord 
         yield run
 
 
+def frame_runs(items: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch]:
+    """Consecutive CanFrameBatches (a reader's slices of a log, merge_by_time's) cut as batched() cuts the same frames
+    one by one: a piece every BATCH_FRAMES frames from each run's start, each naming only its own frames' channels,
+    in the order they come; everything else as it comes. The log then gets the same batches (and a new channel at
+    the same place) as from a reader of single frames."""
+    parts: list[CanFrameBatch] = []
+    n = 0
+    for item in items:
+        if not isinstance(item, CanFrameBatch):
+            if parts:
+                yield _piece(parts)
+                parts, n = [], 0
+            yield item
+            continue
+        pos = 0
+        while pos < len(item):
+            take = min(BATCH_FRAMES - n, len(item) - pos)
+            parts.append(item if take == len(item) else item.slice(pos, pos + take))
+            n += take
+            pos += take
+            if n == BATCH_FRAMES:
+                yield _piece(parts)
+                parts, n = [], 0
+    if parts:
+        yield _piece(parts)
+
+
+def _piece(parts: list[CanFrameBatch]) -> CanFrameBatch:
+    """The parts as one batch naming only its frames' channels (in order of appearance), payloads as wide as its
+    widest (at least 8 bytes), as CanFrameBatch.from_frames makes it."""
+    b = parts[0] if len(parts) == 1 else CanFrameBatch.concat(parts)
+    if len(b.channels) > 1:
+        codes, first = np.unique(b.channel, return_index=True)
+        order = codes[np.argsort(first)]
+        if order.tolist() != list(range(len(b.channels))):
+            lut = np.zeros(len(b.channels), dtype=np.uint16)
+            lut[order] = np.arange(len(order), dtype=np.uint16)
+            b = dataclasses.replace(b, channel=lut[b.channel], channels=tuple(b.channels[i] for i in order.tolist()))
+    if b.data.shape[1] > 8:
+        width = max(8, int(b.payload_lengths().max()))
+        if width < b.data.shape[1]:
+            b = dataclasses.replace(b, data=b.data[:, :width])
+    return b
+
+
 def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
                ) -> Iterator[list[RawRecord | CanFrameBatch | list[CanFrame]]]:
     """The items in runs of about READ_AHEAD_FRAMES CAN frames (or READ_AHEAD_ITEMS items), for Pipeline.process_all."""

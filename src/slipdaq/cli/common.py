@@ -4,7 +4,10 @@ calibration, --allow-empty, --foxglove) and the checks behind them."""
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from slipdaq.calibration import Calibration, Learned, RunCalibration
@@ -148,4 +151,25 @@ def _unfinished_note(path: str, scanned: object) -> None:
           f"({getattr(scanned, 'read_bytes', 0)} of {getattr(scanned, 'size_bytes', 0)} bytes; {why}); "
           f"`slipdaq recover {path} -o FIXED.mcap` writes a finished copy", file=sys.stderr)
 
+
+@contextmanager
+def _imports_frozen() -> Iterator[None]:
+    """An offline run with numba's kernels loaded first (the collector paused: its start makes many long-lived
+    objects) and every object made so far (the imports': python-can's asammdf with sympy and pandas, cantools, numba:
+    about 200,000) out of the garbage collector's reach (gc.freeze) until it ends: otherwise each full collection
+    walks them all again (a quarter of an import's CPU time)."""
+    from slipdaq import compiled
+
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        compiled.prepare()
+        gc.freeze()
+    finally:
+        if enabled:
+            gc.enable()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 

@@ -16,6 +16,7 @@ from slipdaq.cli.common import (
     _add_label,
     _config,
     _config_files,
+    _imports_frozen,
     _labels_meta,
     _require,
     _require_mdf,
@@ -125,7 +126,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from slipdaq.offline import process_to_log
+    from slipdaq.offline import frame_runs, process_to_log
     from slipdaq.sources.files import iter_can_logs, iter_nmea_log, merge_by_time
     from slipdaq.sources.xbus_file import iter_xbus_capture
 
@@ -140,13 +141,13 @@ def cmd_import(args: argparse.Namespace) -> int:
         raise OutputError("import --imu-xbus: the config's IMU must be the MTi ([imu] source = \"serial\", axis, sign)")
     streams = [iter_can_logs(can_logs)] + ([iter_nmea_log(args.nmea)] if args.nmea else []) \
         + ([iter_xbus_capture(args.imu_xbus)] if args.imu_xbus else [])
-    records = merge_by_time(*streams)
+    records = frame_runs(merge_by_time(*streams))
     meta = {"import_can": " ".join(map(str, can_logs)), "import_nmea": str(args.nmea or ""),
             "import_imu_xbus": str(args.imu_xbus or "")} | _labels_meta(args)
     cal = _run_calibration(args, cfg, Path(args.output).resolve().parent)
     inputs = [*can_logs, *([args.nmea] if args.nmea else []), *([args.imu_xbus] if args.imu_xbus else []),
               *_config_files(cfg)]
-    with atomic_output(args.output, inputs=inputs) as tmp:
+    with atomic_output(args.output, inputs=inputs) as tmp, _imports_frozen():
         p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import", calibration=cal.start)
         d = p.diagnostics()
         _require(d.can_frames, f"{' '.join(map(str, can_logs))}: no CAN frames in it", args)
@@ -186,7 +187,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     first = None
     if args.two_pass:
         first = first_pass(cfg, guarded(args.log, iter_raw_batches(args.log)), cal.start, str(args.log), total=total)
-    with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp:
+    with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp, _imports_frozen():
         p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
                            metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
                            total=total, **(first.second_pass() if first else {"calibration": cal.start}))

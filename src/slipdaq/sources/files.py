@@ -11,7 +11,6 @@ UBX or RTCM with NMEA gives the same records as it would live.
 
 from __future__ import annotations
 
-import heapq
 import math
 import re
 from collections.abc import Iterator, Sequence
@@ -20,12 +19,14 @@ from itertools import chain
 from pathlib import Path
 
 import can
+import numpy as np
 
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
-from slipdaq.records import CanFrame, NmeaLine, RawRecord, RtcmFrame, UbxFrame
-from slipdaq.sources.read_errors import InputError, guarded
+from slipdaq.records import CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame
+from slipdaq.sources.candump import CandumpError, iter_candump
+from slipdaq.sources.read_errors import InputError, guarded, read_error
 
 _STAMPED = re.compile(rb"[ \t]*\([ \t]*(?P<t>[-+]?\d+(?:\.\d*)?)[ \t]*\)[ \t]?")
 CAN_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
@@ -45,26 +46,78 @@ class ImportError_(InputError):
     """A file that cannot be imported; the message names the file."""
 
 
-def iter_can_log(path: str | Path) -> Iterator[CanFrame]:
-    from slipdaq.sources.can_bus import to_frame  # here: the live source's imports (asyncio) only when needed
+MESSAGES_PER_BATCH = 4096
+"""python-can's messages of a log handed on as one CanFrameBatch."""
 
+
+def iter_can_log(path: str | Path) -> Iterator[CanFrameBatch]:
+    """A CAN log's frames in file order, in batches: a candump -L log (.log) through sources/candump.py, any other
+    format through python-can's LogReader; each stamp checked (_stamp_error)."""
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such CAN log")
+    if p.suffix.lower() == ".log":
+        yield from _candump_batches(p)
+        return
     try:
         reader = can.LogReader(str(p))
     except Exception as e:  # an unknown suffix, or a file that does not start like its format (BLFParseError)
         formats = "" if p.suffix.lower() in CAN_SUFFIXES else f"; formats: {', '.join(CAN_SUFFIXES)}"
         raise ImportError_(f"{p}: python-can cannot read it ({e}){formats}") from None
+    frames = 0
+    msgs: list[can.Message] = []
     with reader:
-        for n, msg in enumerate(guarded(p, reader), 1):
-            frame = to_frame(msg)
-            if (bad := _stamp_error(p, f"frame {n}", frame.timestamp_s)) is not None:
-                raise bad
-            yield frame
+        try:
+            for msg in guarded(p, reader):
+                msgs.append(msg)
+                if len(msgs) == MESSAGES_PER_BATCH:
+                    yield _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
+                    frames += len(msgs)
+                    msgs = []
+        except InputError:
+            if msgs:  # a stamp no log holds before the damage is named first, as frame by frame
+                _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
+            raise
+    if msgs:
+        yield _checked(p, CanFrameBatch.from_frames(msgs, [m.timestamp for m in msgs]), frames)
 
 
-def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame]:
+def _checked(p: Path, batch: CanFrameBatch, frames_before: int) -> CanFrameBatch:
+    """The batch, when a log holds each of its stamps; else the error naming the first frame that it does not."""
+    t = batch.timestamp_s
+    bad = np.flatnonzero(~(np.isfinite(t) & (t < MAX_LOG_TIME_S)))
+    if len(bad):
+        i = int(bad[0])
+        raise _stamp_error(p, f"frame {frames_before + i + 1}", float(t[i])) or AssertionError(t[i])
+    return batch
+
+
+def _candump_batches(p: Path) -> Iterator[CanFrameBatch]:
+    """iter_candump's batches, each stamp checked (_stamp_error); a line python-can cannot read is one InputError
+    naming the file and the frames read before it, as guarded() names them."""
+    frames = 0
+    batches = iter_candump(p)
+    while True:
+        try:
+            batch = next(batches, None)
+        except CandumpError as e:
+            raise read_error(p, e.error, e.frames_before) from None
+        except Exception as e:
+            raise read_error(p, e, frames) from None
+        if batch is None:
+            return
+        yield _checked(p, batch, frames)
+        frames += len(batch)
+
+
+def _first_time(p: str | Path) -> float | None:
+    """The stamp of a CAN log's first frame (None: no frame)."""
+    for batch in iter_can_log(p):
+        return float(batch.timestamp_s[0])
+    return None
+
+
+def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrameBatch]:
     """The frames of several CAN logs of one session, file after file in the order of their first frame's time (the
     files' own names need not sort); a file that starts before the previous one ended is refused (not one session)."""
     if len(paths) == 1:
@@ -72,18 +125,18 @@ def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrame]:
         return
     firsts: list[tuple[float, int, str | Path]] = []
     for i, p in enumerate(paths):
-        first = next(iter_can_log(p), None)
+        first = _first_time(p)
         if first is None:
             raise ImportError_(f"{p}: no CAN frames in it")
-        firsts.append((first.timestamp_s, i, p))
+        firsts.append((first, i, p))
     last_t, last_p = float("-inf"), None
     for t0, _, p in sorted(firsts, key=lambda x: (x[0], x[1])):
         if t0 < last_t:
             raise ImportError_(f"{p}: starts at {t0:.6f}, before {last_p} ends ({last_t:.6f}): the files are not "
                                f"one session's consecutive parts")
-        for frame in iter_can_log(p):
-            last_t = max(last_t, frame.timestamp_s)
-            yield frame
+        for batch in iter_can_log(p):
+            last_t = max(last_t, float(batch.timestamp_s.max()))
+            yield batch
         last_p = p
 
 
@@ -120,6 +173,47 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]
         yield earlier
 
 
-def merge_by_time(*streams: Iterator[RawRecord]) -> Iterator[RawRecord]:
-    """One stream in timestamp order; on equal times, the earlier stream's record first (stable)."""
-    return heapq.merge(*streams, key=lambda r: r.timestamp_s)
+MERGE_RUN_FRAMES = 4096
+"""Most frames of a batch stream merge_by_time hands on as one slice."""
+
+
+def merge_by_time(*streams: Iterator[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch]:
+    """One stream in timestamp order, as heapq.merge by timestamp would give it frame by frame: the record (or
+    frame of a CanFrameBatch) first whose time is least, on equal times the earlier stream's. A batch comes out as
+    slices of its consecutive frames (at most MERGE_RUN_FRAMES each)."""
+    heads: list[list] = []  # [time, stream index, item, iterator, position in a batch]
+    for i, stream in enumerate(streams):
+        it = iter(stream)
+        if (head := _head(next(it, None), i, it)) is not None:
+            heads.append(head)
+    while heads:
+        best = min(heads, key=lambda h: (h[0], h[1]))
+        t, i, item, it, pos = best
+        if isinstance(item, CanFrameBatch):
+            others = [(h[0], h[1]) for h in heads if h is not best]
+            window = item.timestamp_s[pos : pos + MERGE_RUN_FRAMES]
+            if others:
+                bound, j = min(others)
+                ahead = window < bound if i > j else window <= bound
+                stop = pos + (len(window) if ahead.all() else max(int(ahead.argmin()), 1))
+            else:
+                stop = pos + len(window)
+            yield item if (pos, stop) == (0, len(item)) else item.slice(pos, stop)
+            if stop < len(item):
+                best[0], best[4] = float(item.timestamp_s[stop]), stop
+                continue
+        else:
+            yield item
+        if (head := _head(next(it, None), i, it)) is None:
+            heads.remove(best)
+        else:
+            best[:] = head
+
+
+def _head(item: RawRecord | CanFrameBatch | None, i: int, it: Iterator[RawRecord | CanFrameBatch]) -> list | None:
+    """A stream's head for merge_by_time (an empty batch skipped); None when the stream has ended."""
+    while isinstance(item, CanFrameBatch) and len(item) == 0:
+        item = next(it, None)
+    if item is None:
+        return None
+    return [float(item.timestamp_s[0]) if isinstance(item, CanFrameBatch) else item.timestamp_s, i, item, it, 0]

@@ -41,6 +41,12 @@ def _text(path: str | Path, e: Exception, read: int, unit: str) -> str:
     return f"{path}: cannot read it {where}: {detail} ({kind})"
 
 
+def read_error(path: str | Path, e: Exception, read: int, unit: str = "record") -> InputError:
+    """The InputError for what a reader of `path` raised after `read` `unit`s (with -v, its traceback is logged)."""
+    log.info("reading %s", path, exc_info=e)
+    return InputError(_text(path, e, read, unit))
+
+
 def guarded(path: str | Path, items: Iterable[T], unit: str = "record") -> Iterator[T]:
     """The items of a reader of `path`; an error the reader raises becomes one InputError naming the file and the
     number of `unit`s read before it (with -v, the reader's traceback is logged too)."""
@@ -54,7 +60,6 @@ def guarded(path: str | Path, items: Iterable[T], unit: str = "record") -> Itera
         except InputError:
             raise
         except Exception as e:
-            log.info("reading %s", path, exc_info=True)
-            raise InputError(_text(path, e, read, unit)) from None
+            raise read_error(path, e, read, unit) from None
         read += 1
         yield item
