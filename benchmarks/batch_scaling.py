@@ -2,7 +2,8 @@
 """`slipdaq batch` over the same logs with 1, 2, 4, ... workers (a local cluster), as whole processes: how it scales
 with cores. Figures for docs/performance.md, measured on a machine with as many cores as the largest worker count.
 
-The logs (cycle and brake drives on paved and sand, labelled road=...) are made once, in parallel, not timed. Each
+The logs (cycle and brake drives on paved and sand, labelled road=...) are made once, in parallel, not timed, by the
+base where one is given (its logs are what both trees read). Each
 run is `python -m slipdaq batch LOGS -o DIR --workers N` from an empty DIR (interpreter start, cluster start and the
 report included), after one untimed run of each tree over two logs (numba's cache filled, as on a machine in
 use). From its progress lines on stderr: when the first log finished, and how long the process took after
@@ -113,7 +114,12 @@ def main() -> int:
     ap.add_argument("--base", default=None, help="a base tree's src directory, or a git revision")
     ap.add_argument("--base-workers", default="16", help="worker counts run for the base (default 16)")
     ap.add_argument("--write", action="store_true", help=f"put the table into {DOC.name}")
+    ap.add_argument("--make-logs", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.make_logs:  # the logs only, by the slipdaq on PYTHONPATH
+        with ProcessPoolExecutor() as pool:
+            list(pool.map(make_log, [(a.make_logs, i, a.seconds) for i in range(a.logs)]))
+        return 0
     counts = [int(x) for x in a.workers.split(",")]
     base_counts = [int(x) for x in a.base_workers.split(",")] if a.base else []
     started = time.monotonic()
@@ -124,13 +130,20 @@ def main() -> int:
         if not base.is_dir():
             sys.path.insert(0, str(Path(__file__).parent))
             from base_revision import unpack
-            base = unpack(a.base, work / "base") / "src"
+            base = unpack(a.base, work / "base")
         trees["base " + (a.base if not Path(a.base).is_dir() else base.parent.name)] = base
+    for tree, src in trees.items():  # each tree's slipdaq, not an installed one
+        got = subprocess.run([sys.executable, "-c", "import slipdaq; print(slipdaq.__file__)"], capture_output=True,
+                             text=True, env=dict(os.environ, PYTHONPATH=str(src))).stdout.strip()
+        if not Path(got).resolve().is_relative_to(src.resolve()):
+            raise SystemExit(f"{tree}: slipdaq comes from {got}, not {src}")
     try:
         (work / "logs").mkdir()
         t = time.perf_counter()
-        with ProcessPoolExecutor() as pool:
-            logs = list(pool.map(make_log, [(work / "logs", i, a.seconds) for i in range(a.logs)]))
+        oldest = list(trees.values())[-1]  # the base's logs: the newer tree reads them, not the other way round
+        subprocess.run([sys.executable, __file__, "--make-logs", str(work / "logs"), "--logs", str(a.logs),
+                        "--seconds", str(a.seconds)], check=True, env=dict(os.environ, PYTHONPATH=str(oldest)))
+        logs = sorted((work / "logs").glob("*.mcap"))
         size = sum(p.stat().st_size for p in logs)
         print(f"{a.logs} logs of {a.seconds:g} s ({size / 1e6:.0f} MB) made in {time.perf_counter() - t:.0f} s",
               flush=True)
