@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import io
 import json
 import math
 import os
@@ -176,3 +177,31 @@ def test_batch_without_dask_says_what_to_install(logs: dict[str, Path], tmp_path
     rc, err, _ = _batch([str(logs["paved-1"]), "-o", str(tmp_path / "fleet")], capsys)
     assert rc == 1
     assert err[-1].startswith("slipdaq: batch: needs the fleet extra") and '".[fleet]"' in err[-1]
+
+
+class _InterruptedStream(io.StringIO):
+    """A progress stream where Ctrl-C arrives while the second log's line is printed."""
+
+    def write(self, text: str) -> int:
+        if text.startswith("batch: [2/"):
+            raise KeyboardInterrupt
+        return super().write(text)
+
+
+def test_an_interrupted_batch_leaves_the_report_as_it_was(logs: dict[str, Path], tmp_path: Path) -> None:
+    """The report is built as the logs come: a batch interrupted after its first log leaves DIR/report as the last
+    finished batch wrote it (no file replaced: their mtimes unchanged; no half-built directory left)."""
+    from slipdaq.fleet import run_batch
+
+    out = tmp_path / "fleet"
+    good = [logs["paved-1"], logs["sand-1"]]
+    run_batch(good, out, workers=1, stream=io.StringIO())
+    before = {p: p.stat().st_mtime_ns for p in (out / "report").rglob("*") if p.is_file()}
+    assert (out / "report" / "index.html") in before
+    os.utime(logs["paved-1"])  # both processed again
+    os.utime(logs["sand-1"])
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(good, out, workers=1, stream=_InterruptedStream())
+    after = {p: p.stat().st_mtime_ns for p in (out / "report").rglob("*") if p.is_file()}
+    assert after == before
+    assert not list(out.rglob(".slipdaq-*"))

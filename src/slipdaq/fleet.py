@@ -170,8 +170,8 @@ class _Report:
     def __enter__(self) -> _Report:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.stack.close()
+    def __exit__(self, *exc: Any) -> None:
+        self.stack.__exit__(*exc)  # an error or an interrupt: the half-built report is removed, not moved into place
 
     def add(self, log: LogSummary) -> None:
         if self.build is None:
