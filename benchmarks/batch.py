@@ -23,7 +23,6 @@ import contextlib
 import datetime as dt
 import json
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -36,6 +35,7 @@ from pathlib import Path
 import dask
 import distributed
 
+from doc_block import machine, write_block
 from slipdaq.cli import main as slipdaq
 from slipdaq.config import load_config, packaged_config_path
 from slipdaq.offline import process_to_log
@@ -43,6 +43,7 @@ from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
+DASK = (f"dask {dask.__version__}", f"distributed {distributed.__version__}")
 BEGIN, END = "<!-- batch:begin -->", "<!-- batch:end -->"
 
 
@@ -133,24 +134,6 @@ def table(times: dict[str, list[float]], n: int, workers: int) -> str:
     return "\n".join(lines)
 
 
-def machine() -> str:
-    cores = os.cpu_count()
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
-    return f"cpu: {cpu}; cores: {cores}; python {platform.python_version()}; dask {dask.__version__}; " \
-           f"distributed {distributed.__version__}"
-
-
-def write_doc(block: str) -> None:
-    text = DOC.read_text()
-    if BEGIN in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + BEGIN + "\n" + block + "\n" + END + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n## Batch over many logs\n\n" + BEGIN + "\n" + block + "\n" + END + "\n"
-    DOC.write_text(text)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--logs", type=int, default=100)
@@ -189,10 +172,10 @@ def main() -> int:
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     block = (f"**Run.** `python benchmarks/batch.py --logs {a.logs} --seconds {a.seconds:g} --workers {a.workers} "
              f"--rounds {a.rounds} --write` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of "
-             f"{a.seconds:g} s ({size / 1e6:.0f} MB); {machine()}.\n\n" + table(times, a.logs, a.workers))
+             f"{a.seconds:g} s ({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(times, a.logs, a.workers))
     print(block)
     if a.write:
-        write_doc(block)
+        write_block(DOC, BEGIN, END, "Batch over many logs", block)
         print(f"written to {DOC}")
     return 0
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -29,8 +28,14 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import dask
+import distributed
+
+from doc_block import machine, write_block
+
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "performance.md"
+DASK = (f"dask {dask.__version__}", f"distributed {distributed.__version__}")
 BEGIN, END = "<!-- batch-scaling:begin -->", "<!-- batch-scaling:end -->"
 KINDS = (("cycle", "paved"), ("brake", "paved"), ("cycle", "sand"), ("brake", "sand"))
 
@@ -75,15 +80,6 @@ def run_batch(src: Path, logs: list[Path], out: Path, workers: int) -> dict[str,
     return {"wall": wall, "first": done[0], "after_last": wall - done[-1]}
 
 
-def machine() -> str:
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
-    import dask
-    import distributed
-    return (f"cpu: {cpu}; cores: {os.cpu_count()}; python {platform.python_version()}; dask {dask.__version__}; "
-            f"distributed {distributed.__version__}")
-
-
 def table(runs: dict[tuple[str, int], dict[str, float]], n: int) -> str:
     lines = ["| tree | workers | wall time | logs/s | × 1 worker (same tree) | efficiency | first log done | "
              "after the last log |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -94,16 +90,6 @@ def table(runs: dict[tuple[str, int], dict[str, float]], n: int) -> str:
         lines.append(f"| {tree} | {w} | {r['wall']:.1f} s | {n / r['wall']:.2f} | {speedup} | {eff} | "
                      f"{r['first']:.1f} s | {r['after_last']:.1f} s |")
     return "\n".join(lines)
-
-
-def write_doc(block: str) -> None:
-    text = DOC.read_text()
-    if BEGIN in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + BEGIN + "\n" + block + "\n" + END + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n## Batch scaling with cores\n\n" + BEGIN + "\n" + block + "\n" + END + "\n"
-    DOC.write_text(text)
 
 
 def main() -> int:
@@ -163,10 +149,10 @@ def main() -> int:
     block = (f"**Run.** `python benchmarks/batch_scaling.py --logs {a.logs} --seconds {a.seconds:g} --workers "
              f"{a.workers}" + (f" --base {a.base} --base-workers {a.base_workers}" if a.base else "")
              + f"` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of {a.seconds:g} s "
-             f"({size / 1e6:.0f} MB); {machine()}.\n\n" + table(runs, a.logs))
+             f"({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(runs, a.logs))
     print(block)
     if a.write:
-        write_doc(block)
+        write_block(DOC, BEGIN, END, "Batch scaling with cores", block)
         print(f"written to {DOC}")
     return 0
 

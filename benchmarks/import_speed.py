@@ -31,6 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from base_revision import ROOT, unpack  # noqa: E402
+from doc_block import write_block  # noqa: E402
 
 DOC = ROOT / "docs" / "performance.md"
 BEGIN, END = "<!-- import:begin -->", "<!-- import:end -->"
@@ -113,16 +114,6 @@ def profile_split(env: dict[str, str], cmd: list[str], tmp: Path) -> tuple[float
 def table(headers: list[str], rows: list[list[str]]) -> str:
     out = ["| " + " | ".join(headers) + " |", "|---|" + "---:|" * (len(headers) - 1)]
     return "\n".join(out + ["| " + " | ".join(r) + " |" for r in rows])
-
-
-def write_doc(block: str) -> None:
-    text = DOC.read_text()
-    if BEGIN in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + BEGIN + "\n" + block + "\n" + END + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n## Import\n\n" + BEGIN + "\n" + block + "\n" + END + "\n"
-    DOC.write_text(text)
 
 
 def main() -> int:
@@ -216,7 +207,7 @@ def main() -> int:
                       + table(["part", "seconds", "share"], [[lb, f"{s:.2f}", f"{s / total:.0%}"] for lb, s in split]))
         print("\n" + block)
         if a.write:
-            write_doc(block)
+            write_block(DOC, BEGIN, END, "Import", block)
             print(f"wrote the table to {DOC}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -31,6 +31,7 @@ sys.path[:0] = [str(ROOT / "tests" / "hil"), str(ROOT / "tests")]
 from hil_support import read_log, read_sent, write_config  # noqa: E402
 from judge import MIN_SPEED_MPS, judged, load_truth, wheel_frames  # noqa: E402
 
+from doc_block import write_block  # noqa: E402
 from slipdaq import WHEELS  # noqa: E402
 from slipdaq.cli import main as slipdaq  # noqa: E402
 from slipdaq.logformat.reader import iter_estimates  # noqa: E402
@@ -96,13 +97,7 @@ def main() -> int:
              "none over 5 pts)\n\n" + "\n".join(lines))
     print(block)
     if a.write:
-        text = DOC.read_text()
-        if BEGIN in text:
-            head, rest = text.split(BEGIN, 1)
-            text = head + BEGIN + "\n" + block + "\n" + END + rest.split(END, 1)[1]
-        else:
-            text = text.rstrip("\n") + "\n\n## Live runs in the VM\n\n" + BEGIN + "\n" + block + "\n" + END + "\n"
-        DOC.write_text(text)
+        write_block(DOC, BEGIN, END, "Live runs in the VM", block)
         print(f"written to {DOC}")
     return 0
 

@@ -18,7 +18,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -28,6 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
+from doc_block import machine, write_block  # noqa: E402
 
 DOC = ROOT / "docs" / "performance.md"
 BEGIN, END = "<!-- report-cost:begin -->", "<!-- report-cost:end -->"
@@ -110,22 +110,6 @@ class Worker:
         self.proc.wait(timeout=60)
 
 
-def machine() -> str:
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
-    return f"cpu: {cpu}; cores: {os.cpu_count()}; python {platform.python_version()}"
-
-
-def write_doc(block: str) -> None:
-    text = DOC.read_text()
-    if BEGIN in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + BEGIN + "\n" + block + "\n" + END + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n## The fleet's cost per log\n\n" + BEGIN + "\n" + block + "\n" + END + "\n"
-    DOC.write_text(text)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_base_argument(ap)
@@ -189,7 +173,7 @@ def main() -> int:
         f"| {k} | {v * 1000:.0f} ms |" for k, v in parts.items())
     print(block)
     if a.write:
-        write_doc(block)
+        write_block(DOC, BEGIN, END, "The fleet's cost per log", block)
         print(f"written to {DOC}")
     return 0
 
