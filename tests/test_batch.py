@@ -38,17 +38,22 @@ START_TIMEOUT_S = 30.0
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Four short logs labelled road=paved/sand, and `corrupt.mcap` (the first 4 kB of a log)."""
-    d = tmp_path_factory.mktemp("batch-logs")
+    return drive_logs(tmp_path_factory.mktemp("batch-logs"), DRIVES)
+
+
+def drive_logs(d: Path, drives: tuple[tuple[str, str, str, float, int], ...]) -> dict[str, Path]:
+    """Each drive (name, scenario, road, seconds, seed) simulated into d/<name>.mcap (as `import`), labelled
+    road=<road>, driver=sim; and d/corrupt.mcap, the first 4 kB of the first."""
     cfg = load_config(CONFIG)
     out: dict[str, Path] = {}
-    for name, scenario, road, duration_s, seed in DRIVES:
+    for name, scenario, road, duration_s, seed in drives:
         records = (ev.record for ev in generate(cfg, scenario, road, SimSettings(seed=seed), duration_s=duration_s)
                    if ev.record is not None)
         with open(os.devnull, "w") as quiet:
             process_to_log(cfg, records, d / f"{name}.mcap", "import", stream=quiet,
                            metadata=labels_metadata({"road": road, "driver": "sim"}))
         out[name] = d / f"{name}.mcap"
-    (d / "corrupt.mcap").write_bytes(out["paved-1"].read_bytes()[:4096])
+    (d / "corrupt.mcap").write_bytes(out[drives[0][0]].read_bytes()[:4096])
     out["corrupt"] = d / "corrupt.mcap"
     return out
 

@@ -20,13 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from conftest import CONFIG
 from slipdaq.cli import main
-from slipdaq.config import load_config
-from slipdaq.offline import process_to_log, two_pass_rows
-from slipdaq.report.labels import labels_metadata
-from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.offline import two_pass_rows
 from slipdaq.sinks.csv_export import ALL_COLUMNS
+from test_batch import drive_logs
 
 pytest.importorskip("distributed")
 pq = pytest.importorskip("pyarrow.parquet")
@@ -42,19 +39,7 @@ KEYS = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Two short logs labelled road=paved/sand, and `corrupt.mcap` (the first 4 kB of a log)."""
-    d = tmp_path_factory.mktemp("s3-logs")
-    cfg = load_config(CONFIG)
-    out: dict[str, Path] = {}
-    for name, scenario, road, duration_s, seed in DRIVES:
-        records = (ev.record for ev in generate(cfg, scenario, road, SimSettings(seed=seed), duration_s=duration_s)
-                   if ev.record is not None)
-        with open(os.devnull, "w") as quiet:
-            process_to_log(cfg, records, d / f"{name}.mcap", "import", stream=quiet,
-                           metadata=labels_metadata({"road": road, "driver": "sim"}))
-        out[name] = d / f"{name}.mcap"
-    (d / "corrupt.mcap").write_bytes(out["paved-1"].read_bytes()[:4096])
-    out["corrupt"] = d / "corrupt.mcap"
-    return out
+    return drive_logs(tmp_path_factory.mktemp("s3-logs"), DRIVES)
 
 
 @pytest.fixture
