@@ -18,7 +18,7 @@ wheel under drive) carries no force and is left out. Each group's peak counts as
 own wheels' slips; with none observed the caller keeps the hydraulic split (`figures`), which is right where a wheel
 stays far from its limit.
 
-Uncertainty: a moving-block bootstrap (blocks of BLOCK_S, BOOTSTRAP_RESAMPLES resamples, a fixed seed so live and
+Uncertainty: a moving-block bootstrap (blocks of mu_slip.BLOCK_S, BOOTSTRAP_RESAMPLES resamples, a fixed seed so live and
 report agree) refits the chosen model; each group's mu peak and slip at the peak get the interval median ± 1.96
 robust standard deviations (1.4826·MAD) of the resamples' values: a 95 % interval under normality that a few
 degenerate resamples (a curve without a real peak) do not stretch.
@@ -45,6 +45,8 @@ from slipdaq.maneuver.mu_slip import (
     PEAK_REGION,
     PEAK_WINDOW,
     PEAK_WINDOW_ITERATIONS,
+    block_samples,
+    block_starts,
     explained,
     robust_interval,
 )
@@ -67,7 +69,6 @@ LAG_SHARPNESS = 1.1
 LAG_SHARPNESS_S = 0.02
 """... and takes the best delay only where the fit LAG_SHARPNESS_S either side of it leaves LAG_SHARPNESS times its
 residual (a force that varies slowly, a launch, does not pin a delay down)."""
-BLOCK_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -417,14 +418,12 @@ def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray,
     """Per group: (mu peak lo, hi, slip at peak lo, hi), moving-block bootstrap of the chosen model (robust_interval)
     (mf_basis given: the Magic Formula; None when fewer than 80 % of the resamples find a peak)."""
     n = t.size
-    dt = float(np.median(np.diff(t))) if n > 1 else 0.01
-    block = max(1, int(round(BLOCK_S / max(dt, 1e-6))))
-    starts_n = max(1, n - block + 1)
+    block = block_samples(t)
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     peaks: list[list[tuple[float, float]]] = [[] for _ in range(n_groups)]
     for _ in range(BOOTSTRAP_RESAMPLES):
         w = np.zeros(n)
-        for s in rng.integers(0, starts_n, size=int(math.ceil(n / block))):
+        for s in block_starts(rng, n, block):
             w[s:s + block] += 1.0
         w *= base_w
         if mf_basis is not None:

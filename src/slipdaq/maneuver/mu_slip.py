@@ -237,6 +237,20 @@ BOOTSTRAP_RESAMPLES = 40
 BOOTSTRAP_SEED = 20261125
 BOOTSTRAP_FOUND_SHARE = 0.8
 """An interval is given only where this share of the resamples find a peak."""
+BLOCK_S = 0.2
+"""The bootstrap's blocks: the slip's noise is correlated over about this."""
+
+
+def block_samples(time_s: npt.ArrayLike | None) -> int:
+    """BLOCK_S in samples of the time series time_s (10 ms apart where it is not given)."""
+    t = None if time_s is None else np.asarray(time_s, dtype=float)
+    dt = float(np.median(np.diff(t))) if t is not None and t.size > 1 else 0.01
+    return max(1, int(round(BLOCK_S / max(dt, 1e-6))))
+
+
+def block_starts(rng: np.random.Generator, n: int, block: int) -> npt.NDArray[np.int64]:
+    """One moving-block resample of n samples: the first samples of its ceil(n / block) blocks."""
+    return rng.integers(0, max(1, n - block + 1), size=int(math.ceil(n / block)))
 
 
 def peak_interval(slip: npt.ArrayLike, mu: npt.ArrayLike, block: int
@@ -250,7 +264,7 @@ def peak_interval(slip: npt.ArrayLike, mu: npt.ArrayLike, block: int
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     peaks = []
     for _ in range(BOOTSTRAP_RESAMPLES):
-        starts = rng.integers(0, n - block + 1, size=int(math.ceil(n / block)))
+        starts = block_starts(rng, n, block)
         idx = (starts[:, None] + np.arange(block)[None, :]).ravel()[:n]
         fit = fit_mu_slip(s[idx], m[idx])
         if fit is not None and fit.mu_peak is not None and fit.slip_at_mu_peak is not None:

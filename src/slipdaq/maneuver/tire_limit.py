@@ -32,8 +32,15 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import VehicleConfig
 from slipdaq.estimator.force import tire_forces
-from slipdaq.maneuver.mu_joint import BLOCK_S, JointFit, fit_joint, force_lag_s
-from slipdaq.maneuver.mu_slip import MuSlipFit, fit_mu_slip, mu_from_force, normal_loads_n, peak_interval
+from slipdaq.maneuver.mu_joint import JointFit, fit_joint, force_lag_s
+from slipdaq.maneuver.mu_slip import (
+    MuSlipFit,
+    block_samples,
+    fit_mu_slip,
+    mu_from_force,
+    normal_loads_n,
+    peak_interval,
+)
 
 MU_MIN_SPEED_MPS = 3.0
 """The mu-slip fits take high-rate rows from this speed on: below it a count's quantisation is a large slip, and
@@ -108,8 +115,7 @@ def tire_curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], v
 def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehicle: VehicleConfig,
             sign: float, mu_max: float, time_s: np.ndarray | None) -> TireCurves:
     mass = vehicle.mass_kg
-    dt = float(np.median(np.diff(time_s))) if time_s is not None and time_s.size > 1 else 0.01
-    block = max(1, int(round(BLOCK_S / max(dt, 1e-6))))
+    block = block_samples(time_s)
     split = [tire_forces(mass * x, vehicle.driven_axle, vehicle.brake_front_share) for x in a]
     fz = {w: normal_loads_n(w, a, mass, vehicle.front_axle_load_share, vehicle.cg_height_m, vehicle.wheelbase_m)
           for w in WHEELS}
