@@ -235,7 +235,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
             results[r.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
             progress.line(_ok_line(r, out, cached=cached))
             if r.summary is not None:
-                report.add(dataclasses.replace(r.summary, path=r.path, group=group_of(r.summary.labels, group_by)))
+                report.add(r.summary)  # its plots by its name; its path and group are the tables' (at the end)
 
         jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None)
         for r in failed:

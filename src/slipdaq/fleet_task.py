@@ -90,13 +90,8 @@ class LogResult:
     """The task wrote its Parquet and cache files itself: `parquet`, `page` and `pngs` are empty."""
 
 
-def log_key(path: str | Path, name: str) -> str:
-    """The hash in a log's output names (16 hex digits)."""
-    return log_identity(path, name)[0]
-
-
 def log_identity(path: str | Path, name: str) -> tuple[str, int]:
-    """log_key and the log's size in bytes."""
+    """The hash in a log's output names (16 hex digits), and the log's size in bytes."""
     from slipdaq.logformat.reader import read_metadata
 
     if is_url(path):  # its ETag (or last-modified) stands for its contents: the log is not read here
