@@ -263,6 +263,11 @@ def _refine_mf(p: _Problem, y: FloatArray, w: FloatArray, coarse: tuple[MagicFor
     return MagicFormula(float(bs[bj]), float(cs[ci]), float(d[k])), float(max(sse[k], 0.0))
 
 
+def _active(slips: Mapping[str, npt.ArrayLike]) -> list[str]:
+    """The wheels that carry force in the fit: |slip| above ACTIVE_SLIP in MIN_POINTS samples or more."""
+    return [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP) >= MIN_POINTS]
+
+
 def force_lag_s(time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n: Mapping[str, npt.ArrayLike],
                 force_n: npt.ArrayLike, sign: float) -> float:
     """How far the force lags the slips (s): the delay that lets one curve shared by the wheels that carry force
@@ -273,8 +278,7 @@ def force_lag_s(time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n:
     edge, or with a flat minimum (LAG_SHARPNESS): nothing found."""
     t = np.asarray(time_s, dtype=float)
     y = sign * np.asarray(force_n, dtype=float)
-    active = [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP)
-              >= MIN_POINTS]
+    active = _active(slips)
     if not active or t.size < 3:
         return 0.0
     dt = float(np.median(np.diff(t)))
@@ -308,8 +312,7 @@ def fit_joint(
     variance (a steady maneuver: the force hardly varies, its slips are noise)."""
     t = np.asarray(time_s, dtype=float)
     y = sign * np.asarray(force_n, dtype=float)
-    active = [w for w in slips if np.count_nonzero(np.abs(np.asarray(slips[w], dtype=float)) > ACTIVE_SLIP)
-              >= MIN_POINTS]
+    active = _active(slips)
     if not active or t.size < MIN_POINTS:
         return None
     groups_w = [g for g in (tuple(w for w in ws if w in active) for ws in axles.values()) if g]
