@@ -42,7 +42,7 @@ def test_integrate_speed(steps: list[float], data: st.DataObject) -> None:
 
 
 class UtcLatencyReference:
-    """UtcLatency as numpy medians over the deque."""
+    """UtcLatency with numpy over the deque: the second smallest value (sorted), the median for the spread."""
 
     def __init__(self, max_latency_s: float, history: int) -> None:
         self.max_latency_s = max_latency_s
@@ -53,15 +53,20 @@ class UtcLatencyReference:
             self.d.append(arrival_s - fix_utc_s)
 
     def offset_s(self) -> float | None:
-        return float(np.median(np.fromiter(self.d, float))) if self.d else None
+        if not self.d:
+            return None
+        d = np.fromiter(self.d, float)
+        return math.nan if np.isnan(d).any() else float(np.sort(d)[min(1, len(d) - 1)])
 
     def estimate(self) -> float | None:
         if len(self.d) < 5:
             return None
         d = np.fromiter(self.d, float)
+        low = self.offset_s()
+        assert low is not None
         med = float(np.median(d))
         spread = float(np.median(np.abs(d - med)))
-        return max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+        return max(low, 0.0) if -0.02 <= low <= self.max_latency_s and spread <= 0.02 else None
 
 
 DEVIATION = st.one_of(st.floats(-0.05, 0.05), st.sampled_from([0.0, -0.0, 0.01, -0.01, 0.02, math.nan, math.inf,

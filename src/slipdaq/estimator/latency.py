@@ -2,13 +2,14 @@
 when UTC is not plausible, or when both exist and disagree by more than 3 sigma + 20 ms (a host clock that is not
 really on UTC).
 
-- From UTC: arrival time minus the fix's own UTC time (RMC date + time). Right when the host clock is synchronised
-  to UTC (NTP, PPS); it then includes the receiver's output delay and the serial transmission time.
+- From UTC: arrival time minus the fix's own UTC time (RMC date + time), its lower envelope (UtcLatency). Right
+  when the host clock is synchronised to UTC (NTP, PPS); it then includes the receiver's output delay and the
+  serial transmission time.
 - From the wheels: the lag tau that best aligns GPS distance between consecutive fixes with the distance rolled by
   the non-driven wheels while they roll freely: minimise sum_k (y_k - r * x_k(tau))^2 over a grid of tau, with
   y_k the GPS distance over fix interval k (trapezoid) and x_k(tau) = 2*pi*revolutions over the same interval of
-  arrival times shifted by -tau (r, the radius, is fitted per tau), the revolutions from local lines through the
-  nearest samples; tau on a 1 ms grid from -20 ms (a minimum at 0 is inside it), taken as >= 0. Needs speed changes
+  arrival times shifted by -tau (r, the radius, is fitted per tau), the revolutions from local parabolas through
+  the nearest samples; tau on a 1 ms grid from -20 ms (a minimum at 0 is inside it), taken as >= 0. Needs speed changes
   to be identifiable: it counts only after MIN_INFORMATIVE_ROWS rows taken while the wheels accelerate
   (a >= 0.5 m/s^2, from the wheels themselves). Least squares with exponential forgetting; uncertainty from the
   curvature of the residual at its minimum. Every wheel driven (none rolls freely): the rows while driving, with
@@ -41,11 +42,16 @@ class LatencyEstimate:
 
 
 class UtcLatency:
-    """Median of (arrival - fix UTC) over the last fixes; plausible only when from -20 ms (taken as 0) to
-    max_latency_s, and steady (median absolute deviation <= 20 ms).
+    """The lower envelope of (arrival - fix UTC) over the last fixes: its second smallest value (one glitch of a
+    receiver's clock is not taken). A host reads and stamps a sentence late, never early: how late varies with the
+    host's load (in the HIL VM the median moved from 3 to 12 ms within a minute, p90 25 ms, and with it every fix
+    against the wheels), while the fastest reads stay within a few ms (NTP's clock filter takes the least-delayed
+    sample for the same reason). Plausible only when from -20 ms (taken as 0) to max_latency_s, and steady (median
+    absolute deviation <= 20 ms).
 
-    The values are also kept sorted (NaN counted apart), so the medians cost a few steps per fix, and are kept until
-    the next add; they are the float64 results np.median gives (the middle value, or the mean of the middle two).
+    The values are also kept sorted (NaN counted apart), so the order statistics cost a few steps per fix, and are
+    kept until the next add; the median is the float64 result np.median gives (the middle value, or the mean of the
+    middle two).
     """
 
     def __init__(self, max_latency_s: float, history: int = 50) -> None:
@@ -78,7 +84,8 @@ class UtcLatency:
         self._fresh = False
 
     def offset_s(self) -> float | None:
-        """Median of (arrival - fix UTC): host clock minus UTC plus latency, whatever the host clock."""
+        """The lower envelope of (arrival - fix UTC): host clock minus UTC plus the least latency, whatever the host
+        clock."""
         if not self._fresh:
             self._update()
         return self._offset_s
@@ -95,13 +102,14 @@ class UtcLatency:
             self._offset_s = self._estimate_s = None
             return
         med = math.nan if self._nans else _median_sorted(s)
-        self._offset_s = med
+        low = math.nan if self._nans else 0.0 + s[min(1, len(s) - 1)]
+        self._offset_s = low
         if len(self._d) < 5:
             self._estimate_s = None
             return
         spread = math.nan if self._nans else _median_abs_deviation(s, med)
         # a few ms below 0 is rounding (NMEA times to 0.01 s) or clock jitter around a latency near 0
-        self._estimate_s = max(med, 0.0) if -0.02 <= med <= self.max_latency_s and spread <= 0.02 else None
+        self._estimate_s = max(low, 0.0) if -0.02 <= low <= self.max_latency_s and spread <= 0.02 else None
 
 
 def _median_sorted(s: list[float]) -> float:
@@ -234,9 +242,10 @@ NOMINAL_RADIUS_M = 0.3
 """Turns the wheels' arc into a speed for the braking test until the fit has a radius (+-20 % moves the test's
 threshold by as much)."""
 LOCAL_FIT_HALF_SAMPLES = 5
-"""The wheels' revolutions at the lagged times come from a line through the 11 nearest samples: with linear
+"""The wheels' revolutions at the lagged times come from a parabola through the 11 nearest samples: with linear
 interpolation, the noise of jittered CAN timestamps depends on where a lag falls between samples, which biased the
-lag by several ms (2 ms of jitter: 5 ms)."""
+lag by several ms (2 ms of jitter: 5 ms); a line through 11 samples at 25 frames a second (0.44 s) bends with the
+acceleration where the parabola does not (a true 4 ms: 2.77 ms from lines, 3.84 from parabolas)."""
 MAX_ROW_INTERVAL_S = 0.3
 MAX_SLIP_TERMS_ACCEL_MPS2 = 4.0
 """Every wheel driven: rows while driving up to this acceleration (the tires' linear region, where the slip is in
@@ -274,7 +283,7 @@ class WheelLatencyRows:
                     or has_gap(ring, times[-1], times[0]):
                 self._prev = None
                 return
-            revs = ring.local_linear(times, LOCAL_FIT_HALF_SAMPLES)
+            revs = ring.local_quadratic(times, LOCAL_FIT_HALF_SAMPLES)
             if revs is None:
                 self._prev = None
                 return

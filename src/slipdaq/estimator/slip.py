@@ -1,8 +1,8 @@
 """Windowed longitudinal slip, effective rolling radius Re, force Fx and stiffness Cx (docs/method.md).
 
 For a window [t_c - W/2, t_c + W/2] centred on GPS epoch c, at its fix time t_c = arrival time - GPS latency, where
-the arrival time of a fix with a UTC time is that time plus the median (arrival - UTC) of recent fixes: the
-receiver's own clock, free of the jitter with which sentences are read:
+the arrival time of a fix with a UTC time is that time plus the lower envelope of (arrival - UTC) over recent fixes
+(latency.UtcLatency): the receiver's own clock, free of the delays with which sentences are read:
   d_gps = integral of GPS speed (piecewise linear between fixes)
   N     = rev(t1) - rev(t0)                                  wheel revolutions (counts/ppr, interpolated linearly)
   d_wpt = r0 * 2*pi * N                                      distance by wheel revolutions, r0 calibrated per wheel
