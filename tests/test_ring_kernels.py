@@ -61,3 +61,37 @@ def test_local_linear(series, queries, half) -> None:  # type: ignore[no-untyped
         else:
             want = vv.mean()
         assert abs(got[0][k] - want) <= 1e-6 * (1.0 + abs(want))
+
+
+def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+    """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
+    from slipdaq.estimator.fast_slip import FAST_LINE_HALF
+    from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
+
+    half, n = FAST_LINE_HALF, len(ring)
+    if n < 2 * half + 1:
+        return [None] * len(times)
+    lines = ring.local_lines(times, half)
+    assert lines is not None
+    t = ring.times
+    first = np.searchsorted(t, times)
+    c = np.clip(first, half, n - half - 1)
+    k = np.add.outer(c - half, np.arange(2 * half))
+    longest = (t[k + 1] - t[k]).max(axis=1)
+    ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()))
+    speeds = TWO_PI * r0_m * lines[1]
+    return [float(x) if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
+
+
+@settings(max_examples=150, deadline=None)
+@given(series=series, queries=st.lists(st.floats(-0.2, 2.5), min_size=1, max_size=12),
+       r0=st.floats(0.2, 0.4))
+def test_fast_wheel_speeds(series, queries, r0) -> None:  # type: ignore[no-untyped-def]
+    from slipdaq.estimator.fast_slip import FastSlipRows
+
+    times, values = series
+    q = np.array(sorted(queries))
+    want = wheel_speeds_numpy(ring_of(times, values), r0, q)
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            assert FastSlipRows._wheel_speeds(ring_of(times, values), r0, q) == want
