@@ -4,9 +4,15 @@ collections that walk them free nothing (a fifth of the start-up).
 
 python-can imports asammdf when it is installed (the `mdf` extra), for its MF4 reader and writer, and asammdf
 imports pandas and sympy: about 1.5 s of a start. Only `import` reads files through python-can, so every other verb
-imports python-can as if asammdf were absent; asammdf itself stays importable (`export --mf4` imports it)."""
+imports python-can as if asammdf were absent; asammdf itself stays importable (`export --mf4` imports it).
+
+numpy's OpenBLAS runs on one thread unless OPENBLAS_NUM_THREADS says otherwise: slipdaq's matrix products are
+small, or memory-bound (the maneuver fits' bootstrap: 40 products of a 1920 x n grid by a vector), where a second
+thread only contends with the process's own (the log's compression): a 300 s replay took 0.84x the wall time and
+0.84x the CPU with it, the same bytes."""
 
 import gc
+import os
 import sys
 from collections.abc import Sequence
 
@@ -35,6 +41,7 @@ def import_python_can(with_mf4: bool) -> None:
 
 
 def main() -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
     gc.disable()
     try:
         import_python_can(with_mf4=verb_of(sys.argv[1:]) in PYTHON_CAN_MF4_VERBS)
