@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -103,3 +105,90 @@ def test_local_quadratic_is_exact_under_a_steady_acceleration_where_a_line_is_no
     truth = 5.0 * x + 0.8 * x**2
     assert np.abs(quad - truth).max() < 1e-9
     assert np.abs(line - truth).max() > 1e-3
+
+
+def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+    """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
+    from slipdaq.estimator.fast_slip import FAST_LINE_HALF
+    from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
+
+    half, n = FAST_LINE_HALF, len(ring)
+    if n < 2 * half + 1:
+        return [None] * len(times)
+    lines = ring.local_lines(times, half)
+    assert lines is not None
+    t = ring.times
+    first = np.searchsorted(t, times)
+    c = np.clip(first, half, n - half - 1)
+    k = np.add.outer(c - half, np.arange(2 * half))
+    longest = (t[k + 1] - t[k]).max(axis=1)
+    ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()))
+    speeds = TWO_PI * r0_m * lines[1]
+    return [float(x) if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
+
+
+@settings(max_examples=150, deadline=None)
+@given(series=series, queries=st.lists(st.floats(-0.2, 2.5), min_size=1, max_size=12),
+       r0=st.floats(0.2, 0.4))
+def test_fast_wheel_speeds(series, queries, r0) -> None:  # type: ignore[no-untyped-def]
+    from slipdaq.estimator.fast_slip import FastSlipRows
+
+    times, values = series
+    q = np.array(sorted(queries))
+    want = wheel_speeds_numpy(ring_of(times, values), r0, q)
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            assert FastSlipRows._wheel_speeds(ring_of(times, values), r0, q) == want
+
+
+def slip_spread_numpy(ring: SeriesRing, t0: float, t1: float) -> float | None:
+    """linear_region.slip_spread written with numpy and Python's sums (the code the spread kernel replaced)."""
+    import math
+
+    from slipdaq.estimator.linear_region import LOCAL_HALF, SPREAD_PARTS
+
+    revs = ring.local_linear(np.linspace(t0, t1, SPREAD_PARTS + 1), LOCAL_HALF)
+    if revs is None:
+        return None
+    r = revs.tolist()
+    dt = (t1 - t0) / SPREAD_PARTS
+    speeds = [(b - a) / dt for a, b in zip(r, r[1:])]
+    mean = sum(speeds) / SPREAD_PARTS
+    if not mean > 0:
+        return None
+    xs = [k - 0.5 * (SPREAD_PARTS - 1) for k in range(SPREAD_PARTS)]
+    slope = sum(x * v for x, v in zip(xs, speeds)) / sum(x * x for x in xs)
+    rss = sum((v - mean - slope * x) ** 2 for x, v in zip(xs, speeds))
+    return math.sqrt(rss / SPREAD_PARTS) / mean
+
+
+@settings(max_examples=300, deadline=None)
+@given(series=series, t0=st.floats(-0.2, 2.0), span=st.floats(1e-6, 1.0))  # a window has a length
+def test_slip_spread(series, t0, span) -> None:  # type: ignore[no-untyped-def]
+    from slipdaq.estimator.linear_region import slip_spread
+
+    times, values = series
+    want = slip_spread_numpy(ring_of(times, values), t0, t0 + span)
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            got = slip_spread(ring_of(times, values), t0, t0 + span)
+            assert (got is None) == (want is None)
+            if want is not None:
+                assert got is not None and np.array_equal(np.float64(got), np.float64(want), equal_nan=True)
+                assert math.copysign(1.0, got) == math.copysign(1.0, want)
+
+
+def test_slip_spread_residuals_squared_as_python_squares() -> None:
+    """Residuals whose square libm's pow and a multiplication round differently (1 value in about 1,200): the same
+    spread as Python's ** (the kernel takes the power as an argument, so numba does not turn it into d * d)."""
+    from slipdaq.estimator.linear_region import slip_spread
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.0005, 0.0015, 20000))
+    v = np.cumsum(rng.uniform(0.005, 0.02, 20000))
+    ring = ring_of(t.tolist(), v.tolist())
+    starts = rng.uniform(0.05, float(t[-1]) - 0.6, 3000).tolist()
+    want = [slip_spread_numpy(ring, t0, t0 + 0.5) for t0 in starts]
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            assert [slip_spread(ring, t0, t0 + 0.5) for t0 in starts] == want

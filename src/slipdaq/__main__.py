@@ -1,14 +1,50 @@
 """`python -m slipdaq` and the `slipdaq` command: the CLI, its modules imported with the garbage collector paused and
 then frozen out of its reach (gc.freeze): they make about 200,000 objects that live as long as the process, and
-collections that walk them free nothing (a fifth of the start-up)."""
+collections that walk them free nothing (a fifth of the start-up).
+
+python-can imports asammdf when it is installed (the `mdf` extra), for its MF4 reader and writer, and asammdf
+imports pandas and sympy: about 1.5 s of a start. Only `import` reads files through python-can, so every other verb
+imports python-can as if asammdf were absent; asammdf itself stays importable (`export --mf4` imports it).
+
+numpy's OpenBLAS runs on one thread unless OPENBLAS_NUM_THREADS says otherwise: slipdaq's matrix products are
+small, or memory-bound (the maneuver fits' bootstrap: 40 products of a 1920 x n grid by a vector), where a second
+thread only contends with the process's own (the log's compression): a 300 s replay took 0.84x the wall time and
+0.84x the CPU with it, the same bytes."""
 
 import gc
+import os
 import sys
+from collections.abc import Sequence
+
+PYTHON_CAN_MF4_VERBS = frozenset({"import"})
+"""The verbs that may read a file through python-can's LogReader (an .mf4 one needs python-can's MF4Reader)."""
+
+
+def verb_of(argv: Sequence[str]) -> str | None:
+    """The verb of a command line (its first word that is not an option), None without one."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def import_python_can(with_mf4: bool) -> None:
+    """python-can imported now; with_mf4=False: as if asammdf were not installed (its MF4 reader and writer then
+    refuse to work, the rest of python-can is the same). Nothing happens once python-can is imported."""
+    if "can" in sys.modules:
+        return
+    hide = not with_mf4 and "asammdf" not in sys.modules
+    if hide:
+        sys.modules["asammdf"] = None  # type: ignore[assignment]  # an import of it raises ImportError
+    try:
+        import can  # noqa: F401
+    finally:
+        if hide and sys.modules.get("asammdf", 0) is None:
+            del sys.modules["asammdf"]
 
 
 def main() -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
     gc.disable()
     try:
+        import_python_can(with_mf4=verb_of(sys.argv[1:]) in PYTHON_CAN_MF4_VERBS)
         from slipdaq.cli import main as cli_main
 
         gc.freeze()

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.estimator.ring import SeriesRing
+from slipdaq.compiled import kernel
+from slipdaq.estimator.ring import SeriesRing, _local_lines, first_index
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
 from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 from slipdaq.records import FastSlip, FastWheel
@@ -71,16 +72,36 @@ class FastSlipRows:
         """omega*r0 at each time: 2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
         or after it, without the line's samples before it, or with a gap in them (windows.py's rule)."""
         half = FAST_LINE_HALF
-        n = len(ring)
-        if n < 2 * half + 1:
+        if len(ring) < 2 * half + 1:
             return [None] * len(times)
-        lines = ring.local_lines(times, half)
-        assert lines is not None
-        t = ring.times
-        first = np.searchsorted(t, times)
-        c = np.clip(first, half, n - half - 1)  # the line's centre sample, as local_lines takes it
-        k = np.add.outer(c - half, np.arange(2 * half))  # the intervals between the line's samples
-        longest = (t[k + 1] - t[k]).max(axis=1)
-        ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()))
-        speeds = TWO_PI * r0_m * lines[1]
-        return [float(x) if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
+        speeds = np.empty(len(times))
+        ok = np.empty(len(times), dtype=np.bool_)
+        line_speeds()(ring.times, ring.values, times, half, max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()),
+                      TWO_PI * r0_m, speeds, ok)
+        return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
+
+
+def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, max_gap_s: float, scale: float,
+                 speeds: np.ndarray, ok: np.ndarray) -> None:
+    """speeds[q]: scale x the slope of ring.local_lines' line at times[q] (samples t, values v, at least 2*half+1);
+    ok[q]: half + 1 samples at or after times[q], half before it, and no interval between the line's samples over
+    max_gap_s (an interval that is NaN counts as over, as numpy's max has it)."""
+    n = len(t)
+    values = np.empty(len(times))
+    _local_lines(t, v, times, half, values, speeds)
+    for q in range(len(times)):
+        first = first_index(t, times[q], 0, False)
+        c = min(max(first, half), n - half - 1)  # the line's centre sample, as _local_lines takes it
+        longest = t[c - half + 1] - t[c - half]
+        for k in range(c - half + 1, c + half):
+            d = t[k + 1] - t[k]
+            if d > longest or d != d:
+                longest = d
+        ok[q] = n - first >= half + 1 and first >= half and longest <= max_gap_s
+        speeds[q] = scale * speeds[q]
+
+
+line_speeds = kernel(_line_speeds,
+                     "void(float64[:], float64[:], float64[:], int64, float64, float64, float64[:], boolean[:])",
+                     uses=(first_index, _local_lines))
+"""line_speeds()(t, v, times, half, max_gap_s, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""

@@ -18,8 +18,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from slipdaq.compiled import kernel
 from slipdaq.estimator.params import EstimatorParams
-from slipdaq.estimator.ring import SeriesRing
+from slipdaq.estimator.ring import SeriesRing, _local_lines, first_index
 
 SPREAD_PARTS = 10
 """The window's parts over which the wheel's speed is taken (50 ms each in a 0.5 s window: an ABS cycle at 7 Hz spans three)."""
@@ -30,21 +31,56 @@ LOCAL_HALF = 2
 def slip_spread(ring: SeriesRing, t0: float, t1: float) -> float | None:
     """The RMS deviation of the wheel's speed over SPREAD_PARTS parts of [t0, t1] from a straight line in time, as a
     fraction of their mean speed; None without enough samples or with the wheel not rolling forward."""
-    ends = np.linspace(t0, t1, SPREAD_PARTS + 1)
-    revs = ring.local_linear(ends, LOCAL_HALF)
-    if revs is None:
+    if len(ring) < 2 * LOCAL_HALF + 1:
         return None
-    r = revs.tolist()
-    dt = (t1 - t0) / SPREAD_PARTS
-    speeds = [(b - a) / dt for a, b in zip(r, r[1:])]
-    mean = sum(speeds) / SPREAD_PARTS
+    got = spread_kernel()(ring.times, ring.values, t0, t1, SPREAD_PARTS, LOCAL_HALF, 2.0)
+    return None if got == NO_SPREAD else got
+
+
+NO_SPREAD = -1.0
+"""_spread's value for None (a spread is >= 0 or NaN)."""
+
+
+def _spread(t: np.ndarray, v: np.ndarray, t0: float, t1: float, parts: int, half: int, square: float) -> float:
+    """slip_spread over the samples t, v (at least 2*half+1 of them), NO_SPREAD for None: the parts' ends as
+    np.linspace(t0, t1, parts + 1) computes them, their revolutions from ring.local_lines' lines, the sums in the
+    order Python's sum() takes them. square: 2.0, the residuals' power, as an argument so that numba calls libm's pow
+    as Python's ** does (with the constant 2 it multiplies, which differs in the last bit for about 1 value in 1,200)."""
+    ends = np.empty(parts + 1)
+    delta = t1 - t0
+    step = delta / parts
+    for k in range(parts + 1):
+        ends[k] = (k / parts) * delta + t0 if step == 0 else k * step + t0
+    ends[parts] = t1
+    revs = np.empty(parts + 1)
+    slopes = np.empty(parts + 1)
+    _local_lines(t, v, ends, half, revs, slopes)
+    dt = (t1 - t0) / parts
+    speeds = np.empty(parts)
+    total = 0.0
+    for k in range(parts):
+        speeds[k] = (revs[k + 1] - revs[k]) / dt
+        total += speeds[k]
+    mean = total / parts
     if not mean > 0:
-        return None
+        return NO_SPREAD
     # a line over the parts' midpoints, x = -4.5..4.5 (equally spaced): slope = sum(x*v) / sum(x^2)
-    xs = [k - 0.5 * (SPREAD_PARTS - 1) for k in range(SPREAD_PARTS)]
-    slope = sum(x * v for x, v in zip(xs, speeds)) / sum(x * x for x in xs)
-    rss = sum((v - mean - slope * x) ** 2 for x, v in zip(xs, speeds))
-    return math.sqrt(rss / SPREAD_PARTS) / mean
+    sxv = sxx = 0.0
+    for k in range(parts):
+        x = k - 0.5 * (parts - 1)
+        sxv += x * speeds[k]
+        sxx += x * x
+    slope = sxv / sxx
+    rss = 0.0
+    for k in range(parts):
+        d = speeds[k] - mean - slope * (k - 0.5 * (parts - 1))
+        rss += math.pow(d, square)
+    return math.sqrt(rss / parts) / mean
+
+
+spread_kernel = kernel(_spread, "float64(float64[:], float64[:], float64, float64, int64, int64, float64)",
+                       uses=(first_index, _local_lines))
+"""spread_kernel()(t, v, t0, t1, parts, half, 2.0): see _spread (slip_spread)."""
 
 
 class WindowSpread:
