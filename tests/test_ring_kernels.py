@@ -65,50 +65,6 @@ def test_local_linear(series, queries, half) -> None:  # type: ignore[no-untyped
         assert abs(got[0][k] - want) <= 1e-6 * (1.0 + abs(want))
 
 
-@settings(max_examples=150, deadline=None)
-@given(series=series, queries=st.lists(st.floats(-0.2, 2.5), min_size=1, max_size=50), half=st.integers(0, 6))
-def test_local_quadratic(series, queries, half) -> None:  # type: ignore[no-untyped-def]
-    times, values = series
-    q = np.array(sorted(queries, reverse=True))
-    got, lines = [], None
-    for compiled_ in (True, False):
-        with kernels(compiled_):
-            got.append(ring_of(times, values).local_quadratic(q, half))
-            lines = ring_of(times, values).local_linear(q, half)
-    if len(times) < 2 * half + 1:
-        assert got == [None, None]
-        return
-    assert got[0] is not None and got[1] is not None and lines is not None
-    assert np.array_equal(got[0], got[1])  # compiled and Python: the same bits
-    t, v = np.array(times), np.array(values)
-    for k, x in enumerate(q.tolist()):
-        c = min(max(int(t.searchsorted(x)), half), len(t) - half - 1)
-        tt, vv = t[c - half: c + half + 1] - t[c], v[c - half: c + half + 1]
-        scale = max(np.abs(tt).max(), 1e-300)
-        if tt[-1] - tt[0] <= 1e-6:  # one instant: the samples' mean
-            assert abs(got[0][k] - vv.mean()) <= 1e-9 * (1.0 + abs(vv).max())
-        elif len(np.unique(tt)) >= 3 and np.linalg.cond(np.vander(tt / scale, 3)) < 1e3:  # a parabola: numpy's
-            want = float(np.polyval(np.polyfit(tt / scale, vv, 2), (x - t[c]) / scale))
-            assert abs(got[0][k] - want) <= 1e-6 * (1.0 + abs(want) + abs(vv).max())
-        elif len(np.unique(tt)) < 3:  # too few instants for a parabola: the line
-            assert abs(got[0][k] - lines[k]) <= 1e-9 * (1.0 + abs(lines[k]))
-
-
-def test_local_quadratic_is_exact_under_a_steady_acceleration_where_a_line_is_not() -> None:
-    """Revolutions of a wheel accelerating steadily, sampled at 25 Hz with jitter: the parabola gives them at any
-    instant; the line is off by an amount that depends on where the instant falls between samples."""
-    rng = np.random.default_rng(3)
-    t = np.arange(0.0, 2.0, 0.04) + rng.uniform(0.0, 0.002, 50)
-    revs = 5.0 * t + 0.8 * t**2
-    ring = ring_of(t.tolist(), revs.tolist())
-    x = np.linspace(1.5, 0.5, 101)
-    quad, line = ring.local_quadratic(x, 5), ring.local_linear(x, 5)
-    assert quad is not None and line is not None
-    truth = 5.0 * x + 0.8 * x**2
-    assert np.abs(quad - truth).max() < 1e-9
-    assert np.abs(line - truth).max() > 1e-3
-
-
 def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
     """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
     from slipdaq.estimator.fast_slip import FAST_LINE_HALF

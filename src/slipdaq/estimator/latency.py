@@ -8,8 +8,8 @@ really on UTC).
 - From the wheels: the lag tau that best aligns GPS distance between consecutive fixes with the distance rolled by
   the non-driven wheels while they roll freely: minimise sum_k (y_k - r * x_k(tau))^2 over a grid of tau, with
   y_k the GPS distance over fix interval k (trapezoid) and x_k(tau) = 2*pi*revolutions over the same interval of
-  arrival times shifted by -tau (r, the radius, is fitted per tau), the revolutions from local parabolas through
-  the nearest samples; tau on a 1 ms grid from -20 ms (a minimum at 0 is inside it), taken as >= 0. Needs speed changes
+  arrival times shifted by -tau (r, the radius, is fitted per tau), the revolutions from local lines through the
+  nearest samples; tau on a 1 ms grid from -20 ms (a minimum at 0 is inside it), taken as >= 0. Needs speed changes
   to be identifiable: it counts only after MIN_INFORMATIVE_ROWS rows taken while the wheels accelerate
   (a >= 0.5 m/s^2, from the wheels themselves). Least squares with exponential forgetting; uncertainty from the
   curvature of the residual at its minimum. Every wheel driven (none rolls freely): the rows while driving, with
@@ -242,10 +242,11 @@ NOMINAL_RADIUS_M = 0.3
 """Turns the wheels' arc into a speed for the braking test until the fit has a radius (+-20 % moves the test's
 threshold by as much)."""
 LOCAL_FIT_HALF_SAMPLES = 5
-"""The wheels' revolutions at the lagged times come from a parabola through the 11 nearest samples: with linear
+"""The wheels' revolutions at the lagged times come from a line through the 11 nearest samples: with linear
 interpolation, the noise of jittered CAN timestamps depends on where a lag falls between samples, which biased the
-lag by several ms (2 ms of jitter: 5 ms); a line through 11 samples at 25 frames a second (0.44 s) bends with the
-acceleration where the parabola does not (a true 4 ms: 2.77 ms from lines, 3.84 from parabolas)."""
+lag by several ms (2 ms of jitter: 5 ms). A parabola through them (exact under a steady acceleration, where the line
+bends at 25 frames a second) was tried: on the simulator at 100 frames a second with 0.5 ms of jitter its noise moved
+the lag by 2.5 ms against the line's 0.8 (docs/accuracy.md, "Live runs in the VM")."""
 MAX_ROW_INTERVAL_S = 0.3
 MAX_SLIP_TERMS_ACCEL_MPS2 = 4.0
 """Every wheel driven: rows while driving up to this acceleration (the tires' linear region, where the slip is in
@@ -283,7 +284,7 @@ class WheelLatencyRows:
                     or has_gap(ring, times[-1], times[0]):
                 self._prev = None
                 return
-            revs = ring.local_quadratic(times, LOCAL_FIT_HALF_SAMPLES)
+            revs = ring.local_linear(times, LOCAL_FIT_HALF_SAMPLES)
             if revs is None:
                 self._prev = None
                 return

@@ -78,17 +78,6 @@ class SeriesRing:
         local_lines()(self._t[s:e], self._v[s:e], times, half, out, slopes)
         return out, slopes
 
-    def local_quadratic(self, times: np.ndarray, half: int) -> np.ndarray | None:
-        """local_linear with a parabola through the 2*half+1 samples: exact for a constant rate of change of the
-        slope (revolutions under a steady acceleration), where a line is off by an amount that depends on where
-        the time falls between samples; a line where the samples do not determine a parabola."""
-        s, e = self._start, self._end
-        if e - s < 2 * half + 1:
-            return None
-        out = np.empty(len(times))
-        local_quadratics()(self._t[s:e], self._v[s:e], times, half, out)
-        return out
-
     def count_from(self, t: float) -> int:
         """Samples at or after t."""
         return self._end - self._start - int(np.searchsorted(self.times, t, side="left"))
@@ -186,53 +175,6 @@ def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out
 local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])",
                      uses=(first_index,))
 """local_lines()(t, v, times, half, out, slopes): see _local_lines (SeriesRing.local_lines)."""
-
-
-def _local_quadratics(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray) -> None:
-    """out[q]: the least-squares parabola through samples c - half .. c + half at times[q], c as in _local_lines;
-    the line where the normal equations are near singular (the samples at fewer than three instants)."""
-    n = len(t)
-    k = 2 * half + 1
-    last_c = -1
-    t0 = v0 = b0 = b1 = b2 = 0.0
-    for q in range(len(times)):
-        x = times[q]
-        c = min(max(first_index(t, x, 0, False), half), n - half - 1)
-        if c != last_c:
-            t0, v0 = t[c], v[c]
-            s1 = s2 = s3 = s4 = y0 = y1 = y2 = 0.0
-            for j in range(c - half, c + half + 1):
-                d = t[j] - t0
-                y = v[j] - v0
-                d2 = d * d
-                s1 += d
-                s2 += d2
-                s3 += d2 * d
-                s4 += d2 * d2
-                y0 += y
-                y1 += y * d
-                y2 += y * d2
-            # the normal equations [[k, s1, s2], [s1, s2, s3], [s2, s3, s4]] b = [y0, y1, y2], by Cramer's rule
-            det = k * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
-            scale = k * s2 * s4
-            if t[c + half] - t[c - half] <= MIN_LINE_SPAN_S:
-                b0, b1, b2 = y0 / k, 0.0, 0.0
-            elif scale > 0.0 and det > 1e-9 * scale:
-                b0 = (y0 * (s2 * s4 - s3 * s3) - s1 * (y1 * s4 - s3 * y2) + s2 * (y1 * s3 - s2 * y2)) / det
-                b1 = (k * (y1 * s4 - s3 * y2) - y0 * (s1 * s4 - s3 * s2) + s2 * (s1 * y2 - y1 * s2)) / det
-                b2 = (k * (s2 * y2 - y1 * s3) - s1 * (s1 * y2 - y1 * s2) + y0 * (s1 * s3 - s2 * s2)) / det
-            else:
-                sxx = s2 - s1 * s1 / k
-                b1 = (y1 - s1 * y0 / k) / sxx if sxx > 0.0 else 0.0
-                b0, b2 = (y0 - b1 * s1) / k, 0.0
-            last_c = c
-        d = x - t0
-        out[q] = v0 + b0 + d * (b1 + d * b2)
-
-
-local_quadratics = kernel(_local_quadratics, "void(float64[:], float64[:], float64[:], int64, float64[:])",
-                          uses=(first_index,))
-"""local_quadratics()(t, v, times, half, out): see _local_quadratics (SeriesRing.local_quadratic)."""
 
 
 def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
