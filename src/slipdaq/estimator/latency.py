@@ -244,9 +244,8 @@ threshold by as much)."""
 LOCAL_FIT_HALF_SAMPLES = 5
 """The wheels' revolutions at the lagged times come from a line through the 11 nearest samples: with linear
 interpolation, the noise of jittered CAN timestamps depends on where a lag falls between samples, which biased the
-lag by several ms (2 ms of jitter: 5 ms). A parabola through them (exact under a steady acceleration, where the line
-bends at 25 frames a second) was tried: on the simulator at 100 frames a second with 0.5 ms of jitter its noise moved
-the lag by 2.5 ms against the line's 0.8 (docs/accuracy.md, "Live runs in the VM")."""
+lag by several ms (2 ms of jitter: 5 ms); a parabola is noisier under jitter (docs/accuracy.md, "Live runs in the
+VM")."""
 MAX_ROW_INTERVAL_S = 0.3
 MAX_SLIP_TERMS_ACCEL_MPS2 = 4.0
 """Every wheel driven: rows while driving up to this acceleration (the tires' linear region, where the slip is in
