@@ -120,7 +120,8 @@ class Pipeline:
         self.ubx = UbxDecoder()
         self.sensors = SignalDecoder(config)
         self.xbus = MtiAccel(config.imu)
-        """An Xsens MTi on a serial port ([imu] source = "serial"): its forward acceleration, as the CAN IMU's."""
+        """An Xsens MTi on a serial port ([imu] source = "serial"): its forward acceleration, as the CAN IMU's, at its own
+        sample time placed on the host's clock."""
         self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
@@ -159,9 +160,9 @@ class Pipeline:
             self._tick(record.timestamp_s)
             return
         if isinstance(record, XbusBytes):
-            accel = self.xbus.forward_accel_mps2(record)
-            if accel is not None:
-                self._sensor(SensorSample(record.timestamp_s, "imu_accel", accel))
+            sample = self.xbus.sample(record)
+            if sample is not None:
+                self._sensor(SensorSample(sample[0], "imu_accel", sample[1]))
             self._tick(record.timestamp_s)
             return
         fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)

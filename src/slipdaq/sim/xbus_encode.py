@@ -14,6 +14,7 @@ import struct
 from collections.abc import Sequence
 from typing import Any
 
+from slipdaq.decode.sample_clock import TICKS_PER_S
 from slipdaq.decode.xbus import (
     FLOAT32,
     FLOAT64,
@@ -36,8 +37,6 @@ XDI_PACKET_COUNTER = 0x1020
 XDI_SAMPLE_TIME_FINE = 0x1060
 XDI_ACCELERATION = 0x4020
 XDI_FREE_ACCELERATION = 0x4030
-SAMPLE_TICKS_PER_S = 10_000
-"""SampleTimeFine counts at 10 kHz."""
 _INTS = {0x1020: ">H", 0x1060: ">I", 0x1070: ">I", 0x3010: ">I", 0xE010: ">B", 0xE020: ">I"}
 
 
@@ -141,7 +140,7 @@ class SimulatedMti:
         acc[self.forward] = self.sign * accel_mps2
         acc[self.up] += GRAVITY_MPS2
         east, north = self.east_north
-        msg = mti_message(self.count, round(time_s * SAMPLE_TICKS_PER_S), acc, utc=self.start_utc_s + time_s,
+        msg = mti_message(self.count, round(time_s * TICKS_PER_S), acc, utc=self.start_utc_s + time_s,
                           free_acceleration_mps2=(accel_mps2 * east, accel_mps2 * north, 0.0))
         self.count += 1
         return msg

@@ -13,12 +13,11 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+from slipdaq.decode.sample_clock import TICKS_PER_S, WRAP
 from slipdaq.decode.xbus import XbusDecoder, XbusFramer
 from slipdaq.records import XbusBytes
 from slipdaq.sources.read_errors import InputError
 
-TICKS_PER_S = 10_000
-WRAP = 2**32
 READ_BYTES = 1 << 16
 
 

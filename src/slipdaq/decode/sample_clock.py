@@ -1,0 +1,70 @@
+"""A sensor's samples placed on the host's clock by the sensor's own sample counter (an MTi's SampleTimeFine). Pure.
+
+A host reads a serial port late, never early, and how late moves with its load: a sample stamped on arrival moves
+with it, and a burst of late samples leaves a gap and then a crowd. A sample is placed at its own time plus the lower
+envelope of (arrival − own time) over the last HISTORY_S seconds of its own clock: the fastest read of that span,
+as a GPS fix is placed by its UTC (estimator/latency.py, UtcLatency). The smallest value, not the second smallest:
+the counter comes in a checksummed packet and cannot glitch early, and no arrival is stamped before its read. Placed
+times never pass the arrival and never go back while the counter counts forward.
+
+The counter wraps at 2^32 ticks (SampleTimeFine: 10 kHz, every 4.97 days). A count that goes back (the sensor
+restarted) or an (arrival − own time) more than RESET_S from the envelope (the host's clock stepped, or the counter
+jumped) starts the envelope again from that sample.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+TICKS_PER_S = 10_000
+"""SampleTimeFine counts at 10 kHz."""
+WRAP = 2**32
+HISTORY_S = 5.0
+"""The envelope's span on the sensor's clock: 500 samples at 100 Hz, the span of the GPS's 50 fixes at 10 Hz. A
+sensor clock 50 ppm off the host's moves 0.25 ms over it."""
+RESET_S = 1.0
+
+
+class SampleClock:
+    """place(arrival, ticks): the sample's time on the host's clock (module docstring)."""
+
+    def __init__(self, ticks_per_s: int = TICKS_PER_S, history_s: float = HISTORY_S, reset_s: float = RESET_S) -> None:
+        self.ticks_per_s = ticks_per_s
+        self.history_s = history_s
+        self.reset_s = reset_s
+        self._last_ticks: int | None = None
+        self._ticks = 0
+        """The counter since the envelope started, unwrapped."""
+        self._envelope: deque[tuple[float, float]] = deque()
+        """(own time, arrival - own time), own time ascending and the second increasing: its first is the minimum."""
+        self.resets = 0
+
+    def place(self, arrival_s: float, ticks: int | None) -> float:
+        """The sample's time: its arrival where it has no counter."""
+        if ticks is None:
+            return arrival_s
+        ticks %= WRAP
+        if self._last_ticks is not None:
+            step = (ticks - self._last_ticks) % WRAP
+            if step >= WRAP // 2:  # the counter went back: the sensor restarted
+                self._restart()
+            else:
+                self._ticks += step
+        self._last_ticks = ticks
+        own_s = self._ticks / self.ticks_per_s
+        x = arrival_s - own_s
+        env = self._envelope
+        if env and abs(x - env[0][1]) > self.reset_s:
+            self._restart()
+            own_s, x = 0.0, arrival_s
+        while env and env[-1][1] >= x:
+            env.pop()
+        env.append((own_s, x))
+        while env[0][0] < own_s - self.history_s:
+            env.popleft()
+        return own_s + env[0][1]
+
+    def _restart(self) -> None:
+        self._ticks = 0
+        self._envelope.clear()
+        self.resets += 1
