@@ -2,7 +2,7 @@
 """The live /maneuver records against the simulator's truth (issue 24's targets). Each row simulates a drive and runs
 it through slipdaq's pipeline in process, as `run`, `import` and `replay` do: the records are those a live run logs.
 
-    python benchmarks/maneuvers.py [--seeds 1,2,3] [--write]
+    python benchmarks/maneuvers.py [--seeds 1,2,3] [--tires 1.17:0.17,...] [--write]
 
 Rows (per road and seed):
   ABS stop 80       brake-abs from 80 km/h with the brake switch (50 Hz) and the IMU (100 Hz), WPT at 500 Hz: brake
@@ -12,8 +12,10 @@ Rows (per road and seed):
                     the largest speed error (from/to against 0, 60, 33), MFDD of each stop against the truth; valid
                     against 60 and 33 +- 3; each stop invalid against 50 +- 2 with its reason
   mu-slip           each tire's mu peak (% of the tire's) and slip at the peak (points) on brake-abs-all (every wheel
-                    at its limit), brake-abs (one axle at its limit) and launch-spin; the method that gave them, or
-                    why none (mu_flag)
+                    at its limit), brake-abs (the rear axle at its limit: brake_front_share 0.7), brake-abs front
+                    (the front axle at its limit: 0.85) and launch-spin; the method that gave them, or why none
+                    (mu_flag); on the paved and sand tires and on each of --tires (peak mu : slip at the peak [: the
+                    curve's shape C], a curve of the simulator's form)
 Targets: MFDD within 1 % (ABS) and 3 % (test day), stopping distance within 0.5 m and brake speed within 1 km/h (ABS),
 exactly 2 + 2 maneuvers with speeds within 3 km/h (test day); mu peak within 5 % and slip at peak within 2 points,
 no unflagged mu above the tire's (ABS, issue 28).
@@ -23,6 +25,7 @@ no unflagged mu above the tire's (ABS, issue 28).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -33,7 +36,9 @@ from slipdaq.demo import demo_config, demo_settings
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.truth import mfdd_mps2, speed_at_onset_mps, stopping_distance_m, tire_peak, truth_series
+from slipdaq.sim.vehicle import ROADS, TireModel
 from slipdaq.sinks import CollectingSink
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,14 +122,34 @@ def test_day_row(road: str, seed: int) -> str:
             f"{'both stops invalid (brake speed)' if invalid50 and len(stops50) == 2 else 'NOT as expected'} | |")
 
 
+FRONT_LIMITED_SHARE = 0.85
+"""brake_front_share of the "brake-abs front" row: the front axle reaches its peak first (sim/scenarios.py's
+limiting_axle), the rear stays on its hydraulic share (the issue's front-only ABS stop)."""
+
+
+def add_tire(spec: str) -> str:
+    """A simulator road whose tire peaks at mu at slip_peak (TireModel, shape C): "MU:SLIP_PEAK[:C]"; its name."""
+    mu, peak, *shape = (float(x) for x in spec.split(":"))
+    c = shape[0] if shape else TireModel.C
+    name = f"tire {mu:g} at {100 * peak:g} %" + (f" C {c:g}" if shape else "")
+    ROADS[name] = TireModel(mu=mu, cx_per_fz=math.tan(math.pi / (2 * c)) / peak * c * mu, C=c)
+    return name
+
+
 def mu_row(scenario: str, road: str, seed: int) -> str:
-    """Each tire's mu peak and slip at peak (live /maneuver) against the simulator's tire; the method and flags."""
+    """Each tire's mu peak and slip at peak (live /maneuver) against the simulator's tire; the method and flags.
+    "brake-abs front": brake-abs with the front axle at its limit (FRONT_LIMITED_SHARE)."""
+    front = scenario == "brake-abs front"
+    scenario = "brake-abs" if front else scenario
     cfg = demo_config("/dev/null", "chan", scenario)
+    if front:
+        cfg = cfg.with_overrides(vehicle={"brake_front_share": FRONT_LIMITED_SHARE})
+        assert limiting_axle(ROADS[road].mu, cfg.vehicle) == "front", road
     settings = SimSettings(**{**demo_settings(scenario).__dict__, "seed": seed})
     sink, _truth, _t0 = run(cfg, scenario, road, settings, 14.0)
     ms = [m for m in sink.maneuvers if m.kind == ("accelerate" if scenario == "launch-spin" else "brake")]
     if not ms:
-        return f"| mu-slip {scenario} | {road} | {seed} | no maneuver | | | | |"
+        return f"| mu-slip {scenario}{' front' if front else ''} | {road} | {seed} | no maneuver | | | | |"
     m, truth = ms[0], tire_peak(road)
     cells = []
     for w in ("FL", "FR", "RL", "RR"):
@@ -135,6 +160,7 @@ def mu_row(scenario: str, road: str, seed: int) -> str:
             cells.append(f"{w} {100 * (mw.mu_peak / truth.mu_peak - 1):+.1f} %, "
                          f"{100 * (mw.slip_at_mu_peak - truth.slip_at_mu_peak):+.1f} pts")  # type: ignore[operator]
     methods = sorted({m.wheels[w].mu_slip_method or "-" for w in ("FL", "FR", "RL", "RR")})
+    scenario += " front" if front else ""
     return (f"| mu-slip {scenario} | {road} | {seed} | {'; '.join(cells[:2])} | {'; '.join(cells[2:])} | "
             f"{', '.join(methods)} | tire {truth.mu_peak:.2f} at {100 * truth.slip_at_mu_peak:.1f} % | |")
 
@@ -142,9 +168,13 @@ def mu_row(scenario: str, road: str, seed: int) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", default="1,2,3", help="simulator seeds (default 1,2,3)")
+    ap.add_argument("--tires", default="", metavar="MU:SLIP[:C],...",
+                    help="mu-slip rows also on these tires (peak mu at peak slip, a fraction; C the curve's shape, "
+                         f"default {TireModel.C}), e.g. 1.17:0.17")
     ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
+    tires = [add_tire(spec) for spec in args.tires.split(",") if spec]
     lines = ["| row | road | seed | | | | | |", "|---|---|---|---|---|---|---|---|"]
     for road in ("paved", "sand"):
         for seed in seeds:
@@ -152,8 +182,8 @@ def main() -> int:
                 line = make(road, seed)
                 print(line, flush=True)
                 lines.append(line)
-    for scenario in ("brake-abs-all", "brake-abs", "launch-spin"):
-        for road in ("paved", "sand"):
+    for scenario in ("brake-abs-all", "brake-abs", "brake-abs front", "launch-spin"):
+        for road in ("paved", "sand", *tires):
             for seed in seeds:
                 line = mu_row(scenario, road, seed)
                 print(line, flush=True)
@@ -161,7 +191,8 @@ def main() -> int:
     text = "\n".join(lines)
     if args.write:
         doc = DOC.read_text()
-        block = f"{BEGIN}\n`python benchmarks/maneuvers.py --seeds {args.seeds} --write`\n\n{text}\n{END}"
+        tires_arg = f" --tires {args.tires}" if args.tires else ""
+        block = f"{BEGIN}\n`python benchmarks/maneuvers.py --seeds {args.seeds}{tires_arg} --write`\n\n{text}\n{END}"
         if BEGIN in doc and END in doc:
             doc = doc[: doc.index(BEGIN)] + block + doc[doc.index(END) + len(END):]
         else:
