@@ -20,7 +20,7 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.compiled import kernel
-from slipdaq.estimator.ring import SeriesRing, _local_lines, first_index
+from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
 from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 from slipdaq.records import FastSlip, FastWheel
@@ -88,10 +88,10 @@ def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, max
     max_gap_s (an interval that is NaN counts as over, as numpy's max has it)."""
     n = len(t)
     values = np.empty(len(times))
-    _local_lines(t, v, times, half, values, speeds)
+    local_line_values(t, v, times, half, values, speeds)
     for q in range(len(times)):
         first = first_index(t, times[q], 0, False)
-        c = min(max(first, half), n - half - 1)  # the line's centre sample, as _local_lines takes it
+        c = min(max(first, half), n - half - 1)  # the line's centre sample, as local_line_values takes it
         longest = t[c - half + 1] - t[c - half]
         for k in range(c - half + 1, c + half):
             d = t[k + 1] - t[k]
@@ -103,5 +103,5 @@ def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, max
 
 line_speeds = kernel(_line_speeds,
                      "void(float64[:], float64[:], float64[:], int64, float64, float64, float64[:], boolean[:])",
-                     uses=(first_index, _local_lines))
+                     uses=(first_index, local_line_values))
 """line_speeds()(t, v, times, half, max_gap_s, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""

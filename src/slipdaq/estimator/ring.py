@@ -142,8 +142,8 @@ MIN_LINE_SPAN_S = 1e-6
 """Samples spanning less than this are one instant to local_linear (a line through them has no slope)."""
 
 
-def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
-                 slopes: np.ndarray) -> None:
+def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
+                      slopes: np.ndarray) -> None:
     """out[q]: the least-squares line through samples c - half .. c + half at times[q], c the first sample at or
     after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for consecutive times
     that share it."""
@@ -172,9 +172,9 @@ def _local_lines(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out
         slopes[q] = slope
 
 
-local_lines = kernel(_local_lines, "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])",
-                     uses=(first_index,))
-"""local_lines()(t, v, times, half, out, slopes): see _local_lines (SeriesRing.local_lines)."""
+local_lines = kernel(local_line_values,
+                     "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])", uses=(first_index,))
+"""local_lines()(t, v, times, half, out, slopes): see local_line_values (SeriesRing.local_lines)."""
 
 
 def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
