@@ -5,7 +5,9 @@ IMU's does, replayed bit for bit, and exported with --imu-csv."""
 from __future__ import annotations
 
 import csv
+import io
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -146,6 +148,7 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
     log = tmp_path / "run.mcap"
     settings = SimSettings(gps_latency_s=0.0, gps_noise_mps=0.02, seed=4)
     written = bytearray()
+    status = io.StringIO()
 
     async def main() -> None:
         with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus, \
@@ -170,11 +173,18 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
 
             async with asyncio.TaskGroup() as tg:
                 task = tg.create_task(drive())
-                result = await run_daemon(cfg, daemon_bus, log, duration_s=9.0, status_stream=open(os.devnull, "w"))
+                result = await run_daemon(cfg, daemon_bus, log, duration_s=9.0, status_stream=status,
+                                          status_every_s=2.0)
                 task.cancel()
             assert result.estimates > 40
 
     asyncio.run(main())
+    # the status lines name the MTi and count its samples apart from the GPS's NMEA lines
+    lines = [x for x in status.getvalue().splitlines() if x.startswith("slipdaq: gps")]
+    assert lines and all("imu " in x for x in lines)
+    counts = [(int(m[1]), int(m[2])) for x in lines if (m := re.search(r"nmea (\d+) lines.* imu (\d+) samples", x))]
+    assert len(counts) == len(lines) and counts[-1][1] > 0
+    assert all(nmea <= 3 * 10 * 9.5 for nmea, _ in counts)  # RMC, GGA, VTG at 10 Hz: no MTi record among them
     raw = b"".join(bytes.fromhex(d["data"]) for _t, _t2, d in iter_topic(log, (TOPIC_IMU_RAW,)))
     assert raw == bytes(written)
     imu = [d for _t, _t2, d in iter_topic(log, (TOPIC_SENSORS,)) if d["kind"] == "imu_accel"]
@@ -220,3 +230,36 @@ def test_an_mti_read_at_the_wrong_baud_rate_is_unreadable() -> None:
     assert "Xbus message" in (src.diagnostic or "") and "imu.baudrate is 921600" in (src.diagnostic or "")
     src.feed(good[:2000], records.append)
     assert src.state == "connected" and src.diagnostic is None and events[-1].event == "readable"
+
+
+def test_the_live_view_shows_the_imu_and_counts_only_nmea_as_nmea_lines() -> None:
+    """The view's IMU line (its port, samples, the latest forward acceleration, a lost port) and the status line's;
+    an MTi's records and UBX frames are not NMEA lines."""
+    from rich.console import Console
+
+    from slipdaq.records import NmeaLine, SensorSample, UbxFrame
+    from slipdaq.sinks.status import SourceStatus, StatusSink, _Rates, imu_name, render, status_line
+
+    cfg = load_config(CONFIG).with_overrides(imu={"source": "serial", "port": "/dev/ttyUSB1"})
+    connected = [True]
+    view = StatusSink(SourceStatus(imu=imu_name(cfg.imu), imu_connected=lambda: connected[0]))
+    packet = mti_message(0, 0, (1.25, 0.0, 9.81), utc=utc_time(0.0))
+    view.on_raw(NmeaLine(0.0, "$GPRMC,..."))
+    view.on_raw(UbxFrame(0.0, b"\xb5\x62"))
+    view.on_raw(XbusBytes(0.0, packet))
+    view.on_sensor(SensorSample(0.0, "imu_accel", 1.25))
+    assert (view.nmea_lines, view.ubx_frames, view.imu_samples) == (1, 1, 1)
+    line = status_line(view, _Rates())
+    assert "nmea 1 lines" in line and "ubx 1 frames" in line and "imu 1 samples |" in line
+
+    def drawn(sink: StatusSink) -> str:
+        console = Console(record=True, width=160)
+        console.print(render(sink, _Rates()))
+        return console.export_text()
+
+    text = drawn(view)
+    assert "IMU   /dev/ttyUSB1 (MTi):" in text and "a +1.25 m/s²" in text and "DISCONNECTED" not in text
+    connected[0] = False
+    assert "[DISCONNECTED]" in drawn(view) and "imu 1 samples DISCONNECTED" in status_line(view, _Rates())
+    no_imu = StatusSink()  # no IMU configured: no IMU line
+    assert "IMU" not in drawn(no_imu) and "imu" not in status_line(no_imu, _Rates())

@@ -30,7 +30,7 @@ from slipdaq.pipeline import Pipeline
 from slipdaq.records import RawRecord, SourceEvent, channel_name
 from slipdaq.sinks import EventFanout
 from slipdaq.sinks.mcap_log import McapLogSink
-from slipdaq.sinks.status import SourceStatus, StatusSink, print_maneuvers, show
+from slipdaq.sinks.status import SourceStatus, StatusSink, imu_name, print_maneuvers, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
 from slipdaq.sources.clock import SteadyClock, watch_steps
 from slipdaq.sources.serial_gps import SerialGpsSource
@@ -186,6 +186,8 @@ async def run_daemon(
         can_reader_errors=lambda: can_source.reader_errors,
         gps_status=(lambda: gps_source.status() if gps_source is not None else {}) if serial_gps else None,
         log_status=lambda: sink.log_status(),
+        imu=imu_name(config.imu),
+        imu_connected=lambda: imu_source.connected if imu_source is not None else True,
     ))
     meta = can_meta | (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
     live = start_live(config, status_stream or sys.stdout)

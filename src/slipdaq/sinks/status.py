@@ -19,6 +19,7 @@ from rich.table import Table
 from rich.text import Text
 
 from slipdaq import WHEELS
+from slipdaq.config import ImuConfig
 from slipdaq.decode.can_errors import error_classes
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.records import (
@@ -28,8 +29,11 @@ from slipdaq.records import (
     CanFrameBatch,
     Estimate,
     GpsFix,
+    NmeaLine,
     RawRecord,
+    SensorSample,
     SourceEvent,
+    UbxFrame,
     WheelSample,
     WheelSampleBatch,
 )
@@ -52,12 +56,22 @@ class SourceStatus:
     """SerialGpsSource.status: state, gaps, the diagnostic line (unplugged, wrong baud rate?, silent)."""
     log_status: Callable[[], dict[str, object]] | None = None
     """McapLogSink.log_status: segments, write failures (disk full), dropped messages."""
+    imu: str = ""
+    """The IMU: its serial port, or its CAN signal; empty without one."""
+    imu_connected: Callable[[], bool] = lambda: True
 
     def log_path_now(self) -> str:
         return self.log_path() if callable(self.log_path) else self.log_path
 
 
 EVENTS_SHOWN = 3
+
+
+def imu_name(imu: ImuConfig) -> str:
+    """The IMU as the view names it: its serial port, or its CAN message and signal; empty without one."""
+    if imu.source == "serial":
+        return f"{imu.port} (MTi)"
+    return f"CAN {imu.message}.{imu.signal}" if imu.message is not None else ""
 
 
 @dataclass
@@ -69,6 +83,11 @@ class StatusSink(Sink):
     fix: GpsFix | None = None
     can_frames: int = 0
     nmea_lines: int = 0
+    ubx_frames: int = 0
+    imu_samples: int = 0
+    """The IMU's forward accelerations taken (an MTi's MTData2 packets, a CAN IMU's frames)."""
+    imu_accel_mps2: float | None = None
+    """The latest of them."""
     wheel_frames: dict[str, int] = field(default_factory=lambda: {w: 0 for w in WHEELS})
     diagnostics: dict[str, object] = field(default_factory=dict)
     can_errors: dict[str, int] = field(default_factory=dict)
@@ -86,8 +105,10 @@ class StatusSink(Sink):
             if record.is_error_frame:
                 for c in error_classes(record):
                     self.can_errors[c] = self.can_errors.get(c, 0) + 1
-        else:
+        elif isinstance(record, NmeaLine):
             self.nmea_lines += 1
+        elif isinstance(record, UbxFrame):
+            self.ubx_frames += 1
 
     def on_can_batch(self, batch: CanFrameBatch) -> None:
         """on_raw for each frame of a batch (Pipeline.process_can_batch)."""
@@ -112,6 +133,11 @@ class StatusSink(Sink):
 
     def on_fix(self, fix: GpsFix) -> None:
         self.fix = fix
+
+    def on_sensor(self, sample: SensorSample) -> None:
+        if sample.kind == "imu_accel":
+            self.imu_samples += 1
+            self.imu_accel_mps2 = sample.value
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self.estimate = estimate
@@ -140,9 +166,10 @@ class _Rates:
     """Frames per second from counters sampled at each redraw."""
 
     def __init__(self) -> None:
-        self._last: tuple[float, int, int] | None = None
+        self._last: tuple[float, int, int, int] | None = None
         self.can_fps = 0.0
         self.nmea_lps = 0.0
+        self.imu_sps = 0.0
 
     def update(self, s: StatusSink) -> None:
         now = time.monotonic()
@@ -150,9 +177,10 @@ class _Rates:
             dt = now - self._last[0]
             self.can_fps = (s.can_frames - self._last[1]) / dt
             self.nmea_lps = (s.nmea_lines - self._last[2]) / dt
-            self._last = (now, s.can_frames, s.nmea_lines)
+            self.imu_sps = (s.imu_samples - self._last[3]) / dt
+            self._last = (now, s.can_frames, s.nmea_lines, s.imu_samples)
         elif self._last is None:
-            self._last = (now, s.can_frames, s.nmea_lines)
+            self._last = (now, s.can_frames, s.nmea_lines, s.imu_samples)
 
 
 def render(s: StatusSink, rates: _Rates) -> Group:
@@ -194,12 +222,21 @@ def render(s: StatusSink, rates: _Rates) -> Group:
              f"unknown {d.get('unknown_frames', 0)}, errors {d.get('error_frames', 0)}{can_error_text(s)}, "
              f"reader errors {s.sources.can_reader_errors()}",
              style="bold red" if s.can_errors.get("bus_off") else ""),
-        Text(f"NMEA  {rates.nmea_lps:5.1f} lines/s, {s.nmea_lines} lines, bad sentences {d.get('bad_sentences', 0)}"),
+        Text(f"NMEA  {rates.nmea_lps:5.1f} lines/s, {s.nmea_lines} lines, bad sentences {d.get('bad_sentences', 0)}"
+             + (f", UBX {s.ubx_frames} frames" if s.ubx_frames else "")),
+        *([imu_text(s, rates)] if s.sources.imu else []),
         Text(f"log   {s.sources.log_path_now()} ({_size(s.sources.log_size_bytes())})"
              + (f"  {log_problem}" if log_problem else ""), style="bold red" if log_problem else ""),
     ]
     lines += [Text(f"event {_event_text(ev)}", style="dim") for ev in s.events]
     return Group(wheels, *lines, *([maneuver_table(s.maneuvers)] if s.maneuvers else []))
+
+
+def imu_text(s: StatusSink, rates: _Rates) -> Text:
+    connected = s.sources.imu_connected()
+    return Text(f"IMU   {s.sources.imu}: {rates.imu_sps:5.1f} samples/s, {s.imu_samples} samples, "
+                f"a {_fmt(s.imu_accel_mps2, '+.2f')} m/s²" + ("" if connected else "  [DISCONNECTED]"),
+                style="" if connected else "bold red")
 
 
 def estimate_quality(e: Estimate | None) -> str:
@@ -263,11 +300,14 @@ def status_line(s: StatusSink, rates: _Rates) -> str:
     lost = sum(lost_frames.values()) if isinstance(lost_frames, dict) else 0
     gps = "—" if s.fix is None else f"{s.fix.speed_mps:.2f}"
     gps_problem, log_problem = gps_diagnostic(s), log_diagnostic(s)
+    imu = f"imu {s.imu_samples} samples{'' if s.sources.imu_connected() else ' DISCONNECTED'} | " \
+        if s.sources.imu else ""
     return (
         f"slipdaq: gps {gps} m/s{'' if s.sources.gps_connected() else ' DISCONNECTED'}{gps_gaps(s)}"
         f"{f' [{gps_problem}]' if gps_problem else ''} | slip {slips} ({estimate_quality(e)}) | "
         f"can {rates.can_fps:.0f} fr/s ({s.can_frames} frames, lost {lost}{can_error_text(s)}{reader_errors(s)}) | "
-        f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)} | "
+        f"nmea {s.nmea_lines} lines, bad {d.get('bad_sentences', 0)}"
+        f"{f', ubx {s.ubx_frames} frames' if s.ubx_frames else ''} | {imu}"
         f"log {s.sources.log_path_now()} {_size(s.sources.log_size_bytes())}"
         f"{f' [{log_problem}]' if log_problem else ''}"
     )
