@@ -3,8 +3,9 @@ then frozen out of its reach (gc.freeze): they make about 200,000 objects that l
 collections that walk them free nothing (a fifth of the start-up).
 
 python-can imports asammdf when it is installed (the `mdf` extra), for its MF4 reader and writer, and asammdf
-imports pandas and sympy: about 1.5 s of a start. Only `import` reads files through python-can, so every other verb
-imports python-can as if asammdf were absent; asammdf itself stays importable (`export --mf4` imports it).
+imports pandas and sympy: 0.65-1.5 s of a start. Only `import` reads files through python-can, and only an MF4 file
+(`--mf4`, or a `.mf4` log) through asammdf, so every other command imports python-can as if asammdf were absent;
+asammdf itself stays importable (`export --mf4` imports it).
 
 numpy's OpenBLAS runs on one thread unless OPENBLAS_NUM_THREADS says otherwise: slipdaq's matrix products are
 small, or memory-bound (the maneuver fits' bootstrap: 40 products of a 1920 x n grid by a vector), where a second
@@ -23,6 +24,13 @@ PYTHON_CAN_MF4_VERBS = frozenset({"import"})
 def verb_of(argv: Sequence[str]) -> str | None:
     """The verb of a command line (its first word that is not an option), None without one."""
     return next((a for a in argv if not a.startswith("-")), None)
+
+
+def reads_mf4(argv: Sequence[str]) -> bool:
+    """A command line that may read an MF4 file through python-can: a verb of PYTHON_CAN_MF4_VERBS with `--mf4` or
+    an argument naming a .mf4 file (python-can picks its reader by the suffix)."""
+    return verb_of(argv) in PYTHON_CAN_MF4_VERBS and any(
+        a == "--mf4" or a.startswith("--mf4=") or ".mf4" in a.lower() for a in argv)
 
 
 def import_python_can(with_mf4: bool) -> None:
@@ -44,7 +52,7 @@ def main() -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
     gc.disable()
     try:
-        import_python_can(with_mf4=verb_of(sys.argv[1:]) in PYTHON_CAN_MF4_VERBS)
+        import_python_can(with_mf4=reads_mf4(sys.argv[1:]))
         from slipdaq.cli import main as cli_main
 
         gc.freeze()
