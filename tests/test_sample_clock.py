@@ -3,11 +3,15 @@ taking its acceleration at those times."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from types import SimpleNamespace
+
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from slipdaq.decode.sample_clock import HISTORY_S, TICKS_PER_S, WRAP, SampleClock
+from slipdaq.decode.sample_clock import DRIFT_S, HISTORY_S, RESET_S, TICKS_PER_S, WRAP, SampleClock
 
 RATE_HZ = 100
 FASTEST_READ_S = 0.0012
@@ -56,6 +60,46 @@ def test_a_restarted_sensor_or_a_stepped_host_clock_starts_the_envelope_again() 
         clock.place(10.6 + k * 0.01, 1_000 + k * 100)
     assert clock.place(13.6 + 0.5, 1_000 + 50 * 100) == 14.1  # the host's clock stepped 3 s
     assert clock.resets == 2
+
+
+def test_an_imported_capture_keeps_its_stamps_exactly() -> None:
+    """Real MTi captures (tests/data/xsens-mti), stamped by the import from the MTi's own UTCTime and SampleTimeFine:
+    the estimator's samples take those stamps, not within a rounding of them."""
+    from slipdaq.decode.xbus import MtiAccel
+    from slipdaq.sources.xbus_file import iter_xbus_capture
+
+    captures = sorted((Path(__file__).resolve().parent / "data" / "xsens-mti").glob("*/output.bin"))
+    assert len(captures) == 3
+    for capture in captures:
+        mti = MtiAccel(SimpleNamespace(source="serial", axis="x", sign=1))
+        pairs = [(s[0], r.timestamp_s) for r in iter_xbus_capture(capture) if (s := mti.sample(r)) is not None]
+        assert len(pairs) > 50 and all(placed == stamp for placed, stamp in pairs)
+
+
+@pytest.mark.parametrize("pace", [0.25, 0.98, 1.02, 4.0])
+def test_a_counter_at_another_pace_than_the_host_s_is_not_held_back(pace: float) -> None:
+    """A capture played into a port at another pace than it was sampled (its counter advancing `pace` times as fast as
+    the host's clock): no sample is placed more than the drift bound before its read."""
+    clock = SampleClock()
+    arrival = 1_000.0 + 0.001 + np.arange(1000) / RATE_HZ
+    placed = [clock.place(float(a), round(k * pace * TICKS_PER_S / RATE_HZ)) for k, a in enumerate(arrival)]
+    lag = arrival - np.array(placed)
+    assert lag.min() >= 0.0 and lag.max() <= RESET_S + 1.0 / RATE_HZ
+    if abs(pace - 1.0) <= 0.02:  # DRIFT_S, and the drift over the last RECENT_S
+        assert lag.max() <= DRIFT_S + 0.03
+    assert np.all(np.diff(placed) >= 0.0)
+
+
+def test_a_host_that_stalls_longer_than_a_second_falls_back_to_the_reads() -> None:
+    """1.5 s without a read, then the samples in a burst: the recent fastest read is the stall's, and the envelope
+    starts again there rather than place the burst by a read 1.5 s old."""
+    clock = SampleClock()
+    true = 500.0 + np.arange(600) / RATE_HZ
+    arrival = true + 0.002
+    arrival[200:350] = true[350] + 0.002  # the host read nothing from 2.0 s to 3.5 s
+    placed = np.array([clock.place(float(a), k * 100) for k, a in enumerate(arrival)])
+    assert clock.resets >= 1 and np.all(placed <= arrival) and np.all(np.diff(placed) >= 0.0)
+    assert np.abs(placed[400:] - true[400:] - 0.002).max() < 0.001  # placed by their own time again after it
 
 
 def test_a_sample_without_a_counter_keeps_its_arrival() -> None:
