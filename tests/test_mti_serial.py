@@ -10,6 +10,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import CONFIG, ROOT
@@ -190,12 +191,12 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
     imu = [d for _t, _t2, d in iter_topic(log, (TOPIC_SENSORS,)) if d["kind"] == "imu_accel"]
     assert len(imu) >= 0.95 * len(written) / len(mti_message(0, 0, (0.0, 0.0, 0.0), utc=utc_time(0.0)))
     # each sample at its SampleTimeFine on the host's clock, however late the loop read it: after the first second,
-    # (time - own time) is the fastest read's delay, steady to a few ms (stamped on arrival it moves with the load)
+    # (time - own time) is the fastest read's delay, steady (a stall over a second starts it again: a few samples off)
     framer, decoder = XbusFramer(), XbusDecoder()
     packets = [p for r in framer.feed(bytes(written), 0.0) if (p := decoder.decode(r)) is not None]
     assert len(imu) <= len(packets)  # the last few may come after the run's end
     off = [d["time_s"] - p.sample_time_fine / 10_000 for d, p in zip(imu, packets)][100:]
-    assert max(off) - min(off) < 0.005
+    assert np.percentile(off, 98) - np.percentile(off, 2) < 0.002  # by read time: 3.5-3.9 ms on a quiet machine
     rows = [r for r in iter_estimates(log) if r["speed_mps"] > 5 and r["force_n"] is not None]
     # the writer shares the daemon's event loop here: on a busy machine it stalls and its messages come late in a
     # burst, after a window that needed them was estimated; that window, its IMU samples short of its end by more
