@@ -37,6 +37,11 @@ DRIFT_S = 0.05
 EXACT_S = 1e-6
 
 
+def ticks_between(earlier: int, later: int) -> int:
+    """Counter ticks from `earlier` to `later`, across the 2^32 wrap."""
+    return (later - earlier) % WRAP
+
+
 class SampleClock:
     """place(arrival, ticks): the sample's time on the host's clock (module docstring)."""
 
@@ -59,9 +64,9 @@ class SampleClock:
             return arrival_s
         ticks %= WRAP
         if self._last_ticks is not None:
-            step = (ticks - self._last_ticks) % WRAP
+            step = ticks_between(self._last_ticks, ticks)
             if step >= WRAP // 2:  # the counter went back: the sensor restarted
-                self._restart()
+                self._restart(arrival_s)
             else:
                 self._ticks += step
         self._last_ticks = ticks
@@ -69,23 +74,25 @@ class SampleClock:
         x = arrival_s - own_s
         env, recent = self._envelope, self._recent
         if env and abs(x - env[0][1]) > self.reset_s:
-            self._restart()
-            own_s, x = 0.0, arrival_s
-        _push(env, own_s, x, self.history_s)
-        _push(recent, own_s, x, RECENT_S)
+            own_s, x = self._restart(arrival_s)
+        self._take(own_s, x)
         if recent[0][1] - env[0][1] > DRIFT_S:  # the counter runs slower than the host's clock
-            self._restart()
-            own_s, x = 0.0, arrival_s
-            _push(env, own_s, x, self.history_s)
-            _push(recent, own_s, x, RECENT_S)
+            own_s, x = self._restart(arrival_s)
+            self._take(own_s, x)
         placed = own_s + env[0][1]
         return arrival_s if arrival_s - placed <= EXACT_S else placed
 
-    def _restart(self) -> None:
+    def _take(self, own_s: float, x: float) -> None:
+        _push(self._envelope, own_s, x, self.history_s)
+        _push(self._recent, own_s, x, RECENT_S)
+
+    def _restart(self, arrival_s: float) -> tuple[float, float]:
+        """The envelope started again at this sample: its (own time, arrival - own time)."""
         self._ticks = 0
         self._envelope.clear()
         self._recent.clear()
         self.resets += 1
+        return 0.0, arrival_s
 
 
 def _push(window: deque[tuple[float, float]], own_s: float, x: float, span_s: float) -> None:

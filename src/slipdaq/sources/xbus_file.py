@@ -13,16 +13,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-from slipdaq.decode.sample_clock import TICKS_PER_S, WRAP
+from slipdaq.decode.sample_clock import TICKS_PER_S, ticks_between
 from slipdaq.decode.xbus import XbusDecoder, XbusFramer
 from slipdaq.records import XbusBytes
 from slipdaq.sources.read_errors import InputError
 
 READ_BYTES = 1 << 16
-
-
-def _ticks_between(earlier: int, later: int) -> int:
-    return (later - earlier) % WRAP
 
 
 def iter_xbus_capture(path: str | Path) -> Iterator[XbusBytes]:
@@ -51,14 +47,14 @@ def iter_xbus_capture(path: str | Path) -> Iterator[XbusBytes]:
                         continue
                     anchor = (utc, stf)
                     for q, q_stf in pending:
-                        t0 = utc - _ticks_between(q_stf, stf) / TICKS_PER_S \
+                        t0 = utc - ticks_between(q_stf, stf) / TICKS_PER_S \
                             if q_stf is not None and stf is not None else utc
                         yield XbusBytes(t0, q.data)
                     pending = []
                 if utc is not None:
                     anchor, t = (utc, stf), utc
                 elif stf is not None and anchor[1] is not None:
-                    t = anchor[0] + _ticks_between(anchor[1], stf) / TICKS_PER_S
+                    t = anchor[0] + ticks_between(anchor[1], stf) / TICKS_PER_S
                 else:
                     t = last_s if last_s is not None else anchor[0]
                 if last_s is not None and t < last_s:  # a GNSS packet's UTCTime is its epoch's, a little earlier
