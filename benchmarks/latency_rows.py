@@ -28,7 +28,6 @@ from slipdaq.sinks import CollectingSink
 ROOT = Path(__file__).resolve().parents[1]
 Row = tuple[float, np.ndarray, bool]
 ROW_INTERVAL_S = 0.1
-NOMINAL_RADIUS_M = 0.3
 
 
 def rows_of_a_drive(seed: int, noise_mps: float, wpt_rate_hz: float, duration_s: float) -> tuple[list[Row], float]:
@@ -58,10 +57,9 @@ def lag_ms(rows: list[Row], max_latency_s: float) -> float:
     fit = latency.WheelLatency(max_latency_s, forgetting=1.0)
     for y, x, informative in rows:
         latency.WheelLatency.add(fit, y, x, informative)
-    resid, _ = fit._residuals()
+    resid, _ = fit.residuals()
     j = int(np.argmin(resid))
-    r0, r1, r2 = resid[j - 1], resid[j], resid[j + 1]
-    return 1000.0 * float(fit.taus_s[j] + 0.5 * (r0 - r2) / (r0 - 2 * r1 + r2) * fit.step_s)
+    return 1000.0 * float(fit.taus_s[j] + latency.parabolic_minimum(resid, j, fit.step_s)[0])
 
 
 def main() -> int:
@@ -76,7 +74,7 @@ def main() -> int:
     zero = int(round(latency.NEGATIVE_LAG_S * 1000))  # the grid's index of lag 0
 
     def at_speeds(rows: list[Row]) -> list[Row]:
-        return [r for r in rows if low <= r[1][zero] * NOMINAL_RADIUS_M / ROW_INTERVAL_S <= high]
+        return [r for r in rows if low <= r[1][zero] * latency.NOMINAL_RADIUS_M / ROW_INTERVAL_S <= high]
 
     print(f"WPT {args.wpt_rate_hz:g}/s, GPS 10 Hz, true latency 0; lag in ms from all rows and from the rows at "
           f"{low:g}-{high:g} m/s\n")

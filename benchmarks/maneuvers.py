@@ -25,7 +25,6 @@ no unflagged mu above the tire's (ABS, issue 28).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -133,7 +132,7 @@ def add_tire(spec: str) -> str:
     mu, peak, *shape = (float(x) for x in spec.split(":"))
     c = shape[0] if shape else TireModel.C
     name = f"tire {mu:g} at {100 * peak:g} %" + (f" C {c:g}" if shape else "")
-    ROADS[name] = TireModel(mu=mu, cx_per_fz=math.tan(math.pi / (2 * c)) / peak * c * mu, C=c)
+    ROADS[name] = TireModel.with_peak(mu, peak, c)
     return name
 
 

@@ -144,6 +144,14 @@ NEGATIVE_LAG_S = 0.02
 (an edge is no estimate): a receiver and a reader with almost no delay, as in the lab."""
 
 
+def parabolic_minimum(resid: np.ndarray, j: int, step_s: float) -> tuple[float, float]:
+    """The parabola through resid[j - 1 .. j + 1] on a grid of step_s: its minimum's offset from the grid's j-th
+    point, and its curvature (<= 0: no minimum, and the offset 0)."""
+    r0, r1, r2 = resid[j - 1], resid[j], resid[j + 1]
+    curv = (r0 - 2 * r1 + r2) / step_s**2
+    return (0.5 * (r0 - r2) / (r0 - 2 * r1 + r2) * step_s if curv > 0 else 0.0), curv
+
+
 class WheelLatency:
     """Grid search of the lag that aligns GPS distance with free-rolling wheel distance (see module docstring)."""
 
@@ -194,8 +202,8 @@ class WheelLatency:
         if self.rows >= MIN_ROWS and (self.rows % 5 == 0 or not self.converged()):  # every row until it converges
             self._solve()
 
-    def _residuals(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per tau: the least-squares residual and the radius."""
+    def residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per tau (taus_s): the least-squares residual of the rows so far and the radius."""
         if not self.slip_terms:
             return self._syy - self._sxy**2 / self._sxx, self._sxy / self._sxx
         sxp, sxn, spp, snn, spy, sny = self._terms[:6]
@@ -211,17 +219,15 @@ class WheelLatency:
     def _solve(self) -> None:
         if np.any(self._sxx <= 0):
             return
-        resid, radius = self._residuals()
+        resid, radius = self.residuals()
         j = int(np.argmin(resid))
         if j == 0 or j == len(resid) - 1:
             self.latency_s = self.sigma_s = None
             return
-        r0, r1, r2 = resid[j - 1], resid[j], resid[j + 1]
-        curv = (r0 - 2 * r1 + r2) / self.step_s**2
+        offset, curv = parabolic_minimum(resid, j, self.step_s)
         if curv <= 0:
             return
-        offset = 0.5 * (r0 - r2) / (r0 - 2 * r1 + r2) * self.step_s
-        sigma2 = max(r1, 0.0) / max(self._weight - 2.0, 1.0)
+        sigma2 = max(resid[j], 0.0) / max(self._weight - 2.0, 1.0)
         self.latency_s = max(float(self.taus_s[j] + offset), 0.0)  # a few ms below 0: timing noise about 0
         self.sigma_s = float(math.sqrt(2.0 * sigma2 / curv))
         self.radius_m = float(radius[j])

@@ -59,6 +59,11 @@ class TireModel:
         """|s| at the force peak: C*atan(B*s) = pi/2 -> s = tan(pi/(2C))/B."""
         return math.tan(math.pi / (2.0 * self.C)) / self.b
 
+    @classmethod
+    def with_peak(cls, mu: float, peak_slip: float, c: float) -> TireModel:
+        """The curve of shape C whose peak mu lies at peak_slip: B = tan(pi/(2C))/peak_slip, cx_per_fz = B*C*mu."""
+        return cls(mu=mu, cx_per_fz=math.tan(math.pi / (2.0 * c)) / peak_slip * c * mu, C=c)
+
     def force_n(self, slip: float, fz_n: float) -> float:
         """Fx = D*sin(C*atan(B*s))."""
         return self.mu * fz_n * math.sin(self.C * math.atan(self.b * slip))
