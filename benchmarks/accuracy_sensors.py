@@ -32,7 +32,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config, load_config
 from slipdaq.maneuver.linearity import speed_weights
-from slipdaq.offline import Rows, first_pass, process
+from slipdaq.offline.run import Rows, first_pass, process
 from slipdaq.report.summary import summarize_log
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.truth import (

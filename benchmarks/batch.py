@@ -38,7 +38,7 @@ import distributed
 from doc_block import machine, write_block
 from slipdaq.cli import main as slipdaq
 from slipdaq.config import load_config, packaged_config_path
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 

@@ -42,7 +42,7 @@ KINDS = (("cycle", "paved"), ("brake", "paved"), ("cycle", "sand"), ("brake", "s
 
 def make_log(args: tuple[Path, int, float]) -> Path:
     from slipdaq.config import load_config, packaged_config_path
-    from slipdaq.offline import process_to_log
+    from slipdaq.offline.run import process_to_log
     from slipdaq.report.labels import labels_metadata
     from slipdaq.sim.emit import SimSettings, generate
 

@@ -31,7 +31,7 @@ import io, json, sys, time
 from pathlib import Path
 from slipdaq import compiled
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches
-from slipdaq.offline import process, process_to_log
+from slipdaq.offline.run import process, process_to_log
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from slipdaq.config import Config, load_config
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate

@@ -547,9 +547,9 @@ class EstimateProbe:
 
 # ---- 3. latency on the virtual bus, in process ----------------------------------------------------------------
 def run_latency_virtual(a: argparse.Namespace, tmp: Path) -> Latency:
-    from slipdaq.daemon import open_bus, run_daemon
-    from slipdaq.demo import demo_config
-    from slipdaq.simulate import PtyGps
+    from slipdaq.live.daemon import open_bus, run_daemon
+    from slipdaq.live.demo import demo_config
+    from slipdaq.live.simulate import PtyGps
 
     seconds = a.latency_seconds
     gen_estimate_s = (seconds + SKIP_S) * 4060 / 35000.0

@@ -36,7 +36,7 @@ MAKE_LOG = """
 import os, sys
 from pathlib import Path
 from slipdaq.config import load_config, packaged_config_path
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 cfg = load_config(packaged_config_path())
@@ -49,7 +49,7 @@ with open(os.devnull, "w") as quiet:
 WORKER = """
 import io, json, os, sys, time
 from pathlib import Path
-from slipdaq.fleet import Job, process_log
+from slipdaq.fleet.batch import Job, process_log
 log = sys.argv[1]
 job = Job(log, "drive", "0" * 16, os.path.abspath(log))
 r = process_log(job)
@@ -60,7 +60,7 @@ def parts():
     from slipdaq.report.labels import labels_of
     from slipdaq.report.page_data import log_page
     from slipdaq.report.summary import summarize_log
-    from slipdaq.sinks.parquet_export import write_parquet
+    from slipdaq.export.parquet_file import write_parquet
     t = [time.perf_counter()]
     data = read_log(log, two_pass=True, progress=io.StringIO()); t.append(time.perf_counter())
     s = summarize_log(data.rows, data.metadata, data.diagnostics, path=log, name="drive", labels=labels_of(data.metadata),

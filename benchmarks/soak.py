@@ -31,14 +31,14 @@ from typing import TextIO
 import can
 
 from slipdaq.config import Config
-from slipdaq.daemon import new_log_path, open_bus, run_daemon
-from slipdaq.demo import demo_config
+from slipdaq.live.daemon import new_log_path, open_bus, run_daemon
+from slipdaq.live.demo import demo_config
+from slipdaq.live.simulate import PtyGps
 from slipdaq.logformat.reader import config_from_log, iter_estimates, iter_raw_records
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.records import CanFrame
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
-from slipdaq.simulate import PtyGps
 
 RSS_LIMIT_BYTES = 5 * 1024 * 1024
 

@@ -32,8 +32,8 @@ from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.logformat.reader import config_from_log, iter_estimates, iter_raw_records, read_metadata
 from slipdaq.logformat.salvage import survey
+from slipdaq.offline.recover import recover
 from slipdaq.records import NmeaLine
-from slipdaq.recover import recover
 from slipdaq.sources.files import iter_can_logs, iter_nmea_log
 from slipdaq.sources.read_errors import InputError
 

@@ -259,7 +259,7 @@ def test_stiffness_fit_without_force_spread_says_nothing() -> None:
 
 
 def test_estimate_row_has_the_extension_columns() -> None:
-    from slipdaq.sinks.csv_export import ALL_COLUMNS, COLUMNS
+    from slipdaq.export.csv_file import ALL_COLUMNS, COLUMNS
 
     assert ALL_COLUMNS[: len(COLUMNS)] == COLUMNS
     for c in ("phase", "gps_latency_s", "slip_nd_FL", "cx_fit_FL_n", "cx_fit_FL_conf", "r0_source_FL"):

@@ -22,7 +22,7 @@ from mcap.reader import make_reader
 from conftest import CONFIG, DATA
 from slipdaq.cli import main
 from slipdaq.config import load_config
-from slipdaq.daemon import new_log_path, run_daemon
+from slipdaq.live.daemon import new_log_path, run_daemon
 from slipdaq.logformat.reader import iter_estimates, iter_raw_records, read_metadata
 from slipdaq.logformat.rotation import segment_path
 from slipdaq.sim.emit import SimSettings, generate

@@ -23,10 +23,10 @@ import pytest
 from conftest import CONFIG
 from slipdaq.cli import main
 from slipdaq.config import load_config
-from slipdaq.offline import process_to_log, two_pass_rows
+from slipdaq.export.csv_file import ALL_COLUMNS
+from slipdaq.offline.run import process_to_log, two_pass_rows
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sinks.csv_export import ALL_COLUMNS
 
 distributed = pytest.importorskip("distributed")
 
@@ -196,7 +196,7 @@ class _InterruptedStream(io.StringIO):
 def test_an_interrupted_batch_leaves_the_report_as_it_was(logs: dict[str, Path], tmp_path: Path) -> None:
     """The report is built as the logs come: a batch interrupted after its first log leaves DIR/report as the last
     finished batch wrote it (no file replaced: their mtimes unchanged; no half-built directory left)."""
-    from slipdaq.fleet import run_batch
+    from slipdaq.fleet.batch import run_batch
 
     out = tmp_path / "fleet"
     good = [logs["paved-1"], logs["sand-1"]]

@@ -21,8 +21,8 @@ from pathlib import Path
 import pytest
 
 from slipdaq.cli import main
-from slipdaq.offline import two_pass_rows
-from slipdaq.sinks.csv_export import ALL_COLUMNS
+from slipdaq.export.csv_file import ALL_COLUMNS
+from slipdaq.offline.run import two_pass_rows
 from test_batch import drive_logs
 
 pytest.importorskip("distributed")
@@ -172,7 +172,7 @@ def test_bad_urls_are_one_line(s3: str, logs_url: str, out_url: str, says: str,
 
 def test_tasks_of_the_local_cluster_write_their_own_files(logs: dict[str, Path], tmp_path: Path) -> None:
     """Local paths, a local DIR: each task writes its Parquet and cache files (the client gets the summary only)."""
-    from slipdaq.fleet import run_batch
+    from slipdaq.fleet.batch import run_batch
 
     out = tmp_path / "fleet"
     with open(os.devnull, "w") as quiet:

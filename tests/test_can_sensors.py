@@ -19,7 +19,7 @@ from slipdaq.decode.can_signals import STANDARD_GRAVITY_MPS2, SignalDecoder
 from slipdaq.decode.can_wheels import DbcError
 from slipdaq.logformat.reader import iter_estimates, iter_sensors, iter_topic
 from slipdaq.logformat.topics import TOPIC_GPS
-from slipdaq.offline import Rows, process, process_to_log
+from slipdaq.offline.run import Rows, process, process_to_log
 from slipdaq.records import CanFrame, CanFrameBatch
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.truth import (
@@ -251,7 +251,7 @@ def test_demo_brake_abs_runs_live_with_the_sensors(tmp_path: Path) -> None:
     the ABS cycles."""
     import asyncio
 
-    from slipdaq.demo import run_demo_async
+    from slipdaq.live.demo import run_demo_async
     from slipdaq.logformat.reader import iter_fast_slip
 
     with open(tmp_path / "status.txt", "w") as status:
@@ -280,7 +280,7 @@ def test_run_with_the_reference_on_can_reads_no_serial_port(base: Config, tmp_pa
 
     import can
 
-    from slipdaq.daemon import run_daemon
+    from slipdaq.live.daemon import run_daemon
     from slipdaq.sim.realtime import play
 
     channel = f"slipdaq-test-ref-{os.getpid()}"
@@ -317,7 +317,7 @@ def test_run_with_the_reference_on_can_reads_no_serial_port(base: Config, tmp_pa
 def test_a_stored_latency_belongs_to_its_reference(base: Config, tmp_path: Path) -> None:
     """The latency a serial-GPS run stored is not used by a run whose reference is on CAN (another sensor, another
     latency), and stays in the file for the next serial run; the CAN run's own goes in with its reference."""
-    from slipdaq.calibration import Learned, for_run, load_calibration, merged, save_calibration
+    from slipdaq.config.calibration import Learned, for_run, load_calibration, merged, save_calibration
 
     path = tmp_path / "calibration.toml"
     save_calibration(path, merged(None, Learned(latency=(0.085, 0.002, "utc"), r0={"FL": (0.3, 1e-4)}), base, "a"))

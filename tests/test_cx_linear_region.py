@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from slipdaq import WHEELS
-from slipdaq.calibration import Calibration, merged
 from slipdaq.config import Config
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.config.calibration import Calibration, merged
 from slipdaq.estimator.linear_region import slip_spread
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.run_calibration import CX_CONFIDENT
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.truth import linear_stiffness_truth, truth_series

@@ -19,14 +19,14 @@ from mcap.reader import make_reader
 
 from conftest import CONFIG, ROOT
 from slipdaq.cli import main
-from slipdaq.demo import run_demo_async
+from slipdaq.export.csv_file import COLUMNS
+from slipdaq.live.demo import run_demo_async
 from slipdaq.logformat.reader import config_from_log, iter_estimates, iter_raw_records, iter_topic
 from slipdaq.logformat.schemas import BATCH_SCHEMAS, SCHEMAS
 from slipdaq.logformat.topics import RAW_TOPICS, TOPIC_CAN, TOPIC_ESTIMATE, TOPIC_GPS, TOPIC_NMEA
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import slip_error, truth_series
-from slipdaq.sinks.csv_export import COLUMNS
 
 
 @pytest.fixture(scope="module")

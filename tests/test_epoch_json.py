@@ -12,7 +12,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from slipdaq import WHEELS
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
 from slipdaq.logformat.json_codec import (
     dumps,
     estimate_json,
@@ -23,6 +22,7 @@ from slipdaq.logformat.json_codec import (
     std_dumps,
 )
 from slipdaq.records import Estimate, FastSlip, FastWheel, GpsFix, NmeaLine, WheelEstimate
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup
 
 FLOAT = st.floats(allow_nan=True, allow_infinity=True)
 OPT_FLOAT = st.one_of(st.none(), FLOAT, st.integers(-(2**70), 2**70), FLOAT.map(np.float64))

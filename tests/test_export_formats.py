@@ -18,12 +18,12 @@ from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import main
 from slipdaq.config import load_config
+from slipdaq.export.csv_file import ALL_COLUMNS
 from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic, read_metadata
 from slipdaq.logformat.topics import TOPIC_GPS
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sinks.csv_export import ALL_COLUMNS
 
 asammdf = pytest.importorskip("asammdf")
 pq = pytest.importorskip("pyarrow.parquet")

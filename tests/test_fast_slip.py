@@ -22,7 +22,7 @@ from slipdaq.logformat.json_codec import rows_of_columns
 from slipdaq.logformat.reader import iter_fast_slip
 from slipdaq.logformat.schemas import SCHEMAS
 from slipdaq.logformat.topics import TOPIC_FAST_SLIP
-from slipdaq.offline import process, process_to_log
+from slipdaq.offline.run import process, process_to_log
 from slipdaq.records import CanFrame
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.truth import truth_series

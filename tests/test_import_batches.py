@@ -9,7 +9,7 @@ import random
 import numpy as np
 import pytest
 
-from slipdaq.offline import BATCH_FRAMES, batched, frame_runs
+from slipdaq.offline.run import BATCH_FRAMES, batched, frame_runs
 from slipdaq.records import FLAG_FD, CanFrame, CanFrameBatch, NmeaLine
 
 

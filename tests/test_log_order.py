@@ -22,7 +22,7 @@ from conftest import CONFIG
 from reliability_support import sim_records
 from slipdaq.cli import main
 from slipdaq.config import load_config
-from slipdaq.demo import run_demo_async
+from slipdaq.live.demo import run_demo_async
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, NmeaLine
 from slipdaq.sinks.mcap_log import McapLogSink

@@ -16,7 +16,8 @@ from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import main
 from slipdaq.config import Config, load_config
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.export.csv_file import MANEUVER_CSV_COLUMNS
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.logformat.registry import TOPIC_FORMATS
 from slipdaq.logformat.topics import TOPIC_MANEUVER
@@ -27,7 +28,6 @@ from slipdaq.sim import vehicle
 from slipdaq.sim.emit import SimEvent, SimSettings, generate
 from slipdaq.sim.truth import mfdd_mps2, speed_at_onset_mps, stopping_distance_m, truth_series
 from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.csv_export import MANEUVER_CSV_COLUMNS
 from slipdaq.sinks.mcap_log import McapLogSink
 
 SETTINGS = SimSettings(gps_latency_s=0.0, gps_noise_mps=0.02, can_jitter_s=0.0005, seed=3)
@@ -294,7 +294,7 @@ def test_demo_brake_abs_prints_the_stop_as_it_ends(tmp_path: Path) -> None:
 
     from rich.console import Console
 
-    from slipdaq.demo import run_demo_async
+    from slipdaq.live.demo import run_demo_async
     from slipdaq.sinks.status import SourceStatus, StatusSink, _Rates, render
 
     status_path = tmp_path / "status.txt"

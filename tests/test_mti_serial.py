@@ -137,9 +137,9 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
 
     import can
 
-    from slipdaq.daemon import run_daemon
+    from slipdaq.live.daemon import run_daemon
+    from slipdaq.live.simulate import PtyGps
     from slipdaq.sim.realtime import play
-    from slipdaq.simulate import PtyGps
 
     channel = f"slipdaq-test-mti-{os.getpid()}"
     gps, mti = PtyGps(), PtyGps()

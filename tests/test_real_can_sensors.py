@@ -13,7 +13,7 @@ import pytest
 from conftest import CONFIG
 from slipdaq.config import load_config
 from slipdaq.decode.can_signals import SignalDecoder
-from slipdaq.offline import Rows, process
+from slipdaq.offline.run import Rows, process
 from slipdaq.records import CanFrame, CanFrameBatch
 
 DATA = Path(__file__).resolve().parent / "data" / "css-electronics"

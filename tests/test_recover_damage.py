@@ -31,7 +31,7 @@ from slipdaq.logformat.durable import TRAILER
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_estimates, iter_raw_records
 from slipdaq.logformat.salvage import DamageError, ScanResult, survey
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.sim.emit import SimSettings, generate
 
 Msg = tuple[str, int, bytes]

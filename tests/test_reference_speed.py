@@ -9,7 +9,7 @@ from conftest import CONFIG
 from slipdaq.config import load_config
 from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
 from slipdaq.estimator.smoother import smooth_speed
-from slipdaq.offline import _FirstPassSink, process
+from slipdaq.offline.run import _FirstPassSink, process
 from slipdaq.sim.emit import SimSettings, generate
 
 SETTINGS = SimSettings(gps_latency_s=0.0, gps_noise_mps=0.03, can_jitter_s=0.0005, seed=5)

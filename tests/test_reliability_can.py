@@ -19,9 +19,9 @@ from conftest import CONFIG
 from reliability_support import sim_records
 from slipdaq import WHEELS
 from slipdaq.config import load_config
-from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.can_errors import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED, error_classes
-from slipdaq.demo import demo_config
+from slipdaq.live.daemon import new_log_path, open_bus, run_daemon
+from slipdaq.live.demo import demo_config
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS
 from slipdaq.pipeline import Pipeline

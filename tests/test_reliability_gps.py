@@ -18,10 +18,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from reliability_support import ReplugGps, gps_lines, nmea, uart_misread
-from slipdaq.daemon import new_log_path, open_bus, run_daemon
 from slipdaq.decode.framing import MAX_FRAME_BYTES
 from slipdaq.decode.nmea import NmeaDecoder
-from slipdaq.demo import demo_config
+from slipdaq.live.daemon import new_log_path, open_bus, run_daemon
+from slipdaq.live.demo import demo_config
 from slipdaq.logformat.reader import iter_estimates, iter_raw_records, iter_topic
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_EVENTS
 from slipdaq.records import NmeaLine, SourceEvent

@@ -27,9 +27,9 @@ from slipdaq.logformat.reader import is_finished, iter_estimates, iter_raw_recor
 from slipdaq.logformat.rotation import RotationPolicy, run_segments
 from slipdaq.logformat.salvage import ScanResult, scan
 from slipdaq.logformat.topics import TOPIC_EVENTS
+from slipdaq.offline.recover import recover
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrame, NmeaLine
-from slipdaq.recover import recover
 from slipdaq.sinks import CollectingSink
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.status import SourceStatus, StatusSink, status_line

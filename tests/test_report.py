@@ -25,12 +25,12 @@ from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import build_parser, main
 from slipdaq.config import load_config
-from slipdaq.demo import run_demo_async
+from slipdaq.live.demo import run_demo_async
 from slipdaq.logformat.reader import read_metadata
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.events import debounce
 from slipdaq.maneuver.linearity import analyse_linearity
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import LabelError, labels_metadata, labels_of, parse_labels
 from slipdaq.report.plots import FIG_H_PX, FIG_W_PX, PLOTS
 from slipdaq.report.summary import group_of, summarize_log
@@ -240,7 +240,7 @@ def test_default_report_and_batch_task_import_no_matplotlib(report, tmp_path: Pa
     code = (
         "import sys\n"
         "from slipdaq.cli import main\n"
-        "from slipdaq.fleet import Job, process_log\n"
+        "from slipdaq.fleet.batch import Job, process_log\n"
         f"assert main(['report', {log!r}, '-o', {str(tmp_path / 'r')!r}]) == 0\n"
         f"r = process_log(Job({log!r}, 'x', '0' * 16, {log!r}))\n"
         "assert r.error is None and not r.pngs and r.page is not None, r.error\n"

@@ -68,7 +68,7 @@ def test_local_linear(series, queries, half) -> None:  # type: ignore[no-untyped
 def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
     """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
     from slipdaq.estimator.fast_slip import FAST_LINE_HALF
-    from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
+    from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 
     half, n = FAST_LINE_HALF, len(ring)
     if n < 2 * half + 1:

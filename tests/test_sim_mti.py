@@ -16,7 +16,7 @@ import pytest
 
 from slipdaq.cli import main
 from slipdaq.decode.xbus import XbusDecoder, forward_accel_mps2
-from slipdaq.demo import demo_config, demo_settings, run_demo_async
+from slipdaq.live.demo import demo_config, demo_settings, run_demo_async
 from slipdaq.logformat.reader import iter_estimates, iter_topic
 from slipdaq.logformat.topics import TOPIC_IMU_RAW, TOPIC_SENSORS
 from slipdaq.pipeline import Pipeline

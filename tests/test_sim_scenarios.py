@@ -442,7 +442,7 @@ def test_cli_accepts_the_scenarios(verb: str, scenario: str) -> None:
 
 
 def test_demo_names_the_sensors_for_the_new_scenarios() -> None:
-    from slipdaq.demo import demo_config, demo_settings
+    from slipdaq.live.demo import demo_config, demo_settings
 
     plain = demo_config("/dev/null", "chan", "cycle")
     assert plain.can.dbc == "wpt.dbc" and plain.imu.message is None and demo_settings("cycle") == SimSettings()

@@ -11,7 +11,9 @@ import pytest
 
 from conftest import CONFIG, ROOT
 from slipdaq import WHEELS
-from slipdaq.calibration import (
+from slipdaq.cli import main
+from slipdaq.config import Config, load_config
+from slipdaq.config.calibration import (
     Calibration,
     StoredRadius,
     for_run,
@@ -19,18 +21,16 @@ from slipdaq.calibration import (
     merged,
     save_calibration,
 )
-from slipdaq.cli import main
-from slipdaq.config import Config, load_config
+from slipdaq.export.csv_file import ALL_COLUMNS
 from slipdaq.logformat.reader import iter_estimates, read_metadata
 from slipdaq.logformat.topics import TOPIC_ESTIMATE
-from slipdaq.offline import first_pass
+from slipdaq.offline.run import first_pass
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import SourceEvent
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import slip_error, slip_errors, truth_series
 from slipdaq.sinks import CollectingSink
-from slipdaq.sinks.csv_export import ALL_COLUMNS
 
 R0_OFFSET_M = -0.008
 OFF_UTC = SimSettings(gps_latency_s=0.085, gps_noise_mps=0.03, can_jitter_s=0.0005, host_clock_offset_s=3.0, seed=7)

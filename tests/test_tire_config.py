@@ -10,7 +10,7 @@ import pytest
 
 from conftest import CONFIG, ROOT, write_config
 from slipdaq.config import ConfigError, load_config, packaged_config_path
-from slipdaq.tire import TireSizeError, free_radius_m, parse_tire_size
+from slipdaq.config.tire_size import TireSizeError, free_radius_m, parse_tire_size
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ import pytest
 
 from slipdaq import WHEELS
 from slipdaq.config import Config
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.maneuver.mu_joint import fit_joint, force_lag_s
 from slipdaq.maneuver.mu_slip import normal_loads_n
 from slipdaq.maneuver.record import Maneuver, determined

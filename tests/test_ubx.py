@@ -108,7 +108,7 @@ def test_ubx_frames_logged_raw_and_replayed_identically(cfg, tmp_path) -> None: 
 
     from slipdaq.cli import main
     from slipdaq.logformat.reader import iter_estimates, iter_raw_records
-    from slipdaq.offline import process_to_log
+    from slipdaq.offline.run import process_to_log
 
     ubx_cfg = cfg.with_overrides(gps={"velocity": "ubx"})
     records = [e.record for e in generate(ubx_cfg, "cycle", "paved", replace(SETTINGS, gps_protocol="both"), 12.0)
@@ -131,11 +131,11 @@ def test_live_daemon_reads_ubx_from_a_pty(tmp_path) -> None:  # type: ignore[no-
 
     import can
 
-    from slipdaq.daemon import run_daemon
-    from slipdaq.demo import demo_config
+    from slipdaq.live.daemon import run_daemon
+    from slipdaq.live.demo import demo_config
+    from slipdaq.live.simulate import PtyGps
     from slipdaq.logformat.reader import iter_estimates, iter_raw_records, iter_topic
     from slipdaq.sim.realtime import play
-    from slipdaq.simulate import PtyGps
 
     gps = PtyGps()
     channel = f"ubx-live-{id(gps)}"

@@ -18,8 +18,8 @@ from dataclasses import replace
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.calibration import Calibration
 from slipdaq.config import Config
+from slipdaq.config.calibration import Calibration
 from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder

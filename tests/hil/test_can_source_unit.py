@@ -86,7 +86,7 @@ def test_receive_buffer_of_a_bus_without_a_socket_is_unknown() -> None:
 def test_the_log_metadata_holds_the_receive_buffer_the_kernel_gave() -> None:
     """The daemon stores what the kernel granted (SO_RCVBUF read back), beside what the config asked for."""
     from slipdaq.config import load_config
-    from slipdaq.daemon import can_metadata
+    from slipdaq.live.daemon import can_metadata
 
     class _SocketBus:  # python-can's SocketCAN bus keeps its socket in `.socket`; any socket shows the mechanism
         socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

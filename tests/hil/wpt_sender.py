@@ -101,7 +101,7 @@ class Drive:
 
 
 class PtyWriter:
-    """A pseudo-terminal standing in for the GPS receiver's serial port (as slipdaq.simulate.PtyGps)."""
+    """A pseudo-terminal standing in for the GPS receiver's serial port (as slipdaq.live.simulate.PtyGps)."""
 
     def __init__(self, link: str) -> None:
         self.master_fd, self.slave_fd = pty.openpty()

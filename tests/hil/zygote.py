@@ -35,8 +35,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # no BLAS worker threads in 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 PRELOAD = (
-    "numpy", "can", "can.interfaces.socketcan", "serial", "slipdaq.cli", "slipdaq.daemon", "slipdaq.simulate",
-    "slipdaq.sim.realtime", "slipdaq.sim.emit", "slipdaq.logformat.reader", "slipdaq.offline", "rich.live",
+    "numpy", "can", "can.interfaces.socketcan", "serial", "slipdaq.cli", "slipdaq.live.daemon", "slipdaq.live.simulate",
+    "slipdaq.sim.realtime", "slipdaq.sim.emit", "slipdaq.logformat.reader", "slipdaq.offline.run", "rich.live",
 )
 
 

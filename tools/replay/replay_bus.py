@@ -23,10 +23,10 @@ from pathlib import Path
 
 import can
 
+from slipdaq.live.simulate import PtyGps, serial_writer
 from slipdaq.logformat.reader import iter_raw_records
 from slipdaq.sim.emit import SimEvent
 from slipdaq.sim.realtime import play
-from slipdaq.simulate import PtyGps, serial_writer
 
 
 def timed_events(log: Path, speed: float) -> Iterator[SimEvent]:

@@ -10,8 +10,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from slipdaq.calibration import Calibration, Learned, RunCalibration
 from slipdaq.config import Config, ConfigError, load_config, parse_host_port
+from slipdaq.config.calibration import Calibration, Learned, RunCalibration
 from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import DbcError, WheelDecoder
 from slipdaq.outputs import OutputError
@@ -81,7 +81,7 @@ def _run_calibration(args: argparse.Namespace, cfg: Config, log_dir: Path, *, re
                      logged: Calibration | None = None) -> RunCalibration:
     """--calibration / --no-calibration / the default file; prints what it starts from. A replay without either
     flag starts from `logged`, the calibration the logged run started from, and saves to the default file."""
-    from slipdaq.calibration import default_path, for_replay, for_run
+    from slipdaq.config.calibration import default_path, for_replay, for_run
 
     if replay and not args.no_calibration and not args.calibration:
         cal = for_replay(logged, default_path(log_dir, cfg), cfg)

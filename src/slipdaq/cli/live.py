@@ -72,7 +72,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from slipdaq.daemon import new_log_path, open_bus, run_daemon
+    from slipdaq.live.daemon import new_log_path, open_bus, run_daemon
 
     cfg = _config(args.config)
     if args.foxglove is not None:
@@ -98,14 +98,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from slipdaq.simulate import SimOptions, run_simulate
+    from slipdaq.live.simulate import SimOptions, run_simulate
 
     cfg = _config(args.config)
     return run_simulate(cfg, SimOptions.from_args(args))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from slipdaq.demo import run_demo
+    from slipdaq.live.demo import run_demo
     from slipdaq.report.labels import parse_labels
 
     return run_demo(duration_s=args.duration, scenario=args.scenario, road=args.road, log_dir=Path(args.log_dir),

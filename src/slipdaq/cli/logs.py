@@ -126,7 +126,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from slipdaq.offline import frame_runs, process_to_log
+    from slipdaq.offline.run import frame_runs, process_to_log
     from slipdaq.sources.files import iter_can_logs, iter_nmea_log, merge_by_time
     from slipdaq.sources.xbus_file import iter_xbus_capture
 
@@ -172,7 +172,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.offline import first_pass, process_to_log, start_calibration
+    from slipdaq.offline.run import first_pass, process_to_log, start_calibration
     from slipdaq.report.labels import LABEL_PREFIX
     from slipdaq.sources.read_errors import guarded
 
@@ -202,7 +202,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     import contextlib
 
-    from slipdaq.export import FORMATS, LogStreams, check_outputs
+    from slipdaq.export.run import FORMATS, LogStreams, check_outputs
 
     outputs = {name: getattr(args, name) for name in FORMATS if getattr(args, name)}
     check_outputs(outputs, args.log)
@@ -220,7 +220,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from slipdaq.recover import recover
+    from slipdaq.offline.recover import recover
 
     report = recover(args.logs, args.output)
     print("\n".join(report.lines()))
@@ -228,7 +228,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_calibration(args: argparse.Namespace) -> int:
-    from slipdaq.calibration import CalibrationError, default_path, load_calibration, reset, save_calibration, show
+    from slipdaq.config.calibration import CalibrationError, default_path, load_calibration, reset, save_calibration, show
 
     cfg = load_config(args.config)
     path = Path(args.path) if args.path else default_path(cfg.resolve(cfg.log.dir), cfg)

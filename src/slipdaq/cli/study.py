@@ -87,7 +87,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    from slipdaq.fleet import FleetError, failure, run_batch
+    from slipdaq.fleet.batch import FleetError, failure, run_batch
 
     try:
         res = run_batch(args.logs, args.output, scheduler=args.scheduler, workers=args.workers, group_by=args.group_by,

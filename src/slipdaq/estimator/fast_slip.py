@@ -22,7 +22,7 @@ from slipdaq import WHEELS
 from slipdaq.compiled import kernel
 from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
-from slipdaq.estimator.windows import GAP_INTERVALS, MIN_GAP_S, TWO_PI
+from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 from slipdaq.records import FastSlip, FastWheel
 
 FAST_LINE_HALF = 5

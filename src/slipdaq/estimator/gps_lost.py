@@ -9,7 +9,7 @@ import math
 from slipdaq import WHEELS
 from slipdaq.estimator.latency import LatencyEstimate
 from slipdaq.estimator.phase import phase_of
-from slipdaq.estimator.windows import WheelWindows, reference_slip
+from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip
 from slipdaq.records import Estimate, WheelEstimate
 
 WHEEL_ONLY_STEP_S = 0.1

@@ -28,7 +28,7 @@ import numpy as np
 
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.windows import TWO_PI, has_gap
+from slipdaq.estimator.wheel_revolutions import TWO_PI, has_gap
 
 
 @dataclass(frozen=True, slots=True)

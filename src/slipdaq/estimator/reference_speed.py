@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from slipdaq.estimator.smoother import smooth_speed
-from slipdaq.estimator.windows import TWO_PI
+from slipdaq.estimator.wheel_revolutions import TWO_PI
 
 SPEED_HALF_WINDOW_S = 0.2
 """A wheel's speed at t: the slope at t of a parabola fitted to its revolutions from t - 0.2 s to t + 0.2 s (about 40

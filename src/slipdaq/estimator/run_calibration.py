@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from slipdaq import WHEELS
-from slipdaq.calibration import Calibration, Learned
+from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2

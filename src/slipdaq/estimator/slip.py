@@ -28,7 +28,7 @@ from collections import deque
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.calibration import Calibration, Learned
+from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.fast_slip import FastSlipRows
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
@@ -49,8 +49,8 @@ from slipdaq.estimator.readiness import (
 from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.run_calibration import RunCalibration
 from slipdaq.estimator.wheel_estimate import wheel_estimate
-from slipdaq.estimator.window import measure_window
-from slipdaq.estimator.windows import WheelWindows, reference_slip, slip_from_distances
+from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
+from slipdaq.estimator.window_measure import measure_window
 from slipdaq.records import Estimate, FastSlip, GpsFix, SourceEvent, WheelSample
 
 __all__ = ["EstimatorParams", "SlipEstimator", "PHASE_ACCEL_MPS2", "STANDSTILL_SPEED_MPS", "phase_of",

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from slipdaq.estimator.linear_region import enters_fit
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.stiffness import StiffnessFit
-from slipdaq.estimator.windows import slip_from_distances
+from slipdaq.estimator.wheel_revolutions import slip_from_distances
 from slipdaq.records import WheelEstimate
 
 

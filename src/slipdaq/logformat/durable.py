@@ -9,7 +9,7 @@ write; the next commit overwrites that trailer. So at any moment outside that on
 valid MCAP file without a summary section, which the standard MCAP readers read linearly (mcap's SeekingReader falls
 back to its NonSeekingReader when the footer says there is no summary). A process killed inside the write, or a
 power loss before the data reached the disk, leaves a torn tail: `slipdaq recover` (logformat.salvage,
-slipdaq.recover) keeps everything before it.
+slipdaq.offline.recover) keeps everything before it.
 
 After each commit the file is fsynced in a background thread (with fsync=True), so that a power loss costs at most
 the data of the last second or two, without blocking the event loop on a slow disk.

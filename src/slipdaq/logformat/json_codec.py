@@ -13,9 +13,9 @@ from typing import Any
 
 import orjson
 
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup, record_values
 from slipdaq.logformat.topics import log_time_ns
 from slipdaq.records import CanFrame, GpsFix, NmeaLine, WheelSample
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup, record_values
 
 
 def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:

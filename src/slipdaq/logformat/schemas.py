@@ -7,7 +7,6 @@ import dataclasses
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup
 from slipdaq.decode.nmea import DROP_REASONS
 from slipdaq.logformat import cdr
 from slipdaq.logformat.topics import (
@@ -28,6 +27,7 @@ from slipdaq.logformat.topics import (
 )
 from slipdaq.maneuver.record import MANEUVER_COLUMNS
 from slipdaq.records import GpsFix, SensorSample, SourceEvent
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup
 
 _NUM = {"type": "number"}
 _NUM_OR_NULL = {"type": ["number", "null"]}

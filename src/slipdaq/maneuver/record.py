@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slipdaq.columns import Column, ColumnGroup, record_row
 from slipdaq.config import TestConfig
 from slipdaq.maneuver.figures import ManeuverSummary, WheelSummary
+from slipdaq.records.columns import Column, ColumnGroup, record_row
 
 MANEUVER_KINDS = ("accelerate", "brake")
 MIN_JUDGE_S = 1.0

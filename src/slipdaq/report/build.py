@@ -67,7 +67,7 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
         raise LogError(f"{path}: no such file")
     metadata = read_metadata(path)
     if two_pass:
-        from slipdaq.offline import two_pass_rows
+        from slipdaq.offline.run import two_pass_rows
 
         got = two_pass_rows(path, stream=progress)
         if got is not None:

@@ -47,38 +47,38 @@ class LogStreams:
 
 
 def _csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.csv_export import ALL_COLUMNS, write_csv
+    from slipdaq.export.csv_file import ALL_COLUMNS, write_csv
 
     return write_csv(log.estimates(), path, ALL_COLUMNS)
 
 
 def _fast_csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.csv_export import FAST_COLUMNS, write_csv
+    from slipdaq.export.csv_file import FAST_COLUMNS, write_csv
 
     return write_csv(log.fast_rows(), path, FAST_COLUMNS)
 
 
 def _maneuvers_csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.csv_export import MANEUVER_CSV_COLUMNS, write_csv
+    from slipdaq.export.csv_file import MANEUVER_CSV_COLUMNS, write_csv
 
     return write_csv(log.maneuvers(), path, MANEUVER_CSV_COLUMNS)
 
 
 def _imu_csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.csv_export import write_csv
+    from slipdaq.export.csv_file import write_csv
 
     return write_csv(log.imu_rows(), path, ("time_s", "accel_mps2"))
 
 
 def _mf4(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.mf4_export import write_mf4
+    from slipdaq.export.mf4_file import write_mf4
 
     return write_mf4(log.estimates(), path, fast_rows=log.fast_rows(), fixes=log.fixes(), metadata=log.metadata,
                      log_name=log.log.name, labels=log.labels)
 
 
 def _parquet(log: LogStreams, path: Path) -> int:
-    from slipdaq.sinks.parquet_export import write_parquet
+    from slipdaq.export.parquet_file import write_parquet
 
     return write_parquet(log.estimates(), path, log_name=log.log.stem, labels=log.labels)
 

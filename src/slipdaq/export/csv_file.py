@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, column_names
 from slipdaq.maneuver.record import MANEUVER_COLUMNS
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, column_names
 
 COLUMNS: tuple[str, ...] = column_names(ESTIMATE_COLUMNS, WHEELS, csv="contract")
 """The public contract's columns, in order."""

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column
 
 GROUP_ESTIMATES, GROUP_WHEELS, GROUP_GPS = "estimates", "wheel speeds", "GPS"
 MDF_VERSION = "4.10"

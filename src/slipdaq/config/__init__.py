@@ -14,7 +14,7 @@ from typing import ClassVar, Literal, TypeVar
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from slipdaq.tire import TireSizeError, free_radius_m, parse_tire_size
+from slipdaq.config.tire_size import TireSizeError, free_radius_m, parse_tire_size
 
 
 class ConfigError(Exception):

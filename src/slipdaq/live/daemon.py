@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, TextIO
 import can
 
 from slipdaq import compiled
-from slipdaq.calibration import Calibration, Learned, to_toml
 from slipdaq.config import Config, ConfigError
+from slipdaq.config.calibration import Calibration, Learned, to_toml
 from slipdaq.decode.xbus import XbusFramer
 from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.maneuver.record import Maneuver

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from slipdaq import WHEELS
+from slipdaq.export.csv_file import ALL_COLUMNS
 from slipdaq.records import ESTIMATE_COLUMNS
-from slipdaq.sinks.csv_export import ALL_COLUMNS
 
 _KINDS = {c.key(w) if g.per_wheel else c.name: c.kind for g in ESTIMATE_COLUMNS
           for w in (WHEELS if g.per_wheel else ("",)) for c in g.columns}

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from slipdaq.fleet_storage import FleetError, UrlStore, expand_logs, is_url
-from slipdaq.fleet_task import (
+from slipdaq.fleet.storage import FleetError, UrlStore, expand_logs, is_url
+from slipdaq.fleet.task import (
     CACHE,
     ESTIMATES,
     REPORT,
@@ -267,7 +267,7 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
     """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
     holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
     first where the task could not write DIR) or `bad` as it comes; returns the failures."""
-    from slipdaq.fleet_cluster import connect
+    from slipdaq.fleet.cluster import connect
 
     failed: list[LogResult] = []
     with connect(scheduler, workers) as client:

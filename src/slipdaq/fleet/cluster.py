@@ -1,7 +1,7 @@
 """The Dask cluster of `slipdaq batch`: a local one, or the scheduler at an address; its workers warm before the
 first task; a task whose worker dies is retried once.
 
-Warm: each worker, a remote one too, imports the task's modules and loads the compiled kernels (slipdaq.fleet_warm)
+Warm: each worker, a remote one too, imports the task's modules and loads the compiled kernels (slipdaq.fleet.warm)
 when it joins (WarmUp), before it takes a task. (Workers forked from a warm server would start faster, but would
 take that server's environment, not the caller's: the credentials and endpoint of the logs' object store.)
 
@@ -21,7 +21,7 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-from slipdaq.fleet_storage import FleetError
+from slipdaq.fleet.storage import FleetError
 
 
 def need_fleet_extra() -> None:
@@ -81,12 +81,12 @@ def _client(client_cls: Any, cluster_cls: Any, scheduler: str | None, workers: i
 
 class WarmUp(WorkerPlugin):
     """A Dask worker plugin: the worker imports the task's modules and loads the compiled kernels when it joins
-    (slipdaq.fleet_warm), not in its first task."""
+    (slipdaq.fleet.warm), not in its first task."""
 
     idempotent = True
 
     def setup(self, worker: Any) -> None:
-        import slipdaq.fleet_warm  # noqa: F401
+        import slipdaq.fleet.warm  # noqa: F401
 
     def teardown(self, worker: Any) -> None:
         pass

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from slipdaq.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, record_row
+from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, record_row
 
 
 @dataclass(slots=True)

@@ -15,8 +15,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from slipdaq import WHEELS, compiled
-from slipdaq.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.config import Config
+from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import slipdaq
-from slipdaq.fleet_storage import UrlStore, is_url, local_copy, url_identity
+from slipdaq.fleet.storage import UrlStore, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output
 from slipdaq.report.page_data import PagePlots
 from slipdaq.report.summary import LogSummary
@@ -122,11 +122,11 @@ def error_text(e: BaseException) -> str:
 def process_log(job: Job) -> LogResult:
     """The task: one log two-pass, its summary, page plots (PNGs with job.png) and Parquet bytes (with job.out: written
     there, and only the summary returned); any error as text (never raises)."""
+    from slipdaq.export.parquet_file import write_parquet
     from slipdaq.report.build import plot_log, read_log
     from slipdaq.report.labels import labels_of
     from slipdaq.report.page_data import log_page
     from slipdaq.report.summary import summarize_log
-    from slipdaq.sinks.parquet_export import write_parquet
 
     t0 = time.perf_counter()
     try:

@@ -23,7 +23,7 @@ from pathlib import Path
 import serial
 
 from slipdaq.config import Config
-from slipdaq.daemon import open_bus
+from slipdaq.live.daemon import open_bus
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 

@@ -14,7 +14,7 @@ from slipdaq.estimator.latency import LatencyEstimate
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2, phase_of
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.windows import WheelWindows
+from slipdaq.estimator.wheel_revolutions import WheelWindows
 from slipdaq.records import Estimate, WheelEstimate
 
 IMU_MAX_GAP_S = 0.1

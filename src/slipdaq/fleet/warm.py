@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pyarrow.parquet  # noqa: F401  (the Parquet writer)
 
-import slipdaq.fleet_task  # noqa: F401
-import slipdaq.offline  # noqa: F401
+import slipdaq.export.parquet_file  # noqa: F401
+import slipdaq.fleet.task  # noqa: F401
+import slipdaq.offline.run  # noqa: F401
 import slipdaq.report.build  # noqa: F401
-import slipdaq.sinks.parquet_export  # noqa: F401
 from slipdaq.compiled import prepare
 
 prepare()

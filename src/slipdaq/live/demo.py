@@ -12,9 +12,10 @@ from typing import TextIO, get_args
 
 import can
 
-from slipdaq.calibration import Calibration, default_path, for_run
 from slipdaq.config import Config, load_config, packaged_config_path
-from slipdaq.daemon import RunResult, new_log_path, open_bus, run_daemon
+from slipdaq.config.calibration import Calibration, default_path, for_run
+from slipdaq.live.daemon import RunResult, new_log_path, open_bus, run_daemon
+from slipdaq.live.simulate import BRAKE_RATE_HZ, IMU_RATE_HZ, PtyGps
 from slipdaq.logformat.reader import iter_estimates
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim import SlipScenario
@@ -22,7 +23,6 @@ from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
 from slipdaq.sim.vehicle import TruthSample
-from slipdaq.simulate import BRAKE_RATE_HZ, IMU_RATE_HZ, PtyGps
 from slipdaq.sinks.maneuver_text import maneuver_line
 
 SENSOR_SCENARIOS: tuple[str, ...] = get_args(SlipScenario)

@@ -1,0 +1,1 @@
+"""The live verbs' engines: run (daemon), demo, simulate."""

@@ -1,0 +1,1 @@
+"""The offline runs over recorded logs: import, replay, two-pass (run), recover."""
