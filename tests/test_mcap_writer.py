@@ -67,3 +67,18 @@ def test_many_chunks_by_size_read_back() -> None:
     assert summary is not None and len(summary.chunk_indexes) > 50
     messages = [m.data for _s, _c, m in make_reader(io.BytesIO(ours)).iter_messages(log_time_order=False)]
     assert messages == [c[3] for c in calls if c[0] == "message"]
+
+
+def test_a_with_block_finishes_the_file() -> None:
+    """A writer used in a `with` block: the file is whole when the block ends (the mcap library reads its summary)."""
+    stream = io.BytesIO()
+    with McapWriter(stream, chunk_size=200) as writer:
+        writer.start(profile="slipdaq", library="slipdaq test")
+        sid = writer.register_schema("s", "jsonschema", b'{"type": "object"}')
+        ch = writer.register_channel("/t", "json", sid)
+        for i in range(50):
+            writer.add_message(ch, log_time=i, data=b"{}", publish_time=i, sequence=i)
+    stream.seek(0)
+    summary = make_reader(stream).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 50

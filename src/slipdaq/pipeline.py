@@ -44,7 +44,7 @@ from slipdaq.records import (
     WheelSampleBatch,
     XbusBytes,
 )
-from slipdaq.sinks import Sink
+from slipdaq.sinks import Sink, SinkFanout
 
 DIAGNOSTICS_PERIOD_S = 1.0
 MERGE_MAX_FRAMES = 8192
@@ -115,6 +115,8 @@ class Pipeline:
         at once (replay, import: the log time of the record that decided it)."""
         self.config = config
         self.sinks = list(sinks)
+        self._out = SinkFanout(self.sinks)
+        """Every sink, called once per record (the one dispatch)."""
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.ubx = UbxDecoder()
@@ -154,8 +156,7 @@ class Pipeline:
         if isinstance(record, CanFrame):
             self.process_can_batch(CanFrameBatch.from_frames([record]))
             return
-        for s in self.sinks:
-            s.on_raw(record)
+        self._out.on_raw(record)
         if isinstance(record, RtcmFrame):  # corrections for the receiver, logged, not decoded
             self._tick(record.timestamp_s)
             return
@@ -172,8 +173,7 @@ class Pipeline:
 
     def _fix(self, fix: GpsFix, log_time_s: float) -> None:
         """A reference-speed fix (GPS on the serial port, or the reference on CAN) to the sinks and the estimator."""
-        for s in self.sinks:
-            s.on_fix(fix)
+        self._out.on_fix(fix)
         if self._gps_speeds is not None and self.fixes < len(self._gps_speeds):
             fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
         self.fixes += 1
@@ -184,16 +184,14 @@ class Pipeline:
             self._events()
         if self.estimator.fast_rows:
             rows = self.estimator.take_fast()
-            for s in self.sinks:
-                s.on_fast_slip_rows(rows, log_time_s)
+            self._out.on_fast_slip_rows(rows, log_time_s)
             for row in rows:
                 self.maneuvers.add_fast(row.time_s, row)
             if self.maneuvers.decided:
                 self._maneuvers(log_time_s)
 
     def _sensor(self, sample: SensorSample) -> None:
-        for s in self.sinks:
-            s.on_sensor(sample)
+        self._out.on_sensor(sample)
         if sample.kind == "brake":
             self.maneuvers.add_brake(sample.time_s, sample.value)
         elif sample.kind == "imu_accel":
@@ -205,8 +203,7 @@ class Pipeline:
     def _events(self) -> None:
         """The estimator's events (a stored calibration value replaced) to every sink."""
         for ev in self.estimator.take_events():
-            for s in self.sinks:
-                s.on_source_event(ev)
+            self._out.on_source_event(ev)
 
     def process_can_batch(self, frames: CanFrameBatch | Sequence[CanFrame]) -> None:
         """Consecutive CAN frames (a reader's wake-up, a block of a log): the same sink calls, estimates and counters
@@ -346,8 +343,7 @@ class Pipeline:
 
     def _estimate(self, e: Estimate, log_time_s: float) -> None:
         self.estimates += 1
-        for s in self.sinks:
-            s.on_estimate(e, log_time_s)
+        self._out.on_estimate(e, log_time_s)
         self.maneuvers.add_estimate(e.as_row())
         if self.maneuvers.decided:
             self._maneuvers(log_time_s)
@@ -372,8 +368,7 @@ class Pipeline:
     def _deliver_maneuver(self, m: ManeuverSummary, log_time_s: float) -> None:
         self.maneuver_count += 1
         record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
-        for s in self.sinks:
-            s.on_maneuver(record, log_time_s)
+        self._out.on_maneuver(record, log_time_s)
 
     def _tick(self, t: float) -> None:
         """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""
@@ -390,8 +385,7 @@ class Pipeline:
         """Frames start..stop of the segment (at offset in the run) and their samples to the sinks, in the batches
         the frames came in."""
         for a, b, piece in parts.pieces(offset + start, offset + stop):
-            for s in self.sinks:
-                s.on_can_batch(piece)
+            self._out.on_can_batch(piece)
             if not len(samples):
                 continue
             frame = samples.frame
@@ -400,8 +394,7 @@ class Pipeline:
                 continue
             mine = samples if (i0, i1) == (0, len(samples)) and a == offset else \
                 samples.slice(i0, i1, frame_offset=offset - a)
-            for s in self.sinks:
-                s.on_wheel_batch(mine)
+            self._out.on_wheel_batch(mine)
 
     def run(self, records: Iterable[RawRecord]) -> None:
         for r in records:
@@ -438,5 +431,4 @@ class Pipeline:
 
     def emit_diagnostics(self) -> None:
         d = self.diagnostics().as_dict()
-        for s in self.sinks:
-            s.on_diagnostics(d, d["time_s"])  # type: ignore[arg-type]  # Diagnostics.as_dict's time_s is a float
+        self._out.on_diagnostics(d, d["time_s"])  # type: ignore[arg-type]  # Diagnostics.as_dict's time_s is a float

@@ -11,6 +11,7 @@ import struct
 import zlib
 from collections import defaultdict
 from concurrent.futures import Future, ThreadPoolExecutor
+from types import TracebackType
 from typing import Any
 
 import zstandard
@@ -207,6 +208,18 @@ class McapWriter:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+    def __enter__(self) -> McapWriter:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """The file finished when the block ends normally; on an error only the worker thread stopped (the stream
+        then holds what was written: `slipdaq recover` reads it)."""
+        if kind is None:
+            self.finish()
+        else:
+            self.close_pool()
 
     # ---- the end ----
     def finish(self) -> None:

@@ -10,6 +10,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from types import TracebackType
 
 import slipdaq
 from slipdaq.logformat.durable import CommitFile, LogWriteError, describe
@@ -263,6 +264,13 @@ class LogWriter:
             return
         self.unflushed = 0
         self.last_commit = self._mono()
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
 
     def close(self) -> None:
         if self.closed:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from types import TracebackType
+from typing import Any
 
 from slipdaq import WHEELS
 from slipdaq.maneuver.record import Maneuver
@@ -66,16 +68,65 @@ class Sink:
     def on_source_event(self, event: SourceEvent) -> None:
         """A device or log event (live runs)."""
 
+    def close(self) -> None:
+        """Release what the sink holds (a file, a server); the default holds nothing. Safe to call twice."""
 
-class EventFanout:
-    """Passes each source event to every sink's on_source_event."""
+    def __enter__(self) -> Sink:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+SINK_CALLS: tuple[str, ...] = tuple(
+    name for name, value in vars(Sink).items() if name.startswith("on_") and callable(value))
+"""The calls a sink takes, in the order Sink declares them."""
+
+
+def _fanned(name: str) -> Callable[..., None]:
+    def call(self: SinkFanout, *args: Any) -> None:
+        for method in self._calls[name]:
+            method(*args)
+    call.__name__ = call.__qualname__ = name
+    call.__doc__ = f"{name} of every sink, in the order they were given."
+    return call
+
+
+class SinkFanout(Sink):
+    """Every call to each of its sinks in turn (python-can's `Notifier` over its listeners): the pipeline's one
+    dispatch. Each sink's bound methods are looked up once, when the fan-out is made; close() closes them all, in
+    reverse order, each even when an earlier one raised (the first error is raised after)."""
 
     def __init__(self, sinks: Iterable[Sink]) -> None:
-        self._sinks = list(sinks)
+        self.sinks: tuple[Sink, ...] = tuple(sinks)
+        self._calls: dict[str, tuple[Callable[..., None], ...]] = {
+            name: tuple(getattr(s, name) for s in self.sinks) for name in SINK_CALLS}
+
+    def close(self) -> None:
+        first: BaseException | None = None
+        for s in reversed(self.sinks):
+            try:
+                s.close()
+            except Exception as e:  # every sink closed, whatever one of them raised
+                first = first or e
+        if first is not None:
+            raise first
+
+
+for _name in SINK_CALLS:
+    setattr(SinkFanout, _name, _fanned(_name))
+
+
+
+class EventFanout:
+    """Passes each source event to every sink's on_source_event (a source's callback)."""
+
+    def __init__(self, sinks: Iterable[Sink]) -> None:
+        self._fanout = SinkFanout(sinks)
 
     def __call__(self, event: SourceEvent) -> None:
-        for s in self._sinks:
-            s.on_source_event(event)
+        self._fanout.on_source_event(event)
 
 
 class CollectingSink(Sink):
