@@ -38,7 +38,7 @@ def filesystem(url: str) -> tuple[Any, str]:
     """fsspec's filesystem of a URL and the path in it; FleetError when fsspec, or the protocol's package, is
     missing or the protocol is unknown."""
     try:
-        from fsspec.core import url_to_fs  # type: ignore[import-untyped]  # fsspec ships no type information
+        from fsspec.core import url_to_fs
     except ImportError:
         raise FleetError(f"{url}: URLs need fsspec: pip install -e \".[fleet]\"") from None
     try:
