@@ -13,8 +13,8 @@ from pathlib import Path
 
 import can
 
-from fd_bus import FdBus  # tests/fd_bus.py (tests/ is on sys.path through tests/conftest.py)
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
+from support.fd_bus import FdBus  # tests/fd_bus.py (tests/ is on sys.path through tests/conftest.py)
 
 
 def _run(bus: FdBus, steps: list[object]) -> tuple[CanBusSource, list[int], list[str], list[dict[str, object]]]:

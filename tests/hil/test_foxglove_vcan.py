@@ -63,7 +63,7 @@ jsonschema = pytest.importorskip("jsonschema")
 if importlib.util.find_spec("foxglove") is None:  # the daemon's server; not imported here (slow in the VM)
     pytest.skip("foxglove-sdk is not installed", allow_module_level=True)
 
-from foxglove_client import Client, read_log  # noqa: E402  (tests/foxglove_client.py; tests/ is on sys.path via its conftest)
+from support.foxglove_client import Client, read_log  # noqa: E402  (tests/foxglove_client.py; tests/ is on sys.path via its conftest)
 
 RATE_HZ = 25.0
 """WPT frames per second per wheel (case 1's rate: the VM keeps it in real time)."""

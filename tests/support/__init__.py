@@ -1,0 +1,1 @@
+"""What the tests share: paths, reference implementations (oracles), fake devices and clients."""
