@@ -8,7 +8,7 @@ on the same data; both with `--no-calibration` (every run starts cold, whatever 
 run other paths: a calibration stored by an earlier drive of the same car (`--calibration`), `replay --two-pass`,
 and a CAN reader stall. Prints a markdown table; --write also puts it in docs/accuracy.md.
 
-    python benchmarks/accuracy.py [--quick] [--rows NAME,...] [--write]
+    python -m benchmarks.accuracy [--quick] [--rows NAME,...] [--write]
 
 Figures (speed above 5 m/s): slip RMS error in percentage points over all windows and over the windows whose r0
 was calibrated; the GPS-noise floor of that RMS and the ratio to it; r0 error in mm (worst wheel, at the end); front

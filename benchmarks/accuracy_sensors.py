@@ -4,7 +4,7 @@ truth (issue 16's targets). Each row simulates a drive, runs it through slipdaq'
 and `replay` do) and, for the report's figures, through the report's summary (report/summary.py) of the two-pass
 estimates (as `slipdaq report` does by default).
 
-    python benchmarks/accuracy_sensors.py [--rows NAME,...] [--write]
+    python -m benchmarks.accuracy_sensors [--rows NAME,...] [--write]
 
 Rows:
   CAN reference    slip RMS (windows, speed > 5 m/s) with the reference speed on CAN at 100 Hz, 20 ms latency

@@ -13,7 +13,7 @@ not timed. Then, in each round:
   (d) re-run:     (b) again over its own output: every log up to date.
 Each batch starts from an empty DIR. The table shows the median over the rounds.
 
-    python benchmarks/batch.py [--logs 100] [--seconds 15] [--workers 2] [--rounds 1] [--write]
+    python -m benchmarks.batch [--logs 100] [--seconds 15] [--workers 2] [--rounds 1] [--write]
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from pathlib import Path
 import dask
 import distributed
 
-from doc_block import machine, write_block
+from benchmarks.doc_block import machine, write_block
 from slipdaq.cli import main as slipdaq
 from slipdaq.config import load_config, packaged_config_path
 from slipdaq.offline.run import process_to_log
@@ -170,7 +170,7 @@ def main() -> int:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    block = (f"**Run.** `python benchmarks/batch.py --logs {a.logs} --seconds {a.seconds:g} --workers {a.workers} "
+    block = (f"**Run.** `python -m benchmarks.batch --logs {a.logs} --seconds {a.seconds:g} --workers {a.workers} "
              f"--rounds {a.rounds} --write` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of "
              f"{a.seconds:g} s ({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(times, a.logs, a.workers))
     print(block)

@@ -11,7 +11,7 @@ the last log finished (the report's tables and page, the cluster's stop). With -
 revision unpacked by base_revision), the same runs of that revision for the worker counts of --base-workers,
 interleaved with this tree's.
 
-    python benchmarks/batch_scaling.py [--logs 128] [--seconds 15] [--workers 1,2,4,8,16] [--base DIR|REV]
+    python -m benchmarks.batch_scaling [--logs 128] [--seconds 15] [--workers 1,2,4,8,16] [--base DIR|REV]
                                        [--base-workers 16] [--write]
 """
 
@@ -31,7 +31,7 @@ from pathlib import Path
 import dask
 import distributed
 
-from doc_block import machine, write_block
+from benchmarks.doc_block import machine, write_block
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "performance.md"
@@ -114,8 +114,7 @@ def main() -> int:
     if a.base:
         base = Path(a.base)
         if not base.is_dir():
-            sys.path.insert(0, str(Path(__file__).parent))
-            from base_revision import unpack
+            from benchmarks.base_revision import unpack
             base = unpack(a.base, work / "base")
         trees["base " + (a.base if not Path(a.base).is_dir() else base.parent.name)] = base
     for tree, src in trees.items():  # each tree's slipdaq, not an installed one
@@ -146,7 +145,7 @@ def main() -> int:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    block = (f"**Run.** `python benchmarks/batch_scaling.py --logs {a.logs} --seconds {a.seconds:g} --workers "
+    block = (f"**Run.** `python -m benchmarks.batch_scaling --logs {a.logs} --seconds {a.seconds:g} --workers "
              f"{a.workers}" + (f" --base {a.base} --base-workers {a.base_workers}" if a.base else "")
              + f"` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of {a.seconds:g} s "
              f"({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(runs, a.logs))

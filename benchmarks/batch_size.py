@@ -3,7 +3,7 @@
 64 and 256 frames (GPS lines between them one by one), with the per-sample kernels compiled by numba and run as
 plain Python (SLIPDAQ_JIT=0). Figures for docs/architecture.md.
 
-    python benchmarks/batch_size.py [--seconds 10] [--rounds 3]
+    python -m benchmarks.batch_size [--seconds 10] [--rounds 3]
 """
 
 from __future__ import annotations

@@ -8,23 +8,20 @@ the seeds with its standard error, and the same drive with neither GPS speed noi
 method shows in every seed and without noise; the GPS speed noise of one drive moves a phase's mean by itself,
 because the four wheels share each window's GPS distance and overlapping windows share fixes.
 
-    python benchmarks/first_acceleration.py [--seeds 12] [--mode two-pass|cold]
+    python -m benchmarks.first_acceleration [--seeds 12] [--mode two-pass|cold]
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import accuracy as A  # noqa: E402
+from benchmarks import accuracy as A
 from slipdaq import WHEELS  # noqa: E402
 from slipdaq.sim.truth import slip_errors, truth_series  # noqa: E402
 

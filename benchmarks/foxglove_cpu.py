@@ -12,7 +12,7 @@ loopback-UDP bus that it reads as it reads SocketCAN, a sender process plays the
 on a pseudo-terminal; the daemon's CPU time comes from /proc/PID/stat over the drive minus its first
 min(2 s, 20 %) and last 0.3 s. Target: `client` at most 2 % of a core above `off`.
 
-    .venv/bin/python benchmarks/foxglove_cpu.py [--seconds 20] [--rounds 3] [--modes off,server,client]
+    .venv/bin/python -m benchmarks.foxglove_cpu [--seconds 20] [--rounds 3] [--modes off,server,client]
 
 Prints one line per run and a markdown table of the medians (docs/performance.md, "The Foxglove live view").
 """
@@ -38,11 +38,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
 import slipdaq  # noqa: E402
-from perf import diagnostics_of, free_udp_port, machine, median, proc_cpu_s, table  # noqa: E402
+from benchmarks.perf_common import ROOT, diagnostics_of, free_udp_port, machine, median, proc_cpu_s, table
 from slipdaq.config import packaged_config_path  # noqa: E402
 
 MODES = ("off", "server", "client")
@@ -144,14 +141,14 @@ def run_once(mode: str, seconds: float, tmp: Path) -> Run:
     start = round(time.time() + 1.5 * seconds * (4 * WPT_RATE_HZ + 100) / 30000.0 + 4.0, 2)
     py = sys.executable
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(Path(slipdaq.__file__).resolve().parents[1]), str(HERE)] +
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(slipdaq.__file__).resolve().parents[1]), str(ROOT)] +
                                         ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     sender = subprocess.Popen(
-        [py, str(HERE / "perf_bus.py"), "sender", "--port", str(port), "--nmea-fd", str(master),
+        [py, "-m", "benchmarks.perf_bus", "sender", "--port", str(port), "--nmea-fd", str(master),
          "--wpt-rate-hz", str(WPT_RATE_HZ), "--gps-rate-hz", "20", "--duration", str(seconds),
          "--start-wall", str(start)], pass_fds=[master], stdout=subprocess.PIPE, text=True, env=env)
     out_file = open(work / "daemon.out", "w")
-    daemon = subprocess.Popen([py, str(HERE / "perf_bus.py"), "daemon", "--config", str(cfg_path), "--log-dir",
+    daemon = subprocess.Popen([py, "-m", "benchmarks.perf_bus", "daemon", "--config", str(cfg_path), "--log-dir",
                                str(work / "logs")], stdout=out_file, stderr=subprocess.STDOUT, env=env)
     client = None
     try:

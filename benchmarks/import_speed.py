@@ -10,7 +10,7 @@ with this tree's src (and with --base REV's, `git archive`d, side by side); (b) 
 numba's kernel cache). Frames/s = CAN frames / median wall time; the ratio to BLF per round, and its median.
 --profile also runs this tree's import once under cProfile and splits its time by part (where the floor is).
 
-    python benchmarks/import_speed.py [--seconds 120] [--short-seconds 1] [--wpt-rate-hz 1000] [--rounds 5]
+    python -m benchmarks.import_speed [--seconds 120] [--short-seconds 1] [--wpt-rate-hz 1000] [--rounds 5]
                                       [--base REV] [--profile] [--write]
 """
 
@@ -29,9 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from base_revision import ROOT, unpack  # noqa: E402
-from doc_block import write_block  # noqa: E402
+from benchmarks.base_revision import ROOT, unpack
+from benchmarks.doc_block import write_block
 
 DOC = ROOT / "docs" / "performance.md"
 BEGIN, END = "<!-- import:begin -->", "<!-- import:end -->"
@@ -163,7 +162,7 @@ def main() -> int:
             run_timed(command(n, k), envs[n])
         identical = ""
         if a.base:
-            from replay_check import compare
+            from benchmarks.replay_check import compare
 
             diff = compare(tmp / "2-long.mcap", tmp / "1-long.mcap")
             identical = "identical to the base's (but `created_utc`)" if not diff else f"DIFFERENT from the base's: {diff}"
@@ -188,7 +187,7 @@ def main() -> int:
                              f"{frames[k] / med(w):,.0f}", f"{med(blf_w) / med(w):.3f}",
                              f"{med(per_round):.3f} ({min(per_round):.2f}–{max(per_round):.2f})",
                              f"{med(c):.2f} s", f"{med(blf_c) / med(c):.3f}"])
-        cmd = "python benchmarks/import_speed.py " + " ".join(sys.argv[1:])
+        cmd = "python -m benchmarks.import_speed " + " ".join(sys.argv[1:])
         head = (f"**Run.** `{cmd.strip()}` — {(time.time() - started) / 60:.1f} min, "
                 f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.processor() or platform.machine()}, "
                 f"{os.cpu_count()} CPUs, 1-minute load {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end. "

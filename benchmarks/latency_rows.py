@@ -8,7 +8,7 @@ Each row the estimator adds to its fit during a pipeline run is kept; the lag is
 chosen speeds (the wheels' speed over the row, 0.9–4.8 m/s by default), without forgetting and without the estimator's
 clamp at 0 (the parabolic minimum of the residual on the 1 ms grid).
 
-    python benchmarks/latency_rows.py [--seeds 1,...,8] [--speeds 0.9,4.8] [--noise 0.02]
+    python -m benchmarks.latency_rows [--seeds 1,...,8] [--speeds 0.9,4.8] [--noise 0.02]
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ replay are one estimator, bit for bit, so this is what the daemon gives live fro
 above 5 m/s that the judge can judge (tests/hil/judge.py: the sender's own sampling lag small) is compared with the
 truth; per quality: windows, RMS and worst |error|; the share of windows `ok`, and the worst `ok` windows.
 
-    python benchmarks/live_recorded.py [--data tests/hil/data tests/hil/data/loaded] [--write]
+    python -m benchmarks.live_recorded [--data tests/hil/data tests/hil/data/loaded] [--write]
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "tests" / "hil"), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT / "tests" / "hil"), str(ROOT / "tests")]  # the VM suite's judge (tests/hil: not a package)
 
 from judge import MIN_SPEED_MPS  # noqa: E402
 from live_quality import RecordedRun, cold_and_stored, errors_by_quality  # noqa: E402
 
-from doc_block import write_block  # noqa: E402
+from benchmarks.doc_block import write_block  # noqa: E402
 
 DOC = ROOT / "docs" / "accuracy.md"
 BEGIN, END = "<!-- live runs: begin -->", "<!-- live runs: end -->"
@@ -66,7 +66,7 @@ def main() -> int:
         lines += [f"| {name}: cold, off UTC | {judge(cold, run)} |",
                   f"| {name}: stored calibration, off UTC | {judge(stored, run)} |"]
     where = ", ".join(f"`{f.resolve().relative_to(ROOT) if f.resolve().is_relative_to(ROOT) else f}`" for f in a.data)
-    block = (f"`python benchmarks/live_recorded.py` on {where} (judged wheel windows above {MIN_SPEED_MPS:g} m/s; "
+    block = (f"`python -m benchmarks.live_recorded` on {where} (judged wheel windows above {MIN_SPEED_MPS:g} m/s; "
              "targets: `ok` <= 0.3 pts RMS, >= 60 % `ok`, none over 5 pts)\n\n" + "\n".join(lines))
     print(block)
     if a.write:

@@ -9,7 +9,7 @@ recorded calls are made on an McapLogSink alone, --repeats times (the least coun
 estimator around it, the steadiest figure on a busy machine. CPU is process_time (every thread of the process). The
 table shows medians over the rounds.
 
-    python benchmarks/log_cost.py --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
+    python -m benchmarks.log_cost --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
+from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
 
 WORKER = """
 import io, json, sys, time

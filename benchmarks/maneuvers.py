@@ -2,7 +2,7 @@
 """The live /maneuver records against the simulator's truth (issue 24's targets). Each row simulates a drive and runs
 it through slipdaq's pipeline in process, as `run`, `import` and `replay` do: the records are those a live run logs.
 
-    python benchmarks/maneuvers.py [--seeds 1,2,3] [--tires 1.17:0.17,...] [--write]
+    python -m benchmarks.maneuvers [--seeds 1,2,3] [--tires 1.17:0.17,...] [--write]
 
 Rows (per road and seed):
   ABS stop 80       brake-abs from 80 km/h with the brake switch (50 Hz) and the IMU (100 Hz), WPT at 500 Hz: brake
@@ -196,7 +196,7 @@ def main() -> int:
     if args.write:
         doc = DOC.read_text()
         tires_arg = f" --tires {args.tires}" if args.tires else ""
-        block = f"{BEGIN}\n`python benchmarks/maneuvers.py --seeds {args.seeds}{tires_arg} --write`\n\n{text}\n{END}"
+        block = f"{BEGIN}\n`python -m benchmarks.maneuvers --seeds {args.seeds}{tires_arg} --write`\n\n{text}\n{END}"
         if BEGIN in doc and END in doc:
             doc = doc[: doc.index(BEGIN)] + block + doc[doc.index(END) + len(END):]
         else:

@@ -10,11 +10,11 @@ reads it exactly as it reads python-can's SocketCAN bus: from the asyncio loop (
 can.read_interval_s), one recvmsg per frame straight from the socket (slipdaq.sources.socketcan_raw), and
 daemon.open_bus asks it for the large SO_RCVBUF as on a car.
 
-    python benchmarks/perf_bus.py daemon --config CFG --duration S --log-dir D [--probe OUT.json]
+    python -m benchmarks.perf_bus daemon --config CFG --duration S --log-dir D [--probe OUT.json]
         registers the interface name `slipdaq_bench_udp`, then runs slipdaq.cli.main(["run", ...]) (the code of
         `slipdaq run`, unchanged); with --probe it also records time.time() after each estimate is handed to the
         MCAP writer (20 calls/s: negligible).
-    python benchmarks/perf_bus.py sender --port P --nmea-fd FD --wpt-rate-hz R --gps-rate-hz G --duration S
+    python -m benchmarks.perf_bus sender --port P --nmea-fd FD --wpt-rate-hz R --gps-rate-hz G --duration S
         generates the simulated drive (sim time 0 = --start-wall), waits for that time, then sends the CAN frames to
         127.0.0.1:P and writes the NMEA lines to the pseudo-terminal's master FD at their times; prints its counts.
 """
@@ -96,13 +96,10 @@ class LoopbackUdpBus(can.BusABC):
 
 def register() -> None:
     """Make `interface = "slipdaq_bench_udp"` known to can.Bus (python-can looks interfaces up in BACKENDS)."""
-    here = str(Path(__file__).resolve().parent)
-    if here not in sys.path:
-        sys.path.insert(0, here)
     import can.interfaces
     import can.util
 
-    can.interfaces.BACKENDS[INTERFACE] = ("perf_bus", "LoopbackUdpBus")
+    can.interfaces.BACKENDS[INTERFACE] = ("benchmarks.perf_bus", "LoopbackUdpBus")
     valid = frozenset(can.interfaces.BACKENDS)
     can.interfaces.VALID_INTERFACES = valid
     can.util.VALID_INTERFACES = valid  # load_config checks this copy

@@ -10,10 +10,10 @@ table gives the lowest of the rounds' medians (the round least disturbed by othe
 microseconds, and the ratio base/new. The estimates' JSON of both sides is compared: "identical" means every value
 bit for bit (the JSON's decimals may differ: orjson writes 1e-05 as 0.00001).
 
-    python benchmarks/perf_epoch.py [--base REV] [--seconds 30] [--rounds 5]
+    python -m benchmarks.perf_epoch [--base REV] [--seconds 30] [--rounds 5]
 
 REV defaults to the merge base of HEAD with main.
-    python benchmarks/perf_epoch.py --check    # no timing: every output of both sides on CHECK_CASES, compared
+    python -m benchmarks.perf_epoch --check    # no timing: every output of both sides on CHECK_CASES, compared
 
 --check runs both sides on several drives (CHECK_CASES: configs, GPS lost, NMEA arrival jitter, epochs out of
 order) and compares every GpsFix, decoder counter, estimate and estimator status, as repr (exact floats).
@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from base_revision import add_base_argument, resolve, unpack
+from benchmarks.base_revision import add_base_argument, resolve, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 ROWS = (

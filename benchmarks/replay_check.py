@@ -18,7 +18,7 @@ the same order, floats bit for bit, /slip/fast row by row however its rows are c
 estimates, fixes, wheel samples and diagnostics equal those the live pipeline logged when it wrote the input
 (live = replay, whatever the batching).
 
-    python benchmarks/replay_check.py [--base REV] [--work /tmp/replay-check] [--quick] [--values]
+    python -m benchmarks.replay_check [--base REV] [--work /tmp/replay-check] [--quick] [--values]
 
 REV defaults to the merge base of HEAD with main.
 """
@@ -37,7 +37,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from base_revision import add_base_argument, resolve, unpack
+from benchmarks.base_revision import add_base_argument, resolve, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "benchmarks"
@@ -127,11 +127,9 @@ def _faults(records: list[Any]) -> list[Any]:
 
 
 def make_inputs(work: Path, quick: bool) -> None:
-    sys.path.insert(0, str(BENCH))
-    import perf
-    import perf_epoch
+    from benchmarks import perf_common, perf_epoch, perf_replay
     from slipdaq.config import load_config, packaged_config_path
-    perf.write_raw_log(perf.base_config(), 0.5 if quick else 1.0, work / "in-perf-raw.mcap")
+    perf_replay.write_raw_log(perf_common.base_config(), 0.5 if quick else 1.0, work / "in-perf-raw.mcap")
     cases = perf_epoch.CHECK_CASES[:3] + perf_epoch.CHECK_CASES[5:6] if quick else perf_epoch.CHECK_CASES
     for k, (name, overrides, settings, scenario, road, seconds, edit) in enumerate(cases):
         tmp = work / f"case{k}.pkl"
@@ -148,8 +146,7 @@ def make_inputs(work: Path, quick: bool) -> None:
     records = _faults(_records_of(pickle.loads(tmp.read_bytes())))
     tmp.unlink()
     _write_live(work / "in-faults.mcap", cfg, records, seed=99)
-    sys.path.insert(0, str(ROOT / "tools"))
-    from legacy_log import write_old_format_log  # the old format's writer (runs under the base's slipdaq here)
+    from tools.legacy_log import write_old_format_log  # the old format's writer (runs under the base's slipdaq here)
 
     write_old_format_log(work / "in-old-format.mcap", cfg, records)
     data = (work / "in-faults.mcap").read_bytes()

@@ -9,7 +9,7 @@ spell of the machine falls on both), each side's `src` on PYTHONPATH (the base f
 CPU time (user + system, of the child) per run; the table shows medians, frames/s of the median wall time, and the
 ratio. Each side's output is kept for the guard (benchmarks/replay_check.py compares outputs the same way).
 
-    python benchmarks/replay_process.py --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
+    python -m benchmarks.replay_process --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
 """
 
 from __future__ import annotations
@@ -24,8 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
+from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
 
 MAKE_LOG = """
 import sys

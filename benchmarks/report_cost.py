@@ -9,7 +9,7 @@ in turns: per round each once, the next round in the reverse order (interleaved,
 falls on all). The table shows the medians; this tree's task is also broken down into its
 parts (one extra run each, in its worker). `matplotlib` says whether the task imported it.
 
-    python benchmarks/report_cost.py --base 71b87b2 [--also HEAD] [--seconds 15] [--rounds 9] [--write]
+    python -m benchmarks.report_cost --base 71b87b2 [--also HEAD] [--seconds 15] [--rounds 9] [--write]
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ import tempfile
 import textwrap
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from base_revision import ROOT, add_base_argument, resolve, unpack  # noqa: E402
-from doc_block import machine, write_block  # noqa: E402
+from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
+from benchmarks.doc_block import machine, write_block
 
 DOC = ROOT / "docs" / "performance.md"
 BEGIN, END = "<!-- report-cost:begin -->", "<!-- report-cost:end -->"
@@ -163,7 +162,7 @@ def main() -> int:
             f"{per_round(k)} | {'yes' if mpl[k] else 'no'} |" for k, name in names.items()]
     also = "".join(f" --also {rev}" for rev in a.also)
     block = textwrap.dedent(f"""\
-        **Run.** `python benchmarks/report_cost.py --base {base}{also} --seconds {a.seconds:g} --rounds {a.rounds} --write` —
+        **Run.** `python -m benchmarks.report_cost --base {base}{also} --seconds {a.seconds:g} --rounds {a.rounds} --write` —
         {when}; one {a.seconds:g} s drive (`cycle`, paved), `fleet.process_log` in a warm worker per revision,
         interleaved; {machine()}.
 

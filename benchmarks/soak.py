@@ -7,7 +7,7 @@ bus only works inside one). Checks what docs/reliability.md promises:
 - the daemon keeps up: the virtual bus's receive queue (the frames not yet read) stays small;
 - replay: the log replays to the same estimates, every field of every one, bit for bit.
 
-    .venv/bin/python benchmarks/soak.py [--duration 600] [--wpt-rate-hz 1000] [--gps-rate-hz 20] [--log-dir D]
+    .venv/bin/python -m benchmarks.soak [--duration 600] [--wpt-rate-hz 1000] [--gps-rate-hz 20] [--log-dir D]
 
 Prints one line per sample (elapsed, RSS, CAN frames, backlog) and a JSON summary; exit status 1 when a check fails.
 tests/test_reliability_soak.py runs a short version (run_soak).

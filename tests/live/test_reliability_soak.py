@@ -14,9 +14,9 @@ from support.paths import ROOT
 
 def test_short_soak(tmp_path: Path) -> None:
     out = tmp_path / "soak.json"
-    run = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "soak.py"), "--duration", "5", "--sample-every",
+    run = subprocess.run([sys.executable, "-m", "benchmarks.soak", "--duration", "5", "--sample-every",
                           "1", "--warmup", "2.5", "--log-dir", str(tmp_path), "--json", str(out)],
-                         capture_output=True, text=True, timeout=300)
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     r = json.loads(out.read_text())
     assert r["frames_sent"] == 4 * 1000 * 5 and r["frames_logged"] == r["frames_sent"]

@@ -1,0 +1,1 @@
+"""Benchmarks: figures, not tests. Each runs from the repository root as `python -m benchmarks.NAME --help`."""
