@@ -13,7 +13,7 @@ if [ ! -x "$py" ]; then
 fi
 echo "tests: installing slipdaq and its test dependencies into $(dirname "$(dirname "$py")")"
 "$py" -m pip install -q --disable-pip-version-check -e "$root[test]" 2>&1 | grep -v "^WARNING: Location" || true
-"$py" -c "import slipdaq, can, cantools, mcap, matplotlib, plotly, playwright, pytest, hypothesis" # fail early and clearly if the install failed
+"$py" -c "import slipdaq, can, cantools, mcap, matplotlib, plotly, playwright, pytest, hypothesis, mkdocs" # fail early and clearly if the install failed
 # The report page's browser test (tests/test_report_page.py) drives the OS's Chromium through Playwright: installed
 # with apt when missing, as root (as tests/hil/run_vm.sh installs qemu); where it cannot be, that test skips (one line).
 chromium=${SLIPDAQ_CHROMIUM:-/usr/bin/chromium}
@@ -34,6 +34,14 @@ fi
 echo "tests: lint (ruff) and type check (mypy), configured in pyproject.toml"
 "$py" -m ruff check --quiet "$root"
 "$py" -m mypy
+echo "tests: docs site (mkdocs build --strict: a warning fails it)"
+site=$(mktemp -d)
+if ! NO_MKDOCS_2_WARNING=1 "$py" -m mkdocs build --strict --config-file "$root/mkdocs.yml" --site-dir "$site" \
+    >"$site.log" 2>&1; then
+    grep -v "^INFO" "$site.log" >&2
+    exit 1
+fi
+rm -rf "$site" "$site.log"
 echo "tests: host suite"
 "$py" -m pytest -q -p no:cacheprovider tests --ignore=tests/hil
 if [ "${SLIPDAQ_SKIP_HIL:-0}" = 1 ]; then

@@ -25,25 +25,26 @@ class _Section(BaseModel):
     """Strict: a TOML value must already have the key's type (no "1000" for 1000, no 1 for true); an integer is
     accepted for a float."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, use_attribute_docstrings=True)
 
 
 class VehicleConfig(_Section):
     name: str = Field("", description="the vehicle's name: part of its calibration's identity")
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
-    driven_axle: Literal["front", "rear", "all"] = "front"
+    driven_axle: Literal["front", "rear", "all"] = Field("front", description="the axle the engine drives (all: every wheel)")
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
     rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off)")
     drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off)")
-    air_density_kgpm3: float = Field(1.2, gt=0, lt=2)
+    air_density_kgpm3: float = Field(1.2, gt=0, lt=2, description="rho in the drag force")
     wheelbase_m: float = Field(2.6, gt=0.5, lt=10, description="L in the load transfer M*a*h/L")
     cg_height_m: float = Field(0.55, gt=0, lt=5, description="h, the centre of gravity's height above the road")
     front_axle_load_share: float = Field(0.6, gt=0, lt=1, description="share of M*g on the front axle at rest")
 
 
 class TireConfig(_Section):
-    size: str | None = "195/60 R15"
-    free_radius_m: float | None = Field(None, gt=0, lt=2)
+    size: str | None = Field("195/60 R15", description="the tire size (ISO metric, e.g. 195/60 R15): the free radius r0 before "
+                                                       "calibration")
+    free_radius_m: float | None = Field(None, gt=0, lt=2, description="the free radius itself, in place of size")
     set: str = Field("", description="the tire set's name (e.g. 'summer 2026'): part of the calibration's identity")
     mu_max: float = Field(1.5, gt=0, le=5, description="the most a road tire can give: a fitted mu peak above it is "
                           "flagged (mu_flag), never given as a result")
@@ -74,15 +75,18 @@ class TireConfig(_Section):
 
 
 class WptConfig(_Section):
-    pulses_per_rev: int = Field(1000, gt=0)
+    pulses_per_rev: int = Field(1000, gt=0, description="pulses per revolution of every WPT (a wheel's own pulses_per_rev "
+                                                        "overrides it)")
 
 
 class WheelSourceConfig(_Section):
     """Where one wheel's motion comes from: a cumulative pulse count or a wheel-speed signal, by DBC names."""
 
-    kind: Literal["count", "speed"] = "count"
-    message: str = Field(min_length=1)
-    signal: str = Field(min_length=1)
+    kind: Literal["count", "speed"] = Field("count", description="count: a cumulative pulse counter (unsigned, wraps at 2^(its "
+                                                                 "bit length), counter node resets detected); speed: a "
+                                                                 "wheel-speed signal, integrated over time")
+    message: str = Field(min_length=1, description="the DBC message (several wheels may share one)")
+    signal: str = Field(min_length=1, description="the signal in that message")
     seq_signal: str | None = None
     """count: a rolling counter signal whose gaps are lost frames (optional)."""
     pulses_per_rev: int | None = Field(None, gt=0)
@@ -105,16 +109,17 @@ def default_wheel_source(wheel: str) -> WheelSourceConfig:
 
 
 class CanConfig(_Section):
-    interface: str = "socketcan"
-    channel: str = "can0"
-    bitrate: int = Field(500000, gt=0)
+    interface: str = Field("socketcan", description="any python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
+    channel: str = Field("can0", description="the interface's channel")
+    bitrate: int = Field(500000, gt=0, description="bit/s (where the interface sets it)")
     dbc: str | list[str] = "wpt.dbc"
     """One DBC, or several (the wheels' and the sensors', e.g. ["wpt.dbc", "canmod-gps.dbc"]) read as one."""
     receive_buffer_bytes: int = Field(8 * 1024 * 1024, ge=0, description="SO_RCVBUF asked for on SocketCAN")
     read_interval_s: float = Field(
         0.02, ge=0, le=0.1,
         description="shortest time between two reads of a socket bus (SocketCAN): frames wait in the kernel's "
-                    "buffer, keep its receive stamps, and are handled in larger batches; less CPU, more latency",
+                    "buffer, keep its receive stamps, and are handled in larger batches (except while an estimate waits for "
+                    "wheel frames); 0 reads every frame as it comes: about twice the CPU",
     )
 
 
@@ -122,10 +127,15 @@ class GpsConfig(_Section):
     """The reference speed: a GNSS receiver on a serial port (NMEA/UBX), or a speed signal on CAN (VBOX, OxTS RT,
     a CAN GNSS module), decoded by the DBC."""
 
-    source: Literal["serial", "can"] = "serial"
-    port: str = "/dev/ttyUSB0"
-    baudrate: int = Field(115200, gt=0)
-    latency_s: Literal["auto"] | float = "auto"
+    source: Literal["serial", "can"] = Field("serial", description="serial: NMEA/UBX on gps.port; can: a speed signal by its "
+                                                                   "DBC names (gps.message, gps.signal)")
+    port: str = Field("/dev/ttyUSB0", description="serial: the receiver's port (a /dev/serial/by-id/ link is followed when it "
+                                                  "reconnects)")
+    baudrate: int = Field(115200, gt=0, description="serial: the port's baud rate")
+    latency_s: Literal["auto"] | float = Field("auto", description="seconds from the speed's instant to its arrival; auto: "
+                                                                   "estimated online (from the fixes' UTC time when the host "
+                                                                   "clock keeps UTC, else by aligning the reference speed with "
+                                                                   "the free-rolling wheels)")
     velocity: Literal["nmea", "ubx"] = "nmea"
     """Which messages give the GPS velocity: NMEA sentences, or u-blox UBX NAV-PVT (with its speed accuracy)."""
     message: str | None = Field(None, min_length=1, description="source = 'can': the DBC message with the speed")
@@ -153,8 +163,8 @@ class _CanSignalSection(_Section):
     """A sensor signal on CAN by its DBC names: both message and signal, or neither (no such sensor)."""
 
     section: ClassVar[str]
-    message: str | None = Field(None, min_length=1)
-    signal: str | None = Field(None, min_length=1)
+    message: str | None = Field(None, min_length=1, description="the DBC message with the signal")
+    signal: str | None = Field(None, min_length=1, description="the signal in that message")
 
     @model_validator(mode="after")
     def _both(self) -> _CanSignalSection:
@@ -168,13 +178,14 @@ class ImuConfig(_CanSignalSection):
     names, or (source = "serial") an Xsens MTi's Xbus output on a serial port; unset: the GPS speed differences."""
 
     section: ClassVar[str] = "imu"
-    source: Literal["can", "serial"] = "can"
+    source: Literal["can", "serial"] = Field("can", description="can: a signal by its DBC names; serial: an Xsens MTi on "
+                                                                "imu.port")
     unit: Literal["m/s^2", "g"] | None = None
     """The signal's unit (default: the DBC's)."""
     sign: Literal[1, -1] = 1
     """-1 for a sensor mounted backwards."""
     port: str | None = Field(None, min_length=1, description="serial: the MTi's port, e.g. /dev/ttyUSB1")
-    baudrate: int = Field(115200, gt=0)
+    baudrate: int = Field(115200, gt=0, description="serial: the MTi port's baud rate")
     protocol: Literal["xbus"] = "xbus"
     """serial: the MTi's MTData2 messages (Acceleration in the sensor's axes, gravity included)."""
     axis: Literal["x", "y", "z"] = "x"
@@ -194,13 +205,14 @@ class BrakeConfig(_CanSignalSection):
 
 
 class EstimatorConfig(_Section):
-    window_s: float = Field(0.5, gt=0, le=10)
+    window_s: float = Field(0.5, gt=0, le=10, description="length of an estimate's window")
     fast_rate_hz: float = Field(100.0, ge=0, le=1000, description="rate of the high-rate slip (/slip/fast); 0 = off")
     min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
     cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
     cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
-    cx_fit_slip_spread_max: float = Field(0.015, gt=0, description="a window whose wheel slip varies more than this "
-                                          "within it (RMS, ABS cycling) stays out of the stiffness fit")
+    cx_fit_slip_spread_max: float = Field(0.015, gt=0, description="a window in which any wheel's slip varies more "
+                                          "than this (RMS about the window's trend over 50 ms parts: ABS cycling, "
+                                          "a brake's onset) stays out of the fitted stiffness cx_fit_W_n")
     calibrate_r0: bool = Field(True, description="calibrate the free-rolling radius online (else the tire's)")
     r0_min_speed_mps: float = Field(3.0, ge=0.5, description="slowest window used to calibrate r0")
     fit_min_speed_mps: float = Field(5.0, ge=0.5, description="slowest window used in the stiffness fit")
@@ -209,10 +221,12 @@ class EstimatorConfig(_Section):
 
 
 class LogConfig(_Section):
-    dir: str = "logs"
-    chunk_size_bytes: int = Field(1024 * 1024, gt=0)
-    rotate_size_bytes: int | None = Field(None, ge=1_000_000, description="start a new log file at this size")
-    rotate_duration_s: float | None = Field(None, ge=10, description="start a new log file after this long")
+    dir: str = Field("logs", description="where `run` writes its logs")
+    chunk_size_bytes: int = Field(1024 * 1024, gt=0, description="MCAP chunk size (a chunk is also closed at least every second "
+                                                                 "in live runs)")
+    rotate_size_bytes: int | None = Field(None, ge=1_000_000, description="start a new log file at this size (unset: no "
+                                                                          "rotation)")
+    rotate_duration_s: float | None = Field(None, ge=10, description="start a new log file after this long (unset: no rotation)")
 
 
 class CalibrationConfig(_Section):

@@ -21,6 +21,8 @@ FAST_COLUMNS: tuple[str, ...] = column_names(FAST_SLIP_COLUMNS, WHEELS, csv="con
 """`export --fast-csv`: time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR."""
 MANEUVER_CSV_COLUMNS: tuple[str, ...] = column_names(MANEUVER_COLUMNS, WHEELS, csv="contract")
 """`export --maneuvers-csv`: the /maneuver record's fields, the per-wheel ones flattened (mean_slip_FL, ...)."""
+IMU_CSV_COLUMNS: tuple[str, ...] = ("time_s", "accel_mps2")
+"""`export --imu-csv`: the forward acceleration the estimator took from the IMU, one row per sample."""
 
 
 def _cell(v: Any) -> str:

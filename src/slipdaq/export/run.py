@@ -65,9 +65,9 @@ def _maneuvers_csv(log: LogStreams, path: Path) -> int:
 
 
 def _imu_csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.export.csv_file import write_csv
+    from slipdaq.export.csv_file import IMU_CSV_COLUMNS, write_csv
 
-    return write_csv(log.imu_rows(), path, ("time_s", "accel_mps2"))
+    return write_csv(log.imu_rows(), path, IMU_CSV_COLUMNS)
 
 
 def _mf4(log: LogStreams, path: Path) -> int:
