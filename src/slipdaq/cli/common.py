@@ -142,6 +142,14 @@ def _require_mdf() -> None:
         raise OutputError("--mf4 needs asammdf: pip install 'slipdaq[mdf]'") from None
 
 
+def _require_png() -> None:
+    """matplotlib, for the static figures of --png (the `png` extra); imported here only to check it is there."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise OutputError("--png needs matplotlib: pip install 'slipdaq[png]'") from None
+
+
 def _unfinished_note(path: str, scanned: object) -> None:
     """One line on stderr when a log was read without its summary (the daemon was killed or lost power)."""
     if getattr(scanned, "has_summary", True):

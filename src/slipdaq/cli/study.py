@@ -10,6 +10,7 @@ from slipdaq.cli.common import (
     EXIT_OK,
     OUTPUT_RULES,
     _positive,
+    _require_png,
 )
 
 BATCH_HELP = """\
@@ -62,7 +63,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--live", action="store_true",
                    help="use the estimates as logged (default: each log is post-processed two-pass, as "
                    "`replay --two-pass` does, from its raw records, in memory; the logs are not changed)")
-    p.add_argument("--png", action="store_true", help="also write the plots as PNG files (800x600, for documents)")
+    p.add_argument("--png", action="store_true", help="also write the plots as PNG files (800x600, for documents; "
+                   "needs matplotlib: pip install 'slipdaq[png]')")
 
     p = sub.add_parser("batch", help="many logs on Dask: Parquet dataset, fleet summary table, comparison report",
                        description=BATCH_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -75,12 +77,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        help="worker processes of the local cluster, one thread each (default: this machine's cores)")
     p.add_argument("--group-by", action="append", metavar="KEY",
                    help="compare logs grouped by this label (repeatable; default: every label but maneuver)")
-    p.add_argument("--png", action="store_true", help="also write the report's plots as PNG files")
+    p.add_argument("--png", action="store_true", help="also write the report's plots as PNG files (needs matplotlib: "
+                   "pip install 'slipdaq[png]')")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from slipdaq.report.build import make_report
 
+    if args.png:
+        _require_png()
     make_report(args.logs, args.output, group_by=args.group_by, progress=sys.stdout, two_pass=not args.live,
                 png=args.png)
     return EXIT_OK
@@ -89,6 +94,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_batch(args: argparse.Namespace) -> int:
     from slipdaq.fleet.batch import FleetError, failure, run_batch
 
+    if args.png:
+        _require_png()
     try:
         res = run_batch(args.logs, args.output, scheduler=args.scheduler, workers=args.workers, group_by=args.group_by,
                         png=args.png)
