@@ -70,8 +70,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("export", help="estimates of a log -> CSV, MF4, Parquet",
                        description="--csv: one row per estimate: time_s, speed_mps, accel_mps2, force_n, then for "
-                       "each wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n (then the extra "
-                       "columns: the docs, The log). --fast-csv: one row per instant of the high-rate slip (estimator.fast_rate_hz, "
+                       "each wheel W in FL FR RL RR: slip_W, re_W_m, r0_W_m, cx_W_n (then the extra columns: "
+                       "the docs, The log). --fast-csv: one row per instant of the high-rate slip (estimator.fast_rate_hz, "
                        "/slip/fast): time_s, speed_mps, slip_FL, slip_FR, slip_RL, slip_RR (slip a fraction; empty "
                        "below the minimum speed). Empty cell = undefined. --mf4: ASAM MDF 4.10 (asammdf): group "
                        "'estimates' with one channel per --csv column (same names, units, a comment each; NaN = "
