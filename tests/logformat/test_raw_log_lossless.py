@@ -3,7 +3,7 @@ error state indicator, direction, DLC, payloads up to 64 bytes and the channel, 
 tools/replay/replay_bus.py and the live CAN source. The input is python-can's own test logs (tests/data/python-can)
 and candump and CSV logs python-can's writers make of them; what python-can's LogReader reads from each file is the
 reference. The logs are read back with mcap's reader and mcap-ros2-support's decoder, by the bit numbers and
-field names README.md states, not with slipdaq's reader."""
+field names docs/log.md states, not with slipdaq's reader."""
 
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ def message_fields(m: can.Message) -> dict:
 
 def read_can_raw(path: Path) -> list[dict]:
     """Every frame of a slipdaq log's /can/raw, decoded by mcap-ros2-support from the log's own schema, with the
-    README's meaning of each field: flags bit 0 extended, 1 error, 2 remote, 3 CAN FD, 4 bit rate switch, 5 error
+    meaning docs/log.md gives each field: flags bit 0 extended, 1 error, 2 remote, 3 CAN FD, 4 bit rate switch, 5 error
     state indicator, 6 transmitted, 7 DLC other than the 8-byte payload's; `channel` indexes the can_channels list of
     the log's last `slipdaq` metadata record; payloads back to back (none for a remote frame)."""
     with open(path, "rb") as f:

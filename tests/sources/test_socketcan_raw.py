@@ -51,7 +51,7 @@ def _message_fields(msg: can.Message) -> dict:
 
 
 def _raw_fields(raw: tuple) -> dict:
-    """A RawFrame as python-can's Message fields (the flag bits as slipdaq's README states them)."""
+    """A RawFrame as python-can's Message fields (the flag bits as docs/log.md states them)."""
     _t, aid, flags, data, dlc, channel = raw
     return {"arbitration_id": aid, "is_extended_id": bool(flags & 1), "is_error_frame": bool(flags & 2),
             "is_remote_frame": bool(flags & 4), "is_fd": bool(flags & 8), "bitrate_switch": bool(flags & 16),
