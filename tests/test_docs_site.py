@@ -20,8 +20,7 @@ from slipdaq.cli import build_parser
 from slipdaq.config import Config
 from slipdaq.export import csv_file
 from slipdaq.logformat.registry import TOPIC_FORMATS
-
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
 
 
 class _Text(HTMLParser):
@@ -66,6 +65,7 @@ def config_keys() -> list[str]:
     return keys
 
 
+@pytest.mark.slow  # builds the site (about 10 s)
 def test_every_config_key_is_in_the_configuration_page(site: Path) -> None:
     text = page_text(site, "configuration")
     keys = config_keys()
@@ -84,6 +84,7 @@ def verbs(parser: argparse.ArgumentParser, prefix: str = "") -> list[tuple[str, 
     return found
 
 
+@pytest.mark.slow  # builds the site (about 10 s)
 def test_every_verb_and_flag_is_in_the_commands_page(site: Path) -> None:
     text = page_text(site, "commands")
     every = verbs(build_parser())
@@ -98,6 +99,7 @@ def test_every_verb_and_flag_is_in_the_commands_page(site: Path) -> None:
     assert missing == []
 
 
+@pytest.mark.slow  # builds the site (about 10 s)
 def test_every_topic_and_field_is_in_the_log_page(site: Path) -> None:
     text = page_text(site, "log")
     import json
@@ -114,6 +116,7 @@ def test_every_topic_and_field_is_in_the_log_page(site: Path) -> None:
     assert missing == []
 
 
+@pytest.mark.slow  # builds the site (about 10 s)
 def test_every_csv_column_is_in_the_log_page(site: Path) -> None:
     text = page_text(site, "log")
     every = csv_file.ALL_COLUMNS + csv_file.FAST_COLUMNS + csv_file.MANEUVER_CSV_COLUMNS + csv_file.IMU_CSV_COLUMNS
@@ -123,6 +126,7 @@ def test_every_csv_column_is_in_the_log_page(site: Path) -> None:
         assert flag in text
 
 
+@pytest.mark.slow  # builds the site (about 10 s)
 def test_the_site_has_every_page_of_the_nav(site: Path) -> None:
     for page in ("tutorial", "inputs", "live-view", "maneuvers", "report", "batch", "service", "method", "accuracy",
                  "performance", "reliability", "architecture", "real-data"):

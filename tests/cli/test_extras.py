@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-LOG = ROOT / "tests" / "data" / "slipdaq-6641212" / "drive-fast-rows.mcap"
+from support.paths import DATA, ROOT
+
+LOG = DATA / "slipdaq-6641212" / "drive-fast-rows.mcap"
 
 
 def run_without(module: str, argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -32,6 +33,7 @@ def test_png_without_matplotlib_names_the_extra(verb: str, tmp_path: Path) -> No
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_report_without_png_needs_no_matplotlib(tmp_path: Path) -> None:
     """The default report draws in the browser: it runs to the end with matplotlib missing."""
     out = tmp_path / "out"
