@@ -14,7 +14,7 @@ fi
 echo "tests: installing slipdaq and its test dependencies into $(dirname "$(dirname "$py")")"
 "$py" -m pip install -q --disable-pip-version-check -e "$root[test]" 2>&1 | grep -v "^WARNING: Location" || true
 "$py" -c "import slipdaq, can, cantools, mcap, matplotlib, plotly, playwright, pytest, hypothesis, mkdocs" # fail early and clearly if the install failed
-# The report page's browser test (tests/test_report_page.py) drives the OS's Chromium through Playwright: installed
+# The report page's browser test (tests/report/test_report_page.py) drives the OS's Chromium through Playwright: installed
 # with apt when missing, as root (as tests/hil/run_vm.sh installs qemu); where it cannot be, that test skips (one line).
 chromium=${SLIPDAQ_CHROMIUM:-/usr/bin/chromium}
 if [ ! -x "$chromium" ]; then
