@@ -4,7 +4,17 @@ from __future__ import annotations
 
 import os
 import platform
+import re
 from pathlib import Path
+
+_REVISION = re.compile(r"(?<![\w-])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w-])")
+"""A commit's hash, as git prints it (7 to 40 hex digits, letters and digits both)."""
+
+
+def without_revisions(text: str) -> str:
+    """text with every commit hash in it replaced by 'REV': a page says what is and how to check it (the command
+    with `--base REV`), not which commit it was measured at."""
+    return _REVISION.sub("REV", text)
 
 
 def machine(*extra: str) -> str:
@@ -19,6 +29,7 @@ def write_block(doc: Path, begin: str, end: str, heading: str, block: str) -> No
     """block between the begin and end markers of doc, in place of what was there; without the markers, appended
     under a new section `heading`."""
     text = doc.read_text()
+    block = without_revisions(block)
     if begin in text:
         head, rest = text.split(begin, 1)
         text = head + begin + "\n" + block + "\n" + end + rest.split(end, 1)[1]

@@ -33,6 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.doc_block import without_revisions
 from benchmarks.perf_common import ROOT, busy_processes, machine
 from benchmarks.perf_cpu import CpuResult, cpu_table, run_cpu
 from benchmarks.perf_ingest import ingest_table, run_ingest
@@ -52,7 +53,7 @@ def write_doc(block: str) -> None:
         text += f"\n{begin}\n{end}\n"
     pre, rest = text.split(begin, 1)
     _, post = rest.split(end, 1)
-    doc.write_text(f"{pre}{begin}\n{block}\n{end}{post}")
+    doc.write_text(f"{pre}{begin}\n{without_revisions(block)}\n{end}{post}")
     print(f"wrote the tables to {doc}")
 
 

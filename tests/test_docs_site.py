@@ -164,3 +164,12 @@ def test_the_reference_check_finds_issues_and_commits() -> None:
                                         for p in [ROOT / "README.md", *(ROOT / "docs").glob("*.md")]))
 def test_no_page_cites_an_issue_or_a_commit(page: str) -> None:
     assert references((ROOT / page).read_text(encoding="utf-8")) == []
+
+
+def test_a_benchmark_writes_no_commit_into_a_page() -> None:
+    """The benchmarks' tables go into the pages without the commits they were measured at (`--base REV` stays)."""
+    from benchmarks.doc_block import without_revisions
+
+    text = "base 56f1e07 against d9059f7 + working tree; 1.12x of 171396 frames/s; --base REV; cafe"
+    assert without_revisions(text) == "base REV against REV + working tree; 1.12x of 171396 frames/s; --base REV; cafe"
+    assert not any(HEX_WORD.finditer(without_revisions(text).replace("171396", "")))
