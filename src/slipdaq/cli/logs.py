@@ -93,6 +93,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    "MF4 (needs asammdf: pip install 'slipdaq[mdf]')")
     p.add_argument("--parquet", metavar="OUT.parquet", help="the estimates as Parquet, with the log's name and labels "
                    "(needs pyarrow: pip install 'slipdaq[fleet]')")
+    p.add_argument("--tir", metavar="DIR", help="one Magic Formula tire property file per tire, DIR/FL.tir ... RR.tir "
+                   "(MF-Tyre 6.1: the pure longitudinal force fitted to the log's accelerate and brake maneuvers, "
+                   "valid over the slip they covered; a tire without mu-slip points gets none)")
     _add_allow_empty(p, "a log without estimates (the CSV is then its header only, the MF4 and Parquet without rows)")
 
     p = sub.add_parser("recover", help="a log that was not finished (killed, power loss) or is damaged, or a rotated "
@@ -205,7 +208,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from slipdaq.export.run import FORMATS, LogStreams, check_outputs
 
     outputs = {name: getattr(args, name) for name in FORMATS if getattr(args, name)}
-    check_outputs(outputs, args.log)
+    check_outputs(outputs, args.log, tir_dir=args.tir)
     log = LogStreams(args.log)
     done = []
     with contextlib.ExitStack() as outs:  # each output renamed into place only when every one is complete
@@ -214,9 +217,36 @@ def cmd_export(args: argparse.Namespace) -> int:
             n = fmt.write(log, outs.enter_context(atomic_output(out, inputs=[args.log])))
             _require(n, f"{args.log}: no {fmt.what} in it to export{fmt.empty_note}", args)
             done.append(f"{n} {fmt.what} -> {out}")
+        if args.tir:
+            from slipdaq.outputs import atomic_tree
+
+            done += _export_tires(args, outs.enter_context(atomic_tree(args.tir, inputs=[args.log])))
     print("\n".join(done))
-    _unfinished_note(args.log, log.scanned)
+    if outputs:
+        _unfinished_note(args.log, log.scanned)
     return EXIT_OK
+
+
+def _export_tires(args: argparse.Namespace, build: Path) -> list[str]:
+    """export --tir: the log summarized as the report does (its logged estimates), one .tir per tire in build."""
+    from slipdaq.report.build import read_log
+    from slipdaq.report.labels import labels_of
+    from slipdaq.report.summary import summarize_log
+    from slipdaq.report.tires import tire_results, write_tires
+
+    d = read_log(args.log)
+    summary = summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=d.path.name,
+                            labels=labels_of(d.metadata), fast=d.fast, sensors=d.sensors)
+    groups = tire_results([summary])
+    written = write_tires(build, groups, flat=True).get(summary.group, {})
+    _require(len(written), f"{args.log}: no tire to export (no accelerate or brake maneuver with high-rate slip "
+             "points: a log recorded with estimator.fast_rate_hz = 0 has none)", args)
+    lines = [f"{len(written)} tire files -> {Path(args.tir) / rel}" if i == 0 else f"  {Path(args.tir) / rel}"
+             for i, rel in enumerate(written.values())]
+    lines += [f"  no {r.wheel}.tir: {r.reason}" for g in groups for r in g.results if r.file is None]
+    lines += [f"  {r.wheel}.tir: peak not passed: valid only over slip {r.file.slip_min:g} to {r.file.slip_max:g}"
+              for g in groups for r in g.results if r.file is not None and r.fit is not None and not r.fit.peak_passed]
+    return lines
 
 
 def cmd_recover(args: argparse.Namespace) -> int:

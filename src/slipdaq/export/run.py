@@ -110,11 +110,14 @@ FORMATS: dict[str, ExportFormat] = {
 """By the CLI option's name (its dest)."""
 
 
-def check_outputs(outputs: dict[str, str], log: str | Path) -> None:
+def check_outputs(outputs: dict[str, str], log: str | Path, tir_dir: str | None = None) -> None:
     """OutputError (usage) for no output, two outputs naming one file, an output that is the log, a format whose
-    library is not installed; before anything is read or written."""
-    if not outputs:
-        raise OutputError("export: give " + ", ".join(f.flag for f in FORMATS.values()) + " (any of them at once)")
+    library is not installed; before anything is read or written. tir_dir: --tir's directory."""
+    if not outputs and not tir_dir:
+        raise OutputError("export: give " + ", ".join(f.flag for f in FORMATS.values()) + ", --tir"
+                          " (any of them at once)")
+    if tir_dir:
+        refuse_inputs([tir_dir], [log])
     named = [(FORMATS[k].flag, out) for k, out in outputs.items()]
     for i, (flag, out) in enumerate(named):
         for other, earlier in named[:i]:

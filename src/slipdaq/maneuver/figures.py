@@ -92,6 +92,8 @@ class ManeuverSummary:
     wheels: dict[str, WheelSummary]
     mu_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
     """Per wheel: (slip, mu) of the high-rate rows the mu-slip fit used."""
+    mu_loads: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+    """Per wheel: the normal load Fz (N) of each of those rows."""
     brake: BrakeFigures | None = None
     launch_s: float | None = None
     """Accelerating: the last high-rate instant at standstill before the top speed (None: a rolling start)."""
@@ -211,9 +213,10 @@ def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, 
     t, v, a, slips = span.time_s, span.speed_mps, span.accel_mps2, span.slips
     wheels = dict(m.wheels)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    loads: dict[str, np.ndarray] = {}
     if m.phase != "cruise":
         curves = tire_curves(v, a, slips, vehicle, 1.0 if m.phase == "accelerate" else -1.0, mu_max, t)
-        points = curves.points
+        points, loads = curves.points, curves.loads
         for w in WHEELS:
             wheels[w] = dataclasses.replace(wheels[w], mu_slip=curves.fits[w])
     figures = None
@@ -239,5 +242,5 @@ def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, 
         v_from = min(v_from, float(np.interp(launch, t, v)) * 3.6)
     if figures is not None and figures.stop_s is not None:
         v_to = min(v_to, float(np.interp(figures.stop_s, t, v)) * 3.6)
-    return dataclasses.replace(m, wheels=wheels, mu_points=points, brake=figures, launch_s=launch,
+    return dataclasses.replace(m, wheels=wheels, mu_points=points, mu_loads=loads, brake=figures, launch_s=launch,
                                top_speed_s=top, speed_at=(t, v), speed_from_kmh=v_from, speed_to_kmh=v_to)

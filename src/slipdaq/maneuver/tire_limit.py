@@ -60,6 +60,8 @@ class TireCurves:
     joint: JointFit | None = None
     lag_s: float = 0.0
     """How far the force was found to lag the slips (mu_joint.force_lag_s); the curves take it aligned."""
+    loads: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    """Per wheel: the normal load Fz (N) of each of its points."""
 
 
 def _interval_too_wide(value: float | None, lo: float | None, hi: float | None) -> bool:
@@ -122,6 +124,7 @@ def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehic
     moving = (a * sign > 0) & (v >= MU_MIN_SPEED_MPS)
     hyd: dict[str, MuSlipFit | None] = {}
     points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    loads: dict[str, np.ndarray] = {}
     split_fx: dict[str, np.ndarray] = {}
     excess: dict[str, bool] = {}
     for w in WHEELS:
@@ -129,6 +132,7 @@ def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehic
         mu = mu_from_force(fx, fz[w])
         use = np.isfinite(slips[w]) & np.isfinite(mu) & moving
         points[w] = (slips[w][use], mu[use])
+        loads[w] = fz[w][use]
         fit = fit_mu_slip(slips[w][use], mu[use]) if use.sum() else None
         if fit is not None and fit.mu_peak is not None:  # its 95 % interval (mu_slip.peak_interval)
             lo_hi = peak_interval(slips[w][use], mu[use], block)
@@ -137,7 +141,7 @@ def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehic
         hyd[w] = fit
         excess[w] = bool(use.sum()) and float(np.mean(np.abs(mu[use]) > mu_max)) > SPLIT_EXCESS_SHARE
     hydraulic = TireCurves({w: None if f is None else flagged(f, mu_max, excess[w]) for w, f in hyd.items()},
-                           points, "hydraulic split")
+                           points, "hydraulic split", loads=loads)
     every = _usable(v, a, slips, sign)
     if int(every.sum()) < 20:
         return hydraulic
@@ -182,4 +186,4 @@ def _curves(v: np.ndarray, a: np.ndarray, slips: Mapping[str, np.ndarray], vehic
     undetermined = all(f is None or f.flag == "not determined" for f in fits.values())
     if undetermined and any(f is not None and f.mu_peak is not None for f in hydraulic.fits.values()):
         return dataclasses.replace(hydraulic, joint=joint)  # the split determines a peak the joint fit leaves open
-    return TireCurves(fits, joint_points, joint.method, joint)
+    return TireCurves(fits, joint_points, joint.method, joint, loads=fz_e)

@@ -7,6 +7,7 @@ Output layout in DIR:
     plotly.min.js, slipdaq-report.js   the plotting library and the page's script, once per report
     compare.js                         the comparison plots' data (two or more logs)
     <log>/plots.js                     the data of a log's plots, <log> = the log's file stem
+    tires/<group>/<wheel>.tir          each tire's Magic Formula file (MF 6.1) per label group (report/tires.py)
     --png: <log>/<key>-<plot>.png      six PNGs per maneuver (style.PLOTS); compare-<phase>-fx-slip.png
 """
 
@@ -26,11 +27,12 @@ from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
+from slipdaq.report.tires import TIRES_DIR, tire_results, write_tires
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
 """The report's top files, written into DIR in this order after its plots (the index last: it links the rest)."""
-RESERVED = (*TABLES, PLOTLY_JS, PAGE_JS, COMPARE_SCRIPT)
+RESERVED = (*TABLES, PLOTLY_JS, PAGE_JS, COMPARE_SCRIPT, TIRES_DIR)
 """Names in DIR that no log's directory takes."""
 
 
@@ -208,13 +210,18 @@ class ReportBuild:
                 self.pngs.append(self.out / compare_pngs[c.phase])
             self.say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
         page_data.write_assets(build)
+        tire_groups = tire_results(logs)
+        tire_links = {g: {w: f"{TIRES_DIR}/{rel}" for w, rel in files.items()}
+                      for g, files in write_tires(build / TIRES_DIR, tire_groups).items()}
+        self.say(f"tire files: {sum(len(v) for v in tire_links.values())} in {TIRES_DIR}/")
         rows = table_rows(logs)
         cs, js, index = (build / name for name in TABLES)
         write.write_csv(rows, cs)
         write.write_json(logs, comparisons, rows, {n.name: links[n.name].page.plots for n in logs},
                          {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
                          overviews={n.name: links[n.name].page.overview for n in logs})
-        page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index)
+        page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index,
+                        tires=(tire_groups, tire_links))
         cs, js, index = (self.out / name for name in TABLES)
         return ReportResult(self.out, logs, comparisons, self.pngs, index, js, cs)
 

@@ -16,6 +16,7 @@ from slipdaq.report import page_tables as tables
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, compare_name
 from slipdaq.report.style import PAGE_PLOTS, TIME_PLOTS
 from slipdaq.report.summary import Comparison, LogSummary
+from slipdaq.report.tires import GroupTires
 from slipdaq.report.write import RULE_TEXT
 
 
@@ -83,9 +84,31 @@ def _maneuver(log: LogSummary, m: ManeuverSummary, links: LogLinks) -> str:
             + tables.wheels_table(log, m) + '\n<div class="plots">' + "".join(plots) + "</div></section>")
 
 
+def _tires(groups: Sequence[GroupTires], files: dict[str, dict[str, str]]) -> list[str]:
+    """The tire files' section: per label group a link per wheel, or why it has none."""
+    out = ['<h2 id="tires">Tire files (Magic Formula 6.1)</h2>',
+           '<p class="note">One <code>.tir</code> per tire and label group: the pure longitudinal force fitted to the '
+           "maneuvers' mu-slip points, valid over the slip its data covered (KPUMIN, KPUMAX); where and how, in its "
+           "<code>[SLIPDAQ]</code> comment block.</p>",
+           '<table><tr><th class="l">group</th>' + "".join(f"<th>{tables.wheel(w)}</th>" for w in WHEELS) + "</tr>"]
+    for g in groups:
+        cells = []
+        for r in g.results:
+            href = files.get(g.group, {}).get(r.wheel)
+            if href:
+                extra = "" if r.fit is None or r.fit.peak_passed else " (peak not passed)"
+                cells.append(f'<td class="l"><a href="{escape(href)}">{escape(r.wheel)}.tir</a>{extra}</td>')
+            else:
+                cells.append(f'<td class="l note">{escape(r.reason)}</td>')
+        out.append(f'<tr><td class="l">{escape(g.group)}</td>' + "".join(cells) + "</tr>")
+    return [*out, "</table>"]
+
+
 def write_html(logs: Sequence[LogSummary], comparisons: Sequence[Comparison], links: dict[str, LogLinks],
-               compare_pngs: dict[str, str], path: Path) -> None:
-    """index.html at path; links: per log name its plots and PNGs; compare_pngs: phase -> PNG path."""
+               compare_pngs: dict[str, str], path: Path,
+               tires: tuple[Sequence[GroupTires], dict[str, dict[str, str]]] = ((), {})) -> None:
+    """index.html at path; links: per log name its plots and PNGs; compare_pngs: phase -> PNG path; tires: the tire
+    files' groups and their paths (report/tires.py)."""
     now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     any_png = bool(compare_pngs) or any(v.pngs for v in links.values())
     out = [
@@ -106,6 +129,8 @@ def write_html(logs: Sequence[LogSummary], comparisons: Sequence[Comparison], li
         '<h2 id="maneuvers">Maneuvers</h2>', tables.maneuvers_table(logs),
         "<h2>Logs</h2>", tables.logs_table(logs),
     ]
+    if tires[0]:
+        out += _tires(*tires)
     if comparisons:
         out.append("<h2>Comparison by labels</h2>")
         out.append('<p class="note">Logs grouped by their labels (every label but <code>maneuver</code>, unless '

@@ -43,6 +43,8 @@ class LogSummary:
     """In report order: by phase (PHASES), then time."""
     records: list[Maneuver] = dataclasses.field(default_factory=list)
     """The accelerate and brake maneuvers as their /maneuver records, in time order."""
+    config: Config | None = None
+    """The config the log was recorded with (None: none this version reads)."""
 
     @property
     def title(self) -> str:
@@ -130,7 +132,7 @@ def summarize_log(
     return LogSummary(
         path=path, name=name, labels=dict(labels), group=group_of(labels, group_by),
         mode=metadata.get("mode", ""), estimates=len(rows), t0_s=rows[0]["time_s"] if rows else None,
-        lost_frames=lost, bad_sentences=diag.get("bad_sentences"), maneuvers=maneuvers, records=records,
+        lost_frames=lost, bad_sentences=diag.get("bad_sentences"), maneuvers=maneuvers, records=records, config=cfg,
     )
 
 

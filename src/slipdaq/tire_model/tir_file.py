@@ -103,9 +103,13 @@ def tir_text(tire: TireFile) -> str:
     return "\n".join(lines) + "\n"
 
 
+ASCII = str.maketrans({"→": "->", "–": "-", "—": "-", "·": "*", "±": "+-", "²": "^2", "μ": "mu"})
+"""A .tir is ASCII: the few other characters slipdaq's titles and notes use, spelled out."""
+
+
 def write_tir(path: str | Path, tire: TireFile) -> Path:
     p = Path(path)
-    p.write_text(tir_text(tire), encoding="ascii", errors="replace")
+    p.write_text(tir_text(tire).translate(ASCII), encoding="ascii", errors="replace")
     return p
 
 
