@@ -8,10 +8,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import ROOT
+from slipdaq.cli import main
+from slipdaq.config import Config
+from slipdaq.demo import demo_config, demo_settings
+from slipdaq.logformat.reader import iter_topic
+from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.offline import Rows
+from slipdaq.pipeline import Pipeline
+from slipdaq.report.build import make_report
+from slipdaq.report.summary import detect_maneuvers
+from slipdaq.sim.emit import generate
+from slipdaq.sim.scenarios import limiting_axle
+from slipdaq.sim.vehicle import ROADS, TireModel
+from slipdaq.tire_model.files import build_tire, static_load_n
 from slipdaq.tire_model.mf61 import LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
 
 DATA = Path(__file__).parent / "data" / "tyredyn-mf"
+RAV4 = ROOT / "tests" / "data" / "rav4-comma2k19"
 
 
 def test_the_evaluator_gives_an_independent_evaluators_fx0_on_a_published_tir() -> None:
@@ -48,3 +63,102 @@ def test_a_written_tir_reads_back_to_the_same_curve(tmp_path: Path) -> None:
     text = path.read_text()
     assert "$   log: x.mcap" in text and "no driving data" in text
     assert parse_tir(tir_text(tire)) == sections
+
+
+TRUTH = TireModel.with_peak(1.17, 0.17, TireModel.C)
+"""The ABS stop's tire: peak mu 1.17 at 17 % slip (the simulator's curve, shape C 1.65)."""
+
+
+@pytest.fixture(scope="module")
+def abs_stop() -> tuple[ManeuverSummary, Config]:
+    """brake-abs from 80 km/h with the front axle at its limit (benchmarks/maneuvers.py's front-limited stop), on
+    TRUTH; the stop as the report summarizes it."""
+    ROADS["tire 1.17 at 17 %"] = TRUTH
+    cfg = demo_config("/dev/null", "chan", "brake-abs")
+    share = next(x for x in (0.85, 0.9, 0.95)
+                 if limiting_axle(TRUTH.mu, cfg.with_overrides(vehicle={"brake_front_share": x}).vehicle) == "front")
+    cfg = cfg.with_overrides(vehicle={"brake_front_share": share})
+    rows = Rows()
+    events = generate(cfg, "brake-abs", "tire 1.17 at 17 %", demo_settings("brake-abs"), 14.0)  # type: ignore[arg-type]
+    Pipeline(cfg, [rows]).run(e.record for e in events if e.record is not None)
+    (stop,) = [m for m in detect_maneuvers(rows.rows, cfg, fast=rows.fast, sensors=rows.sensors) if m.phase == "brake"]
+    return stop, cfg
+
+
+@pytest.mark.parametrize("wheel", ["FL", "FR"])
+def test_the_tir_of_an_abs_stops_tire_gives_the_tires_force(abs_stop: tuple[ManeuverSummary, Config], wheel: str,
+                                                            tmp_path: Path) -> None:
+    """The front tire's .tir, written and read back, evaluated by the MF 6.1 evaluator at the stop's mean front load:
+    Fx within 5 % of the truth tire's from 2 % to 25 % slip, the peak within 5 % and 2 points of slip, the slip
+    stiffness within 5 % of the truth's Cx; the range it holds for is what the stop covered."""
+    stop, cfg = abs_stop
+    got = build_tire(wheel, [("abs.mcap", stop)], cfg.vehicle, cfg.tire)
+    assert got.file is not None and got.fit is not None and got.fit.peak_passed
+    model = longitudinal_model(read_tir(write_tir(tmp_path / f"{wheel}.tir", got.file)))
+    fz = float(np.mean(stop.mu_loads[wheel]))
+    assert model.fnomin == pytest.approx(static_load_n(wheel, cfg.vehicle)) and fz > 1.1 * model.fnomin
+    k = -np.linspace(0.02, 0.25, 47)
+    truth = np.array([TRUTH.force_n(x, fz) for x in k])
+    assert np.max(np.abs(model.fx0(k, fz) / truth - 1.0)) <= 0.05
+    peak_n, peak_slip = model.peak(fz, -1.0)
+    assert peak_n == pytest.approx(TRUTH.mu * fz, rel=0.05)
+    assert abs(peak_slip - TRUTH.peak_slip) <= 0.02
+    assert float(model.slip_stiffness(fz)) == pytest.approx(TRUTH.stiffness_n(fz), rel=0.05)
+    slips = stop.mu_points[wheel][0]
+    assert got.file.slip_min <= -0.25 and got.file.slip_min >= float(np.min(slips)) - 1e-4
+    assert 0.0 <= got.file.slip_max <= max(float(np.max(slips)), 0.0) + 1e-4
+    text = (tmp_path / f"{wheel}.tir").read_text()
+    assert "peak passed" in text and "load dependence" in text and text.isascii()
+
+
+@pytest.fixture(scope="module")
+def rav4(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("rav4") / "rav4.mcap"
+    assert main(["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea", str(RAV4 / "rav4_ublox.nmea"),
+                 "--config", str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"), "-o", str(out)]) == 0
+    return out
+
+
+def test_a_real_drive_gives_valid_tir_files_limited_to_its_slip(rav4: Path, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """The RAV4's highway drive (slip within a few %, no peak): export --tir writes FL..RR.tir, each a valid MF 6.1
+    file (FITTYP 61, every section, finite coefficients, the calibrated r0, the tire size's width and rim) whose
+    KPUMIN/KPUMAX are the slip the drive covered, and which says that the peak was not passed."""
+    out = tmp_path / "tires"
+    assert main(["export", str(rav4), "--tir", str(out)]) == 0
+    assert "peak not passed" in capsys.readouterr().out
+    fast = [r for _, _, r in iter_topic(rav4, ("/slip/fast",))]
+    for w in ("FL", "FR", "RL", "RR"):
+        sections = read_tir(out / f"{w}.tir")
+        assert sections["MODEL"]["FITTYP"] == 61.0
+        for sec in ("MDI_HEADER", "UNITS", "DIMENSION", "OPERATING_CONDITIONS", "VERTICAL", "LONG_SLIP_RANGE",
+                    "SCALING_COEFFICIENTS", "LONGITUDINAL_COEFFICIENTS", "LATERAL_COEFFICIENTS"):
+            assert sections[sec], sec
+        assert sections["DIMENSION"]["UNLOADED_RADIUS"] == pytest.approx(0.36215 / 0.991, abs=0.0015)
+        assert sections["DIMENSION"]["WIDTH"] == 0.225 and sections["DIMENSION"]["RIM_RADIUS"] == pytest.approx(0.2159)
+        lo, hi = sections["LONG_SLIP_RANGE"]["KPUMIN"], sections["LONG_SLIP_RANGE"]["KPUMAX"]
+        slips = np.array([r[f"slip_{w}"] for r in fast if r.get(f"slip_{w}") is not None])
+        assert isinstance(lo, float) and isinstance(hi, float)
+        assert float(np.min(slips)) <= lo < 0.0 < hi <= float(np.max(slips)) and hi - lo < 0.1
+        model = longitudinal_model(sections)
+        assert all(np.isfinite(v) for v in model.values().values()) and model.pkx1 > 1.0 and model.pdx1 > 0.1
+        if w in ("FL", "FR"):  # the driven axle: its force-slip lines' slope, 27-29 per unit load
+            assert 20.0 < model.pkx1 < 40.0 and "from the force-slip line" in (out / f"{w}.tir").read_text()
+        k = np.linspace(lo, hi, 41)
+        fx = model.fx0(k, model.fnomin)
+        assert np.all(np.diff(fx) > 0)  # within the range the drive covered: the rising, nearly linear part
+        assert "peak NOT passed" in (out / f"{w}.tir").read_text()
+
+
+def test_the_report_writes_and_links_the_tire_files(rav4: Path, tmp_path: Path) -> None:
+    result = make_report([rav4], tmp_path / "report")
+    page = result.index.read_text()
+    for w in ("FL", "FR", "RL", "RR"):
+        rel = f"tires/no_labels/{w}.tir"
+        assert (tmp_path / "report" / rel).is_file() and f'href="{rel}"' in page
+        assert read_tir(tmp_path / "report" / rel)["MODEL"]["FITTYP"] == 61.0
+
+
+def test_export_without_an_output_names_tir(rav4: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["export", str(rav4)]) != 0
+    assert "--tir" in capsys.readouterr().err

@@ -1,5 +1,6 @@
 """One tire's `.tir` from the maneuvers of one or more logs (a label group): its points (slip, Fx = mu·Fz, Fz) from
-every accelerate and brake maneuver's mu-slip fit (maneuver/tire_limit.py), the MF 6.1 fit (fit.py), the file's
+every accelerate and brake maneuver's mu-slip fit (maneuver/tire_limit.py; a point where the tire carries no force,
+a free-rolling wheel under the hydraulic split, left out), the MF 6.1 fit (fit.py), the file's
 dimensions (UNLOADED_RADIUS: the calibrated r0 the maneuvers' estimates carried, else the free radius of the tire
 config; WIDTH, ASPECT_RATIO, RIM_RADIUS from tire.size) and FNOMIN (the static wheel load, vehicle config), and the
 [SLIPDAQ] block. Pure: summaries in, TireFile out.
@@ -76,6 +77,8 @@ def build_tire(wheel: str, maneuvers: Sequence[tuple[str, ManeuverSummary]], veh
     slip = np.concatenate([m.mu_points[wheel][0] for _, m in used])
     mu = np.concatenate([m.mu_points[wheel][1] for _, m in used])
     fz = np.concatenate([m.mu_loads[wheel] for _, m in used])
+    carries = mu != 0.0  # a wheel the split gives no force (free rolling under drive) says nothing of its curve
+    slip, mu, fz = slip[carries], mu[carries], fz[carries]
     peaks = [m.wheels[wheel].mu_slip for _, m in used]
     seen = [f for f in peaks if f is not None and f.mu_peak is not None and f.slip_at_mu_peak is not None]
     fnomin = static_load_n(wheel, vehicle)
@@ -88,8 +91,8 @@ def build_tire(wheel: str, maneuvers: Sequence[tuple[str, ManeuverSummary]], veh
                    cx_per_fz=cx_per_fz)
     if fit is None:
         return TireResult(wheel, None, None, f"too few points ({slip.size})")
-    r0s = [m.wheels[wheel].r0_m for _, m in used if m.wheels[wheel].r0_m is not None]
-    r0 = statistics.median(r0s) if r0s else tire.radius_m()
+    r0s = [r for r in (m.wheels[wheel].r0_m for _, m in used) if r is not None]
+    r0 = float(statistics.median(r0s)) if r0s else tire.radius_m
     width = aspect = rim = None
     if tire.size:
         w_mm, a_pct, rim_in = parse_tire_size(tire.size)

@@ -6,8 +6,8 @@ central-difference Jacobian), in steps:
     1. PCX1, PDX1, PKX1 (the curve at FNOMIN), and PEX1 where it explains the points better (an F test, as in 3);
        where the points never pass the peak, the peak is not measured:
        PCX1 is held at C_UNSEEN and PEX1 at 0, PDX1 is bounded below by the largest |Fx/Fz| seen (99th percentile);
-       where the points leave PKX1 undetermined (its 95 % interval wider than half of it: slip noise near zero slip
-       flattens a least-squares slope), PKX1 is the force-slip lines' errors-in-variables slope per unit load and
+       where the points leave PKX1 undetermined (its 95 % interval wider than half of it, or fewer than
+       MIN_SIDE_POINTS points beyond ASYM_SLIP: slip noise near zero slip flattens a least-squares slope), PKX1 is the force-slip lines' errors-in-variables slope per unit load and
        PDX1 at least what keeps the curve within LINEARITY_TOLERANCE of that slope over the slip covered (the data
        saw it linear there). The file then holds only for the slip its data cover.
     2. PEX4 (the curvature's braking/driving asymmetry) where the points reach beyond ASYM_SLIP on both sides.
@@ -211,7 +211,8 @@ def fit_mf61(slip: npt.ArrayLike, fx_n: npt.ArrayLike, fz_n: npt.ArrayLike, fnom
         start = dataclasses.replace(start, pcx1=C_UNSEEN, pex1=0.0, pdx1=max(start.pdx1, seen))
         model, j, ssr = _fit(start, names, k, fx, fz, lower={"pdx1": seen})
         se_k = _stderr(j, ssr, n_eff, names)["PKX1"]
-        loose = not BOUNDS["pkx1"][0] < model.pkx1 < BOUNDS["pkx1"][1] or not Z95 * se_k <= 0.5 * model.pkx1
+        loose = not BOUNDS["pkx1"][0] < model.pkx1 < BOUNDS["pkx1"][1] or not Z95 * se_k <= 0.5 * model.pkx1 \
+            or np.count_nonzero(main_sign * k > ASYM_SLIP) < MIN_SIDE_POINTS
         if loose and cx_per_fz is not None:  # slip noise flattens the points' slope: the force-slip line's instead
             edge = max(-float(np.percentile(k, 0.5)), float(np.percentile(k, 99.5)), 1e-3)
             base = dataclasses.replace(model, pkx1=cx_per_fz)
