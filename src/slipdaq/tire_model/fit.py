@@ -3,19 +3,19 @@ a dataclass out.
 
 Least squares on the friction residual (Fx0(k, Fz) − Fx)/Fz over the points (Levenberg-Marquardt, numpy, a
 central-difference Jacobian), in steps:
-    1. PCX1, PDX1, PKX1 (the curve at FNOMIN), and PEX1 where it explains the points better (an F test, as in 3);
-       where the points never pass the peak, the peak is not measured:
-       PCX1 is held at C_UNSEEN and PEX1 at 0, PDX1 is bounded below by the largest |Fx/Fz| seen (99th percentile);
-       where the points leave PKX1 undetermined (its 95 % interval wider than half of it, or fewer than
-       MIN_SIDE_POINTS points beyond ASYM_SLIP: slip noise near zero slip flattens a least-squares slope), PKX1 is the force-slip lines' errors-in-variables slope per unit load and
-       PDX1 at least what keeps the curve within LINEARITY_TOLERANCE of that slope over the slip covered (the data
-       saw it linear there). The file then holds only for the slip its data cover.
+    1. PCX1, PDX1, PKX1 (the curve at FNOMIN), and PEX1 where it explains the points better (an F test, as in 3).
+       Where the points never pass the peak, the peak is not measured: PCX1 is held at C_UNSEEN and PEX1 at 0, PDX1
+       is bounded below by the largest |Fx/Fz| seen (99th percentile); where the points leave PKX1 undetermined (its
+       95 % interval wider than half of it, or fewer than MIN_SIDE_POINTS points beyond ASYM_SLIP: slip noise near
+       zero slip flattens a least-squares slope), PKX1 is the force-slip lines' errors-in-variables slope per unit
+       load and PDX1 at least what keeps the curve within LINEARITY_TOLERANCE of that slope over the slip covered
+       (the data saw it linear there). The file then holds only for the slip its data cover.
     2. PEX4 (the curvature's braking/driving asymmetry) where the points reach beyond ASYM_SLIP on both sides.
-    3. PDX2 and PKX2 (friction and stiffness against load) where the tire's load varied (load transfer) over at least
-       MIN_DFZ_SPAN of FNOMIN and adding them explains the points significantly better (an F test on the effective
-       samples, F > F_CRITICAL), else 0.
+    3. PDX2 and PKX2 (friction and stiffness against load) where the peak was passed, the tire's load varied (load
+       transfer) over at least MIN_DFZ_SPAN of FNOMIN, adding them explains the points significantly better (an F
+       test on the effective samples, F > F_CRITICAL) and each one's 95 % interval is clear of 0; else 0.
 The other coefficients stay 0 (the road does not separate them). Standard errors from the Jacobian at the optimum,
-sigma² = SSR/(n_eff − p) with n_eff the points EFFECTIVE_SAMPLE_S apart (the slip's noise is correlated over it).
+sigma² from the residuals, the points counted EFFECTIVE_SAMPLE_S apart (the slip's noise is correlated over it).
 """
 
 from __future__ import annotations
