@@ -3,6 +3,7 @@ independent evaluator's values for it, the .tir written and read back, and the f
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from slipdaq.config import Config
 from slipdaq.demo import demo_config, demo_settings
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.maneuver.record import Z95
 from slipdaq.offline import Rows
 from slipdaq.pipeline import Pipeline
 from slipdaq.report.build import make_report
@@ -22,6 +24,7 @@ from slipdaq.sim.emit import generate
 from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.vehicle import ROADS, TireModel
 from slipdaq.tire_model.files import build_tire, static_load_n
+from slipdaq.tire_model.fit import fit_mf61
 from slipdaq.tire_model.mf61 import LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
 
@@ -162,3 +165,26 @@ def test_the_report_writes_and_links_the_tire_files(rav4: Path, tmp_path: Path) 
 def test_export_without_an_output_names_tir(rav4: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["export", str(rav4)]) != 0
     assert "--tir" in capsys.readouterr().err
+
+
+def _points(truth: LongitudinalMF61, seed: int, n: int = 3000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ABS-like points: slip cycling 2-30 % braking, the load rising with the slip (load transfer), mu noise 0.02."""
+    rng = np.random.default_rng(seed)
+    k = -rng.uniform(0.0, 0.3, n)
+    fz = truth.fnomin * (1.0 + 0.6 * rng.uniform(-0.5, 0.5, n))
+    fx = truth.fx0(k, fz) + 0.02 * fz * rng.standard_normal(n)
+    return k, fx, fz
+
+
+def test_the_fit_finds_load_dependence_only_where_the_points_carry_it() -> None:
+    """Synthetic points over loads +-30 % of FNOMIN: a tire whose friction falls with load (PDX2 = -0.1) gets PDX2
+    back within its interval; one without gets 0 and the file's note says why."""
+    sensitive = LongitudinalMF61(fnomin=4000.0, pcx1=1.65, pdx1=1.17, pkx1=16.0, pdx2=-0.1, pkx2=-3.0)
+    fit = fit_mf61(*_points(sensitive, 1), 4000.0)
+    assert fit is not None and fit.peak_passed and fit.load_terms
+    assert abs(fit.model.pdx2 - sensitive.pdx2) <= Z95 * fit.stderr["PDX2"] and fit.model.pdx2 < -0.05
+    assert fit.model.pdx1 == pytest.approx(1.17, abs=0.02) and fit.model.pkx1 == pytest.approx(16.0, rel=0.05)
+    plain = dataclasses.replace(sensitive, pdx2=0.0, pkx2=0.0)
+    fit0 = fit_mf61(*_points(plain, 2), 4000.0)
+    assert fit0 is not None and not fit0.load_terms and fit0.model.pdx2 == 0.0 and fit0.model.pkx2 == 0.0
+    assert "not identified" in fit0.load_note

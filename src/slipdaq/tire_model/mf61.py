@@ -16,7 +16,6 @@ k is the longitudinal slip (ISO: negative braking), Fz the normal load (N).
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,10 +113,3 @@ class LongitudinalMF61:
             xs = float(x[i] + frac * 0.0005)
             return float(abs(self.fx0(sign * xs, fz))), xs
         return float(f[i]), float(x[i])
-
-    @property
-    def peak_slip_pure(self) -> float:
-        """|kx| at the peak of the unshifted curve at FNOMIN with Ex = 0: tan(pi/(2·Cx))/Bx (a start for searches)."""
-        cx = self.pcx1 * self.lcx
-        bx = self.pkx1 * self.lkx / (cx * self.pdx1 * self.lmux)
-        return math.tan(math.pi / (2.0 * cx)) / bx if cx > 1.0 and bx > 0 else math.inf
