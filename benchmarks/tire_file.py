@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""The Magic Formula tire file (.tir, MF 6.1) of an ABS stop's front tire against the simulator's tire (issue 34's
-target). Each row simulates brake-abs from 80 km/h with the front axle at its limit (benchmarks/maneuvers.py's
-front-limited stop) on a tire of peak mu 1.17 at 17 % slip, summarizes it as the report does, writes each front
-tire's .tir (tire_model/files.py), reads it back and evaluates it with the MF 6.1 evaluator at the stop's mean front
-load: the largest |Fx| error from 2 % to 25 % slip, the peak force and its slip, the slip stiffness Kxk against the
-truth's Cx; whether the peak counted as passed, the range written (KPUMIN, KPUMAX).
+"""The Magic Formula tire file (.tir, MF 6.1) of an ABS stop's front tire against the simulator's tire. Each row
+simulates brake-abs from 80 km/h with the front axle at its limit (benchmarks/maneuvers.py's front-limited stop) on
+a tire of peak mu 1.17 at 17 % slip, summarizes it as the report does, writes each front tire's .tir
+(tire_model/files.py), reads it back and evaluates it with the MF 6.1 evaluator at the stop's mean front load: the
+largest |Fx| error from 2 % to 25 % slip, the peak force and its slip, the slip stiffness Kxk against the truth's
+Cx; whether the peak counted as passed, the range written (KPUMIN, KPUMAX).
 
-    python benchmarks/tire_file.py [--seeds 1,2,3] [--write]
+    python -m benchmarks.tire_file [--seeds 1,2,3] [--write]
 
 Targets: Fx within 5 %, the peak within 5 % and 2 points, Kxk within 5 %.
 --write puts the table into docs/accuracy.md between its tire-file markers.
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slipdaq.demo import demo_config, demo_settings
-from slipdaq.offline import Rows
+from slipdaq.live.demo import demo_config, demo_settings
+from slipdaq.offline.run import Rows
 from slipdaq.pipeline import Pipeline
 from slipdaq.report.summary import detect_maneuvers
 from slipdaq.sim.emit import SimSettings, generate
@@ -90,7 +90,7 @@ def main() -> int:
     if args.write:
         text = DOC.read_text()
         if BEGIN not in text:
-            text += (f"\n## Magic Formula tire file (issue 34's target)\n\n`python benchmarks/tire_file.py --seeds "
+            text += (f"\n## Magic Formula tire file\n\n`python -m benchmarks.tire_file --seeds "
                      f"{args.seeds} --write`: brake-abs from 80 km/h, the front axle at its limit, tire mu 1.17 at "
                      f"17 %; each front tire's .tir evaluated at the stop's mean front load against the tire.\n\n"
                      f"{BEGIN}\n{END}\n")

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from slipdaq.config import TireConfig, VehicleConfig
+from slipdaq.config.tire_size import parse_tire_size
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.mu_slip import normal_loads_n
 from slipdaq.maneuver.record import Z95
-from slipdaq.tire import parse_tire_size
 from slipdaq.tire_model.fit import C_UNSEEN, MF61Fit, fit_mf61
 from slipdaq.tire_model.tir_file import TireFile
 

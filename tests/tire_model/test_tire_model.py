@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT
 from slipdaq.cli import main
 from slipdaq.config import Config
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.logformat.reader import iter_topic
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import Z95
-from slipdaq.offline import Rows
+from slipdaq.offline.run import Rows
 from slipdaq.pipeline import Pipeline
 from slipdaq.report.build import make_report
 from slipdaq.report.summary import detect_maneuvers
@@ -27,17 +26,18 @@ from slipdaq.tire_model.files import build_tire, static_load_n
 from slipdaq.tire_model.fit import fit_mf61
 from slipdaq.tire_model.mf61 import LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
+from support.paths import DATA, ROOT
 
-DATA = Path(__file__).parent / "data" / "tyredyn-mf"
-RAV4 = ROOT / "tests" / "data" / "rav4-comma2k19"
+MF_DATA = DATA / "tyredyn-mf"
+RAV4 = DATA / "rav4-comma2k19"
 
 
 def test_the_evaluator_gives_an_independent_evaluators_fx0_on_a_published_tir() -> None:
     """TyreDyn's car205_60R19.tir (MF 6.2 file at its nominal pressure: Fx0 is MF 6.1's) with every longitudinal
     shift and load term nonzero; Fx0 at 33 (slip, load) points as TyreDyn computed it (tests/data/README), to 1e-6 N."""
-    model = longitudinal_model(read_tir(DATA / "car205_60R19.tir"))
+    model = longitudinal_model(read_tir(MF_DATA / "car205_60R19.tir"))
     assert model.fnomin == 4000.0 and model.pkx3 == -0.4119 and model.phx2 == 0.0011538
-    ref = np.loadtxt(DATA / "car205_60R19_fx0.csv", delimiter=",", comments="#")
+    ref = np.loadtxt(MF_DATA / "car205_60R19_fx0.csv", delimiter=",", comments="#")
     assert ref.shape == (33, 3)
     got = model.fx0(ref[:, 0], ref[:, 1])
     np.testing.assert_allclose(got, ref[:, 2], rtol=0, atol=1e-6)
