@@ -58,7 +58,14 @@ def test_a_written_tir_reads_back_to_the_same_curve(tmp_path: Path) -> None:
     assert sections["MODEL"]["FITTYP"] == 61.0 and sections["MDI_HEADER"]["FILE_TYPE"] == "tir"
     assert sections["LONG_SLIP_RANGE"] == {"KPUMIN": -0.31, "KPUMAX": 0.02}
     assert sections["DIMENSION"]["UNLOADED_RADIUS"] == 0.3071 and sections["VERTICAL"]["FNOMIN"] == 3500.0
-    assert all(v == 1.0 for v in sections["SCALING_COEFFICIENTS"].values())
+    assert all(v == 1.0 for v in sections["SCALING_COEFFICIENTS"].values()) and len(sections["SCALING_COEFFICIENTS"]) == 25
+    # every MF 6.1 section an evaluator reads, the unmeasured ones neutral: no lateral friction, no moments
+    for sec in ("INERTIA", "STRUCTURAL", "CONTACT_PATCH", "INFLATION_PRESSURE_RANGE", "VERTICAL_FORCE_RANGE",
+                "SLIP_ANGLE_RANGE", "INCLINATION_ANGLE_RANGE", "OVERTURNING_COEFFICIENTS", "LATERAL_COEFFICIENTS",
+                "ROLLING_COEFFICIENTS", "ALIGNING_COEFFICIENTS"):
+        assert sections[sec], sec
+    assert sections["LATERAL_COEFFICIENTS"]["PDY1"] == 0.0 and sections["LONGITUDINAL_COEFFICIENTS"]["RBX1"] == 0.0
+    assert sections["ALIGNING_COEFFICIENTS"]["QDZ1"] == 0.0 and sections["ROLLING_COEFFICIENTS"]["QSY1"] == 0.0
     back = longitudinal_model(sections)
     assert back == model
     k = np.linspace(-0.3, 0.02, 50)

@@ -5,10 +5,9 @@ strings in single quotes.
 What a written file holds: [MDI_HEADER], [UNITS] (SI), [MODEL] (FITTYP = 61), [DIMENSION] (UNLOADED_RADIUS: the
 calibrated r0; WIDTH, ASPECT_RATIO, RIM_RADIUS from the tire size), [OPERATING_CONDITIONS] (INFLPRES = NOMPRES: the
 pressure terms vanish), [VERTICAL] (FNOMIN: the static wheel load), [LONG_SLIP_RANGE] (KPUMIN/KPUMAX: the slip the
-data covered), [SCALING_COEFFICIENTS] (all 1), [LONGITUDINAL_COEFFICIENTS] (fitted; combined-slip R*X at neutral),
-then [LATERAL_COEFFICIENTS], [ALIGNING_COEFFICIENTS], [OVERTURNING_COEFFICIENTS], [ROLLING_COEFFICIENTS] at neutral
-values (NEUTRAL: no lateral force, moment or rolling resistance; the combined-slip weighting functions equal to 1),
-and a `$ [SLIPDAQ]` comment block that says where the numbers came from.
+data covered), [SCALING_COEFFICIENTS] (all 1), [LONGITUDINAL_COEFFICIENTS] (fitted), every other MF 6.1 section and
+coefficient at neutral or typical values (neutral.py: no lateral force, moment or rolling resistance; combined slip
+without interaction), and a `$ [SLIPDAQ]` comment block that says where the numbers came from.
 """
 
 from __future__ import annotations
@@ -19,21 +18,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from slipdaq.tire_model.mf61 import LONGITUDINAL_NAMES, SCALING_NAMES, LongitudinalMF61
+from slipdaq.tire_model.neutral import (
+    COEFFICIENT_SECTIONS,
+    COMBINED_LONGITUDINAL,
+    PRESSURE_LONGITUDINAL,
+    RANGES_OTHER,
+    SCALING_OTHERS,
+    SECTIONS_AFTER_VERTICAL,
+    SECTIONS_BEFORE,
+    VERTICAL_OTHERS,
+)
 
 Value = float | str
 
-NEUTRAL: dict[str, dict[str, float]] = {
-    "LATERAL_COEFFICIENTS": {"PCY1": 1.3, "PDY1": 0.0, "PEY1": 0.0, "PKY1": 0.0, "PKY2": 1.0, "PHY1": 0.0, "PVY1": 0.0,
-                             "RBY1": 0.0, "RCY1": 1.0, "RVY1": 0.0},
-    "ALIGNING_COEFFICIENTS": {"QBZ1": 10.0, "QCZ1": 1.1, "QDZ1": 0.0, "QDZ6": 0.0, "QEZ1": 0.0, "QHZ1": 0.0,
-                              "SSZ1": 0.0},
-    "OVERTURNING_COEFFICIENTS": {"QSX1": 0.0, "QSX2": 0.0, "QSX3": 0.0},
-    "ROLLING_COEFFICIENTS": {"QSY1": 0.0, "QSY2": 0.0},
-}
-"""The sections slipdaq does not measure, at values that give no lateral force (PDY1 = 0: no friction sideways), no
-aligning, overturning or rolling-resistance moment; the missing coefficients read as 0 (MFeval's default)."""
-COMBINED_LONGITUDINAL = {"RBX1": 0.0, "RBX2": 0.0, "RCX1": 1.0, "REX1": 0.0, "REX2": 0.0, "RHX1": 0.0}
-"""Combined slip (4.E50-4.E57) at neutral: RBX1 = 0 makes the weighting G_xa = 1 (Fx = Fx0 at any slip angle)."""
+FZMAX_PER_FNOMIN = 2.5
+"""[VERTICAL_FORCE_RANGE] FZMAX = this·FNOMIN (FZMIN 0): an evaluator clamps the load there; the load terms hold only
+over the loads the data saw (the [SLIPDAQ] block)."""
 
 
 @dataclass(frozen=True)
@@ -90,17 +90,34 @@ def tir_text(tire: TireFile) -> str:
     lines += _section("OPERATING_CONDITIONS") + [
         _line("INFLPRES", tire.pressure_pa, "Tyre inflation pressure (not measured: equal to NOMPRES)"),
         _line("NOMPRES", tire.pressure_pa, "Nominal tyre inflation pressure")]
+    lines += _sections(SECTIONS_BEFORE)
     lines += _section("VERTICAL") + [_line("FNOMIN", m.fnomin, "Nominal wheel load (the static wheel load)")]
+    lines += [_line(n, v, c) for n, (v, c) in VERTICAL_OTHERS.items()]
+    lines += _sections(SECTIONS_AFTER_VERTICAL)
+    lines += _section("INFLATION_PRESSURE_RANGE") + [
+        _line("PRESMIN", 0.5 * tire.pressure_pa, "pressure not measured"),
+        _line("PRESMAX", 2.0 * tire.pressure_pa, "pressure not measured")]
+    lines += _section("VERTICAL_FORCE_RANGE") + [
+        _line("FZMIN", 0.0, "Minimum allowed wheel load"),
+        _line("FZMAX", FZMAX_PER_FNOMIN * m.fnomin, "Maximum allowed wheel load (2.5 FNOMIN)")]
     lines += _section("LONG_SLIP_RANGE") + [
         _line("KPUMIN", tire.slip_min, "Minimum valid wheel slip (the least the data covered)"),
         _line("KPUMAX", tire.slip_max, "Maximum valid wheel slip (the most the data covered)")]
-    lines += _section("SCALING_COEFFICIENTS") + [_line(n, float(getattr(m, n.lower())), "Scale factor") for n in SCALING_NAMES]
+    lines += _sections(RANGES_OTHER)
+    lines += _section("SCALING_COEFFICIENTS") + [_line(n, float(getattr(m, n.lower())), "Scale factor")
+                                                 for n in SCALING_NAMES]
+    lines += [_line(n, 1.0, "Scale factor") for n in SCALING_OTHERS]
     lines += _section("LONGITUDINAL_COEFFICIENTS")
     lines += [_line(n, v, tire.notes.get(n, "")) for n, v in m.values().items()]
-    lines += [_line(n, v, "combined slip: neutral (not measured)") for n, v in COMBINED_LONGITUDINAL.items()]
-    for sec, values in NEUTRAL.items():
-        lines += _section(sec) + [_line(n, v, "neutral (not measured)") for n, v in values.items()]
+    lines += [_line(n, v, "pressure: neutral, not measured") for n, v in PRESSURE_LONGITUDINAL.items()]
+    lines += [_line(n, v, "combined slip: neutral, not measured") for n, v in COMBINED_LONGITUDINAL.items()]
+    lines += _sections(COEFFICIENT_SECTIONS)
     return "\n".join(lines) + "\n"
+
+
+def _sections(sections: dict[str, dict[str, tuple[float, str]]]) -> list[str]:
+    return [line for sec, values in sections.items()
+            for line in _section(sec) + [_line(n, v, c) for n, (v, c) in values.items()]]
 
 
 ASCII = str.maketrans({"→": "->", "–": "-", "—": "-", "·": "*", "±": "+-", "²": "^2", "μ": "mu"})
