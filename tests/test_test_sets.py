@@ -18,7 +18,7 @@ from scipy import stats
 from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import main
-from slipdaq.config import ConfigError, ProcedureConfig, load_config, parse_config
+from slipdaq.config import Config, ConfigError, ProcedureConfig, load_config, parse_config
 from slipdaq.config import TestConfig as Day
 from slipdaq.logformat.topics import TOPIC_MANEUVER, TOPIC_TEST_SET
 from slipdaq.maneuver.record import Maneuver, ManeuverWheel
@@ -26,8 +26,9 @@ from slipdaq.maneuver.stats import mean_interval, t_quantile, welch_difference
 from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row, procedure_for
 from slipdaq.maneuver.test_set import TestSets as Sets
 from slipdaq.offline import process_to_log
+from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sim.vehicle import DECEL_MPS2
+from slipdaq.sim.vehicle import DECEL_MPS2, ROADS, static_loads_n
 from slipdaq.sinks.maneuver_text import test_set_line as set_line
 
 BRAKE_100 = ProcedureConfig(name="brake 100-0", kind="brake", target_speed_kmh=100.0, speed_tolerance_kmh=2.0,
@@ -165,12 +166,15 @@ def day(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-de
     cfg = cfg.with_overrides(test={"procedure": [
         ProcedureConfig(name="brake 60-0", kind="brake", target_speed_kmh=60, runs=1, mfdd_window_kmh=[50, 10]),
         ProcedureConfig(name="accelerate 0-60", kind="accelerate", target_speed_kmh=60, runs=2)]})
-    records = (ev.record for ev in generate(cfg, "test-day", "paved", SimSettings(seed=5), duration_s=40.0)
+    return d, _day_log(cfg, d / "day.mcap", "paved", 5), cfg
+
+
+def _day_log(cfg: Config, log: Path, road: str, seed: int) -> Path:
+    records = (ev.record for ev in generate(cfg, "test-day", road, SimSettings(seed=seed), duration_s=40.0)
                if ev.record is not None)
-    log = d / "day.mcap"
     with open(os.devnull, "w") as quiet:
-        process_to_log(cfg, records, log, "import", stream=quiet)
-    return d, log
+        process_to_log(cfg, records, log, "import", metadata=labels_metadata({"road": road}), stream=quiet)
+    return log
 
 
 def _messages(path: Path, topic: str) -> list[dict]:  # type: ignore[type-arg]
@@ -180,7 +184,7 @@ def _messages(path: Path, topic: str) -> list[dict]:  # type: ignore[type-arg]
 
 
 def test_test_day_sets_in_the_log(day) -> None:  # type: ignore[no-untyped-def]
-    d, log = day
+    d, log, _cfg = day
     with open(log, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
@@ -213,7 +217,7 @@ def test_test_day_sets_in_the_log(day) -> None:  # type: ignore[no-untyped-def]
 
 
 def test_sets_csv_and_replay(day) -> None:  # type: ignore[no-untyped-def]
-    d, log = day
+    d, log, _cfg = day
     out = d / "sets.csv"
     assert main(["export", str(log), "--sets-csv", str(out)]) == 0
     with open(out, newline="", encoding="utf-8") as f:
@@ -233,3 +237,39 @@ def test_sets_csv_and_replay(day) -> None:  # type: ignore[no-untyped-def]
         assert main(["replay", str(log), "-o", str(replayed)]) == 0
     again = _messages(replayed, TOPIC_TEST_SET)
     assert again == sets and all(not math.isnan(x) for r in again for x in r.values() if isinstance(x, float))
+
+
+def test_report_sets_and_differences_paved_against_sand(day) -> None:  # type: ignore[no-untyped-def]
+    d, paved, cfg = day
+    sand = _day_log(cfg, d / "sand.mcap", "sand", 6)
+    out = d / "report"
+    with open(os.devnull, "w") as quiet, pytest.MonkeyPatch.context() as mp:
+        mp.setattr("sys.stdout", quiet)
+        assert main(["report", str(paved), str(sand), "-o", str(out)]) == 0
+    doc = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    logged = {r["procedure"]: r for r in _messages(paved, TOPIC_TEST_SET)}.values()
+    assert [(r["procedure"], r["runs"], [e["index"] for e in r["excluded"]]) for r in doc["logs"][0]["test_sets"]] \
+        == [(r["procedure"], r["runs"], [e["index"] for e in r["excluded"]]) for r in logged]
+    assert list(doc["test_sets"]) == ["road=paved", "road=sand"]
+    assert [r["procedure"] for r in doc["test_sets"]["road=sand"]] == ["accelerate 0-60", "brake 60-0"]
+    diffs = doc["differences"]
+    assert all(list(x)[:13] == ["figure", "wheel", "kind", "label", "group_a", "group_b", "n_a", "n_b", "mean_a",
+                                "mean_b", "difference", "ci_lo", "ci_hi"] for x in diffs)
+    records = {log["log"]: log["maneuver_records"] for log in doc["logs"]}
+    truth = {w: (ROADS["paved"].cx_per_fz - ROADS["sand"].cx_per_fz) * fz
+             for w, fz in static_loads_n(cfg.vehicle.mass_kg).items()}
+    for w in ("FL", "FR"):
+        row = next(x for x in diffs if (x["figure"], x["wheel"], x["kind"], x["procedure"]) == ("cx_line_n", w, "brake",
+                                                                                             None))
+        assert (row["label"], row["group_a"], row["group_b"], row["n_a"], row["n_b"]) == \
+            ("road", "road=paved", "road=sand", 2, 2)
+        a, b = ([r[f"cx_line_n_{w}"] for r in records[log] if r["kind"] == "brake" and r["valid"]]
+                for log in ("day", "sand"))
+        ref = stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+        assert (row["ci_lo"], row["ci_hi"]) == (pytest.approx(ref.low), pytest.approx(ref.high))
+        assert row["excludes_zero"] and row["ci_lo"] > 0
+        # the line over the linear region lies under the tire's initial slope: within 15 % of its difference
+        assert row["difference"] == pytest.approx(truth[w], rel=0.15)
+    page = (out / "index.html").read_text(encoding="utf-8")
+    assert "Test sets by label group" in page and "Differences between groups" in page
+    assert "brake speed 3" in page and "not within 2 km/h of 60 km/h" in page

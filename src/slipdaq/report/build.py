@@ -192,7 +192,7 @@ class ReportBuild:
 
     def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
         """The comparison (two or more logs), the tables and index.html over `logs` (each one added before)."""
-        from slipdaq.report import page, page_data, write
+        from slipdaq.report import page, page_data, sets, write
 
         build, logs, links = self.build, list(logs), self.links
         comparisons = compare(logs) if len(logs) > 1 else []
@@ -209,12 +209,17 @@ class ReportBuild:
             self.say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
         page_data.write_assets(build)
         rows = table_rows(logs)
+        groups = sets.group_sets(logs)
+        group_records = {g.group: g.sets.records() for g in groups}
+        diffs = sets.differences(groups)
         cs, js, index = (build / name for name in TABLES)
         write.write_csv(rows, cs)
         write.write_json(logs, comparisons, rows, {n.name: links[n.name].page.plots for n in logs},
                          {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
-                         overviews={n.name: links[n.name].page.overview for n in logs})
-        page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index)
+                         overviews={n.name: links[n.name].page.overview for n in logs},
+                         group_sets=group_records, differences=diffs)
+        page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index,
+                        group_sets=group_records, differences=diffs)
         cs, js, index = (self.out / name for name in TABLES)
         return ReportResult(self.out, logs, comparisons, self.pngs, index, js, cs)
 
