@@ -56,9 +56,9 @@ def differences_table(rows: Sequence[dict[str, Any]]) -> str:
         out.append(
             f"<tr><td class=l>{escape(of)}</td><td class=l>{escape(d['figure'])}{' [' + unit + ']' if unit else ''}"
             f"</td><td>{escape(d['wheel'] or '')}</td><td class=l>{escape(d['group_a'])}</td><td>{d['n_a']}</td>"
-            f"<td>{fmt(d['mean_a'], scale, digits)} {_interval(*d['mean_a_ci'], scale, digits)}</td>"
+            f"<td>{fmt(d['mean_a'], scale, digits)} {_interval(d['mean_a_ci'][0], d['mean_a_ci'][1], scale, digits)}</td>"
             f"<td class=l>{escape(d['group_b'])}</td><td>{d['n_b']}</td>"
-            f"<td>{fmt(d['mean_b'], scale, digits)} {_interval(*d['mean_b_ci'], scale, digits)}</td>"
+            f"<td>{fmt(d['mean_b'], scale, digits)} {_interval(d['mean_b_ci'][0], d['mean_b_ci'][1], scale, digits)}</td>"
             + (f"<td><b>{diff}</b> ≠ 0</td>" if d["excludes_zero"] else f"<td>{diff}</td>") + "</tr>")
     out.append("</tbody></table>")
     return "\n".join(out)

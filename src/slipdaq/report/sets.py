@@ -84,9 +84,9 @@ def _figures(groups: Sequence[GroupSets]) -> list[tuple[str | None, str, str, st
         kind = next(gs.sets.sets[name].procedure.kind for gs in groups if name in gs.sets.sets)
         out += [(name, kind, f, None) for f in KIND_FIGURES[kind]]
         out += [(name, kind, f, w) for f in WHEEL_FIGURES for w in WHEELS]
-    for kind, figs in MANEUVER_FIGURES.items():
-        out += [(None, kind, f, None) for f in figs]
-        out += [(None, kind, f, w) for f in WHEEL_FIGURES for w in WHEELS]
+    for k, figs in MANEUVER_FIGURES.items():
+        out += [(None, k, f, None) for f in figs]
+        out += [(None, k, f, w) for f in WHEEL_FIGURES for w in WHEELS]
     return out
 
 
