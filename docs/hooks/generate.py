@@ -254,6 +254,7 @@ def csv_files() -> list[tuple[str, tuple[str, ...], dict[str, tuple[str, str, st
     from slipdaq import WHEELS
     from slipdaq.export import csv_file
     from slipdaq.maneuver.record import MANEUVER_COLUMNS
+    from slipdaq.maneuver.test_set import TEST_SET_COLUMNS, TEST_SET_CSV_COLUMNS
     from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS
 
     def described(groups: Any) -> dict[str, tuple[str, str, str]]:
@@ -271,6 +272,7 @@ def csv_files() -> list[tuple[str, tuple[str, ...], dict[str, tuple[str, str, st
         ("--csv", csv_file.ALL_COLUMNS, estimates),
         ("--fast-csv", csv_file.FAST_COLUMNS, described(FAST_SLIP_COLUMNS)),
         ("--maneuvers-csv", csv_file.MANEUVER_CSV_COLUMNS, described(MANEUVER_COLUMNS)),
+        ("--sets-csv", TEST_SET_CSV_COLUMNS, described(TEST_SET_COLUMNS)),
         ("--imu-csv", csv_file.IMU_CSV_COLUMNS, {"time_s": ("number", "the sample's time, seconds in the log's clock",
                                                             "contract"),
                                                  "accel_mps2": ("number", "the forward acceleration the estimator "
