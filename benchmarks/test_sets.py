@@ -4,7 +4,7 @@ switch at 50 Hz, the IMU at 100 Hz, WPT at 500 Hz) from about 100 km/h, five wit
 run through slipdaq's pipeline in process as `run` and `import` do, their /maneuver records fed in order to the test
 set of `[[test.procedure]] brake 100-0` (runs 5, mfdd_window_kmh [80, 20]) as the report feeds a group's logs.
 
-    python benchmarks/test_sets.py [--seeds 1,2,3] [--write]
+    python -m benchmarks.test_sets [--seeds 1,2,3] [--write]
 
 Truth per counted stop: the simulator's stopping distance from its brake onset corrected to 100 km/h,
 d·(100/v0)², and its MFDD between 80 and 20 km/h. Columns: runs counted and the 92 km/h stop excluded; the set's
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from slipdaq.config import ProcedureConfig
-from slipdaq.demo import demo_config, demo_settings
+from slipdaq.live.demo import demo_config, demo_settings
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.maneuver.test_set import TestSets
 from slipdaq.pipeline import Pipeline

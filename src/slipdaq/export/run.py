@@ -73,7 +73,7 @@ def _maneuvers_csv(log: LogStreams, path: Path) -> int:
 
 def _sets_csv(log: LogStreams, path: Path) -> int:
     from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row
-    from slipdaq.sinks.csv_export import write_csv
+    from slipdaq.export.csv_file import write_csv
 
     return write_csv((csv_row(r) for r in log.test_sets()), path, TEST_SET_CSV_COLUMNS)
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from slipdaq import WHEELS
-from slipdaq.records.columns import Column, ColumnGroup, column_names
 from slipdaq.config import PROCEDURE_KINDS, ProcedureConfig, TestConfig
 from slipdaq.maneuver.stats import mean_interval
+from slipdaq.records.columns import Column, ColumnGroup, column_names
 
 if TYPE_CHECKING:
     from slipdaq.maneuver.record import Maneuver

@@ -15,7 +15,6 @@ import pytest
 from mcap.reader import make_reader
 from scipy import stats
 
-from conftest import CONFIG
 from slipdaq import WHEELS
 from slipdaq.cli import main
 from slipdaq.config import Config, ConfigError, ProcedureConfig, load_config, parse_config
@@ -25,11 +24,12 @@ from slipdaq.maneuver.record import Maneuver, ManeuverWheel
 from slipdaq.maneuver.stats import mean_interval, t_quantile, welch_difference
 from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row, procedure_for
 from slipdaq.maneuver.test_set import TestSets as Sets
-from slipdaq.offline import process_to_log
+from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import labels_metadata
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.vehicle import DECEL_MPS2, ROADS, static_loads_n
 from slipdaq.sinks.maneuver_text import test_set_line as set_line
+from support.paths import CONFIG
 
 BRAKE_100 = ProcedureConfig(name="brake 100-0", kind="brake", target_speed_kmh=100.0, speed_tolerance_kmh=2.0,
                             runs=5, mfdd_window_kmh=[80, 20], max_cv_percent=3.0)
@@ -183,6 +183,7 @@ def _messages(path: Path, topic: str) -> list[dict]:  # type: ignore[type-arg]
         return [json.loads(m.data) for _s, ch, m in reader.iter_messages(topics=[topic])]
 
 
+@pytest.mark.slow
 def test_test_day_sets_in_the_log(day) -> None:  # type: ignore[no-untyped-def]
     d, log, _cfg = day
     with open(log, "rb") as f:
@@ -216,6 +217,7 @@ def test_test_day_sets_in_the_log(day) -> None:  # type: ignore[no-untyped-def]
     assert accel["excluded"][0]["reason"].startswith("top speed 3")
 
 
+@pytest.mark.slow
 def test_sets_csv_and_replay(day) -> None:  # type: ignore[no-untyped-def]
     d, log, _cfg = day
     out = d / "sets.csv"
@@ -239,6 +241,7 @@ def test_sets_csv_and_replay(day) -> None:  # type: ignore[no-untyped-def]
     assert again == sets and all(not math.isnan(x) for r in again for x in r.values() if isinstance(x, float))
 
 
+@pytest.mark.slow
 def test_report_sets_and_differences_paved_against_sand(day) -> None:  # type: ignore[no-untyped-def]
     d, paved, cfg = day
     sand = _day_log(cfg, d / "sand.mcap", "sand", 6)
