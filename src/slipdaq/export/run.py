@@ -72,8 +72,8 @@ def _maneuvers_csv(log: LogStreams, path: Path) -> int:
 
 
 def _sets_csv(log: LogStreams, path: Path) -> int:
-    from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row
     from slipdaq.export.csv_file import write_csv
+    from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row
 
     return write_csv((csv_row(r) for r in log.test_sets()), path, TEST_SET_CSV_COLUMNS)
 
