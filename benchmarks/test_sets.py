@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A brake test set against the simulator's truth (issue 33's targets). Per seed: six ABS stops (brake-abs, the brake
+"""A brake test set against the simulator's truth. Per seed: six ABS stops (brake-abs, the brake
 switch at 50 Hz, the IMU at 100 Hz, WPT at 500 Hz) from about 100 km/h, five within 2 km/h and one from 92 km/h, each
 run through slipdaq's pipeline in process as `run` and `import` do, their /maneuver records fed in order to the test
 set of `[[test.procedure]] brake 100-0` (runs 5, mfdd_window_kmh [80, 20]) as the report feeds a group's logs.
