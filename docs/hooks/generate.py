@@ -91,6 +91,10 @@ def config_keys() -> Iterator[tuple[str, type, list[tuple[str, Any]]]]:
             section = "wheels.W"
         assert isinstance(model, type) and issubclass(model, BaseModel)
         yield section, model, [(f"{section}.{k}", f) for k, f in model.model_fields.items()]
+        for k, f in model.model_fields.items():  # [[section.k]]: a list of tables (test.procedure)
+            item = typing.get_args(f.annotation)[0] if typing.get_origin(f.annotation) is list else None
+            if isinstance(item, type) and issubclass(item, BaseModel):
+                yield f"[{section}.{k}]", item, [(f"{section}.{k}.{n}", g) for n, g in item.model_fields.items()]
 
 
 def render_config() -> str:
@@ -100,7 +104,7 @@ def render_config() -> str:
     lines = []
     for section, model, keys in config_keys():
         lines.append(f"### `[{section}]`\n")
-        doc = _model_doc(model) or (Config.model_fields[section.split(".")[0]].description or "")
+        doc = _model_doc(model) or (Config.model_fields[section.strip("[").split(".")[0]].description or "")
         if section == "wheels.W":
             doc += f" W is one of {', '.join(WHEELS)}."
         if doc:
