@@ -91,6 +91,10 @@ def config_keys() -> Iterator[tuple[str, type, list[tuple[str, Any]]]]:
             section = "wheels.W"
         assert isinstance(model, type) and issubclass(model, BaseModel)
         yield section, model, [(f"{section}.{k}", f) for k, f in model.model_fields.items()]
+        for k, f in model.model_fields.items():  # [[section.k]]: a list of tables (test.procedure)
+            item = typing.get_args(f.annotation)[0] if typing.get_origin(f.annotation) is list else None
+            if isinstance(item, type) and issubclass(item, BaseModel):
+                yield f"[{section}.{k}]", item, [(f"{section}.{k}.{n}", g) for n, g in item.model_fields.items()]
 
 
 def render_config() -> str:
@@ -100,7 +104,7 @@ def render_config() -> str:
     lines = []
     for section, model, keys in config_keys():
         lines.append(f"### `[{section}]`\n")
-        doc = _model_doc(model) or (Config.model_fields[section.split(".")[0]].description or "")
+        doc = _model_doc(model) or (Config.model_fields[section.strip("[").split(".")[0]].description or "")
         if section == "wheels.W":
             doc += f" W is one of {', '.join(WHEELS)}."
         if doc:
@@ -254,6 +258,7 @@ def csv_files() -> list[tuple[str, tuple[str, ...], dict[str, tuple[str, str, st
     from slipdaq import WHEELS
     from slipdaq.export import csv_file
     from slipdaq.maneuver.record import MANEUVER_COLUMNS
+    from slipdaq.maneuver.test_set import TEST_SET_COLUMNS, TEST_SET_CSV_COLUMNS
     from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS
 
     def described(groups: Any) -> dict[str, tuple[str, str, str]]:
@@ -271,6 +276,7 @@ def csv_files() -> list[tuple[str, tuple[str, ...], dict[str, tuple[str, str, st
         ("--csv", csv_file.ALL_COLUMNS, estimates),
         ("--fast-csv", csv_file.FAST_COLUMNS, described(FAST_SLIP_COLUMNS)),
         ("--maneuvers-csv", csv_file.MANEUVER_CSV_COLUMNS, described(MANEUVER_COLUMNS)),
+        ("--sets-csv", TEST_SET_CSV_COLUMNS, described(TEST_SET_COLUMNS)),
         ("--imu-csv", csv_file.IMU_CSV_COLUMNS, {"time_s": ("number", "the sample's time, seconds in the log's clock",
                                                             "contract"),
                                                  "accel_mps2": ("number", "the forward acceleration the estimator "

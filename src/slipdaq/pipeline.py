@@ -29,6 +29,7 @@ from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.maneuver.detector import ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
+from slipdaq.maneuver.test_set import TestSets
 from slipdaq.records import (
     FLAG_ERROR,
     CanFrame,
@@ -131,6 +132,8 @@ class Pipeline:
         self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
         self.maneuver_count = 0
+        self.test_sets = TestSets(config.test)
+        """The test's procedures' sets, fed each /maneuver record; sinks get a set's /test_set record after each."""
         self._executor = maneuver_executor
         self._summaries: deque[Future[ManeuverSummary]] = deque()
         """Maneuvers being summarized on the executor, in the order they were decided."""
@@ -369,6 +372,9 @@ class Pipeline:
         self.maneuver_count += 1
         record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
         self._out.on_maneuver(record, log_time_s)
+        test_set = self.test_sets.add(record)
+        if test_set is not None:
+            self._out.on_test_set(test_set, log_time_s)
 
     def _tick(self, t: float) -> None:
         """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""

@@ -150,6 +150,18 @@ def test_the_maneuver_is_live(live: LiveRun) -> None:
         jsonschema.validate(json.loads(data), schema)
 
 
+def test_the_test_set_is_live(live: LiveRun) -> None:
+    """The demo's brake 80-0 set ([[test.procedure]]) after the ABS stop: on /test_set, live as in the log."""
+    _, logged = read_log(live.log_path)
+    got = live.reader.messages.get("/test_set", [])
+    assert got and set(got) <= set(logged["/test_set"])
+    schema = json.loads(live.reader.advertised()["/test_set"]["schema"])
+    last = json.loads(got[-1][1])
+    jsonschema.validate(last, schema)
+    assert (last["procedure"], last["runs_valid"], last["runs_required"]) == ("brake 80-0", 1, 3)
+    assert "test set brake 80-0: 1 of 3" in live.output
+
+
 def test_a_client_that_never_reads_stalls_neither_reading_nor_logging(live: LiveRun) -> None:
     assert live.returncode == 0, live.output
     # the daemon ended on time (its stop does not wait for the stuck client's close handshake)

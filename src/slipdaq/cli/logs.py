@@ -87,6 +87,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--maneuvers-csv", metavar="OUT.csv", help="one row per maneuver (/maneuver): index, kind, "
                    "times, speeds, target, valid and why not ('; '-joined), the brake figures, time to speed, then "
                    "per wheel W mean_slip_W, max_abs_slip_W, cx_line_n_W, mu_peak_W, slip_at_mu_peak_W")
+    p.add_argument("--sets-csv", metavar="OUT.csv", help="one row per test set ([[test.procedure]]): its last "
+                   "/test_set record, the same names as columns (runs '; '-joined, excluded as '3: reason; ...')")
     p.add_argument("--imu-csv", metavar="OUT.csv", help="time_s, accel_mps2: the forward acceleration the estimator "
                    "took from the IMU ([imu] on CAN, or an Xsens MTi on serial), one row per sample")
     p.add_argument("--mf4", metavar="OUT.mf4", help="the estimates, the high-rate wheel speeds and the GPS speed as "

@@ -12,7 +12,7 @@ from typing import Any
 
 from slipdaq.logformat.reader import iter_estimates, iter_fast_slip, iter_topic, read_metadata
 from slipdaq.logformat.salvage import ScanResult
-from slipdaq.logformat.topics import TOPIC_GPS, TOPIC_MANEUVER, TOPIC_SENSORS
+from slipdaq.logformat.topics import TOPIC_GPS, TOPIC_MANEUVER, TOPIC_SENSORS, TOPIC_TEST_SET
 from slipdaq.outputs import OutputError, refuse_inputs, same_file
 from slipdaq.report.labels import labels_of
 from slipdaq.sources.read_errors import guarded
@@ -45,6 +45,13 @@ class LogStreams:
     def maneuvers(self) -> Iterator[dict[str, Any]]:
         return guarded(self.log, (d for _topic, _t, d in iter_topic(self.log, (TOPIC_MANEUVER,), self.scanned)))
 
+    def test_sets(self) -> list[dict[str, Any]]:
+        """The last /test_set record of each set, in the order the sets first came."""
+        last: dict[str, dict[str, Any]] = {}
+        for _topic, _t, d in guarded(self.log, iter_topic(self.log, (TOPIC_TEST_SET,), self.scanned)):
+            last[d["procedure"]] = d
+        return list(last.values())
+
 
 def _csv(log: LogStreams, path: Path) -> int:
     from slipdaq.export.csv_file import ALL_COLUMNS, write_csv
@@ -62,6 +69,13 @@ def _maneuvers_csv(log: LogStreams, path: Path) -> int:
     from slipdaq.export.csv_file import MANEUVER_CSV_COLUMNS, write_csv
 
     return write_csv(log.maneuvers(), path, MANEUVER_CSV_COLUMNS)
+
+
+def _sets_csv(log: LogStreams, path: Path) -> int:
+    from slipdaq.export.csv_file import write_csv
+    from slipdaq.maneuver.test_set import TEST_SET_CSV_COLUMNS, csv_row
+
+    return write_csv((csv_row(r) for r in log.test_sets()), path, TEST_SET_CSV_COLUMNS)
 
 
 def _imu_csv(log: LogStreams, path: Path) -> int:
@@ -102,6 +116,8 @@ FORMATS: dict[str, ExportFormat] = {
     "maneuvers_csv": ExportFormat("--maneuvers-csv", "maneuvers", _maneuvers_csv, empty_note=(
         " (no accelerate or brake maneuver ended in it, or a log recorded before they were logged: `slipdaq replay` "
         "it)")),
+    "sets_csv": ExportFormat("--sets-csv", "test sets", _sets_csv, empty_note=(
+        " (no [[test.procedure]] in its config took a maneuver)")),
     "imu_csv": ExportFormat("--imu-csv", "IMU samples", _imu_csv, empty_note=(
         " (no IMU: neither [imu] on CAN nor an MTi on serial)")),
     "mf4": ExportFormat("--mf4", "estimates", _mf4, needs=("asammdf", "mdf")),

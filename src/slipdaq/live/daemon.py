@@ -16,7 +16,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import can
 
@@ -64,6 +64,8 @@ class RunResult:
     """What the estimator measured in this run (for the calibration file)."""
     maneuvers: list[Maneuver] = field(default_factory=list)
     """The run's maneuvers (/maneuver), in order."""
+    test_sets: list[dict[str, Any]] = field(default_factory=list)
+    """The last /test_set record of each set the run filled."""
 
 
 def _lower_priority() -> None:
@@ -261,4 +263,5 @@ async def run_daemon(
         log_path, d.can_frames, d.nmea_lines, d.estimates, sum(d.lost_frames.values()), d.bad_sentences,
         loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
         learned=pipeline.estimator.learned(), maneuvers=list(status.maneuvers),
+        test_sets=list(status.test_sets.values()),
     )

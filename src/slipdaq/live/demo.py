@@ -12,7 +12,7 @@ from typing import TextIO, get_args
 
 import can
 
-from slipdaq.config import Config, load_config, packaged_config_path
+from slipdaq.config import Config, ProcedureConfig, load_config, packaged_config_path
 from slipdaq.config.calibration import Calibration, default_path, for_run
 from slipdaq.live.daemon import RunResult, new_log_path, open_bus, run_daemon
 from slipdaq.live.simulate import BRAKE_RATE_HZ, IMU_RATE_HZ, PtyGps
@@ -23,7 +23,7 @@ from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 from slipdaq.sim.truth import SlipError, slip_error, truth_series
 from slipdaq.sim.vehicle import TruthSample
-from slipdaq.sinks.maneuver_text import maneuver_line
+from slipdaq.sinks.maneuver_text import maneuver_line, test_set_line
 
 SENSOR_SCENARIOS: tuple[str, ...] = get_args(SlipScenario)
 """Scenarios whose demo adds the IMU and the brake switch on CAN (sensors.dbc)."""
@@ -32,12 +32,21 @@ ABS_WPT_RATE_HZ = 500.0
 """WPT frames per second per wheel in the brake-abs demo: several samples per ABS cycle."""
 
 
+DEMO_PROCEDURES = [
+    *(ProcedureConfig(name=f"brake {v}-0", kind="brake", target_speed_kmh=v, runs=3) for v in (33, 60, 80, 90)),
+    *(ProcedureConfig(name=f"accelerate 0-{v}", kind="accelerate", target_speed_kmh=v, runs=3) for v in (33, 60)),
+]
+"""The demo's test sets (when the packaged config has none): the scenarios' stops and accelerations."""
+
+
 def demo_config(gps_port: str, channel: str, scenario: str = "cycle", imu_port: str | None = None) -> Config:
     """The packaged example config, on a virtual bus and the given GPS port; for the sensor scenarios also the DBC
     of the sensors (sensors.dbc) and its IMU (IMU_ACCEL.AccelX) and brake switch (BRAKE.BrakePressed). imu_port: the
     IMU is an Xsens MTi on that serial port instead ([imu] source = "serial", x forward), in every scenario."""
     cfg = load_config(packaged_config_path())
     cfg = cfg.with_overrides(can={"interface": "virtual", "channel": channel}, gps={"port": gps_port})
+    if not cfg.test.procedure:
+        cfg = cfg.with_overrides(test={"procedure": DEMO_PROCEDURES})
     if imu_port is not None:
         cfg = cfg.with_overrides(imu={"source": "serial", "port": imu_port, "axis": "x", "sign": 1})
     if scenario not in SENSOR_SCENARIOS:
@@ -139,7 +148,7 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  NMEA:       {result.nmea_lines} lines, {result.bad_sentences} bad\n"
         f"  estimates:  {result.estimates}\n"
         f"  maneuvers:  {len(result.maneuvers)}" + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
-        + "\n"
+        + "".join(f"\n  test set:   {test_set_line(r)}" for r in result.test_sets) + "\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
         + (f"  {saved}\n" if saved else "") +

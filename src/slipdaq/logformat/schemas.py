@@ -22,10 +22,12 @@ from slipdaq.logformat.topics import (
     TOPIC_NMEA,
     TOPIC_RTCM,
     TOPIC_SENSORS,
+    TOPIC_TEST_SET,
     TOPIC_UBX,
     TOPIC_WPT,
 )
 from slipdaq.maneuver.record import MANEUVER_COLUMNS
+from slipdaq.maneuver.test_set import TEST_SET_COLUMNS
 from slipdaq.records import GpsFix, SensorSample, SourceEvent
 from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, Column, ColumnGroup
 
@@ -45,6 +47,10 @@ _COLUMN_KINDS: dict[str, dict[str, Any]] = {
     "number": _NUM, "number?": _NUM_OR_NULL, "integer": _INT, "integer?": _INT_OR_NULL, "bool": {"type": "boolean"},
     "text": {"type": "string"}, "text?": {"type": ["string", "null"]},
     "texts": {"type": "array", "items": {"type": "string"}},
+    "integers": {"type": "array", "items": {"type": "integer"}},
+    "excluded": {"type": "array", "items": {"type": "object", "properties": {"index": {"type": "integer"},
+                                                                            "reason": {"type": "string"}},
+                                            "required": ["index", "reason"]}},
 }
 
 
@@ -178,5 +184,6 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "timestamp_s": _NUM, "data": {"type": "string", "description": "the whole RTCM 3 frame as hex"},
         "can_index": _CAN_INDEX,
     }),
+    TOPIC_TEST_SET: columns_schema("slipdaq.TestSet", TEST_SET_COLUMNS),
 }
 """The JSON topics (all but BATCH_SCHEMAS), in the order their channels are registered."""

@@ -19,6 +19,8 @@ TOPIC_ESTIMATE = "/estimate"
 TOPIC_FAST_SLIP = "/slip/fast"
 TOPIC_SENSORS = "/can/sensors"
 TOPIC_MANEUVER = "/maneuver"
+TOPIC_TEST_SET = "/test_set"
+"""A procedure's set of runs ([[test.procedure]]) after each of its maneuvers (maneuver.test_set)."""
 TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_EVENTS = "/diagnostics/events"
 RAW_TOPICS = (TOPIC_CAN, TOPIC_NMEA, TOPIC_UBX, TOPIC_IMU_RAW, TOPIC_RTCM)

@@ -45,9 +45,10 @@ def speed_noise_mps(time_s: npt.ArrayLike, speed_mps: npt.ArrayLike) -> float:
 
 def brake_intervals(
     time_s: npt.ArrayLike, speed_mps: npt.ArrayLike, accel_mps2: npt.ArrayLike, figures: BrakeFigures,
-    brake_time_s: npt.ArrayLike | None = None,
+    brake_time_s: npt.ArrayLike | None = None, mfdd_window_mps: tuple[float, float] | None = None,
 ) -> dict[str, tuple[float, float] | None]:
-    """{stopping_distance_m, mfdd_mps2}: (lo, hi) each, None where fewer than 80 % of the draws give the figure."""
+    """{stopping_distance_m, mfdd_mps2}: (lo, hi) each, None where fewer than 80 % of the draws give the figure;
+    mfdd_window_mps: as brake_figures'."""
     t, v = np.asarray(time_s, dtype=float), np.asarray(speed_mps, dtype=float)
     sigma_v = speed_noise_mps(t, v)
     if figures.onset_source == "brake signal" and brake_time_s is not None and np.asarray(brake_time_s).size > 1:
@@ -63,7 +64,7 @@ def brake_intervals(
         sd = float(np.std(noise))
         dv = noise * (sigma_v / sd) if sd > 0 else np.zeros_like(v)
         f = brake_figures(t, np.maximum(v + dv, 0.0), accel_mps2,
-                          onset_s=figures.onset_s + float(rng.normal(0.0, sigma_onset)))
+                          onset_s=figures.onset_s + float(rng.normal(0.0, sigma_onset)), mfdd_window_mps=mfdd_window_mps)
         if f is None:
             continue
         for k in got:

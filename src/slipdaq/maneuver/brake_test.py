@@ -11,7 +11,8 @@ Figures
         still rolled below it, v²/(2·a), is under 1 mm at any real deceleration and left out.
     Corrected distance (ISO 21994): d·(v_nom/v0)² with v_nom = v0 rounded to the nearest 10 km/h (halves up).
     MFDD (ECE R13-H, annex 3): (vb² − ve²) / (2·(se − sb)) with vb = 0.8·v0, ve = 0.1·v0 and se − sb the
-        distance travelled between the (linearly interpolated) times the speed falls to vb and to ve.
+        distance travelled between the (linearly interpolated) times the speed falls to vb and to ve; or over a
+        given window (vb, ve) (a procedure's, e.g. UN R117's 80 to 20 km/h), when v0 is above vb.
     ABS cycles: `abs_cycling` per wheel, between t0 and the time v falls to ABS_MIN_SPEED_MPS; the wheel with
         the most cycles is reported (ABS acts per wheel; one wheel cycling is ABS at work).
 """
@@ -234,11 +235,11 @@ def brake_figures(
     brake_time_s: npt.ArrayLike | None = None, brake_value: npt.ArrayLike | None = None,
     slip_time_s: npt.ArrayLike | None = None, slips: Mapping[str, npt.ArrayLike] | None = None,
     standstill_mps: float = STANDSTILL_MPS, threshold_mps2: float = DECEL_THRESHOLD_MPS2, abs_band: float = ABS_BAND,
-    onset_s: float | None = None,
+    onset_s: float | None = None, mfdd_window_mps: tuple[float, float] | None = None,
 ) -> BrakeFigures | None:
     """The figures of one brake maneuver (module docstring) over the span of time_s. slips: wheel -> slip series
-    on slip_time_s (default time_s); onset_s: the onset, given (source 'given'). None when no onset is found or the
-    car is not moving at it."""
+    on slip_time_s (default time_s); onset_s: the onset, given (source 'given'); mfdd_window_mps: the MFDD's (vb, ve)
+    (default 0.8·v0, 0.1·v0). None when no onset is found or the car is not moving at it."""
     t, v = _arrays(time_s, speed_mps)
     onset, source = (onset_s, "given") if onset_s is not None else \
         _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2)
@@ -255,10 +256,10 @@ def brake_figures(
     corrected = dist * (nominal / v0_kmh) ** 2 if dist is not None and nominal_kmh is not None else None
 
     mfdd = None
-    tb = _falls_to(t, v, onset, 0.8 * v0)
-    te = _falls_to(t, v, tb, 0.1 * v0) if tb is not None else None
+    vb, ve = mfdd_window_mps or (0.8 * v0, 0.1 * v0)
+    tb = _falls_to(t, v, onset, vb) if vb < v0 else None
+    te = _falls_to(t, v, tb, ve) if tb is not None else None
     if tb is not None and te is not None and te > tb:
-        vb, ve = 0.8 * v0, 0.1 * v0
         mfdd = (vb * vb - ve * ve) / (2.0 * _distance_m(t, v, tb, te))
 
     cycles, freq, wheel = 0, None, None

@@ -18,7 +18,7 @@ from functools import partial
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.config import Config, TireConfig, VehicleConfig
+from slipdaq.config import Config, TestConfig, TireConfig, VehicleConfig
 from slipdaq.maneuver.events import MIN_MANEUVER_ROWS, MIN_RUN_ROWS, close_events
 from slipdaq.maneuver.figures import BRAKE_SIGNAL_BEFORE_S, SPAN_BEFORE_S, ManeuverSummary, span_s, summarize_maneuver
 from slipdaq.maneuver.linearity import LinearityRule
@@ -52,6 +52,7 @@ class ManeuverDetector:
         self.vehicle = config.vehicle if config is not None else VehicleConfig()
         self.cfg_latency_s = None if config is None else (config.latency_fixed_s or 0.0)  # "auto": 0
         self.mu_max = config.tire.mu_max if config is not None else TireConfig().mu_max
+        self.test = config.test if config is not None else TestConfig()
         self.phases = phases
         self.fast_rows = config is None or config.estimator.fast_rate_hz > 0
         """High-rate rows come (a maneuver waits for those past its span); else the estimates' time decides."""
@@ -148,7 +149,7 @@ class ManeuverDetector:
             self.decided.append(partial(
                 summarize_maneuver, p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
                 anchors=anchors, fast=fast, brake=brake,
-                vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max))
+                vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test))
         self._prune()
 
     def _prune(self) -> None:

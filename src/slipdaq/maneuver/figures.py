@@ -38,13 +38,14 @@ from typing import Any
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.config import TireConfig, VehicleConfig
+from slipdaq.config import TestConfig, TireConfig, VehicleConfig
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_noise import brake_intervals
 from slipdaq.maneuver.brake_test import STANDSTILL_MPS, BrakeFigures, brake_figures
 from slipdaq.maneuver.events import maneuver_title
 from slipdaq.maneuver.linearity import Linearity, LinearityRule, analyse_linearity, peak_binned
 from slipdaq.maneuver.mu_slip import MuSlipFit
+from slipdaq.maneuver.test_set import mfdd_window_mps, procedure_for
 from slipdaq.maneuver.tire_limit import tire_curves
 
 SPAN_BEFORE_S = 1.5
@@ -182,11 +183,12 @@ def summarize_maneuver(
     phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
     anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
-    lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max,
+    lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max, test: TestConfig | None = None,
 ) -> ManeuverSummary:
     """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
     fast: the high-rate rows over its span (`span_s`; /slip/fast dicts or FastSlip records); brake: (time, value) of
-    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max (tire_limit)."""
+    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max (tire_limit); test:
+    its procedures (a brake's MFDD over its procedure's window)."""
     prow = tuple(rows)
     title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
     lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
@@ -203,11 +205,12 @@ def summarize_maneuver(
         speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
         wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
     )
-    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig(), mu_max) if len(fast) >= 3 else m
+    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig(), mu_max, test or TestConfig()) \
+        if len(fast) >= 3 else m
 
 
 def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, float]],
-               vehicle: VehicleConfig, mu_max: float) -> ManeuverSummary:
+               vehicle: VehicleConfig, mu_max: float, test: TestConfig) -> ManeuverSummary:
     """The maneuver with each wheel's mu-slip fit over its high-rate rows and, braking, its brake-test figures;
     accelerating, its launch."""
     t, v, a, slips = span.time_s, span.speed_mps, span.accel_mps2, span.slips
@@ -226,8 +229,12 @@ def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, 
         bt = [x for x, _ in brake if t_from <= x <= t[-1]]
         bv = [y for x, y in brake if t_from <= x <= t[-1]]
         figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips)
+        window = mfdd_window_mps(procedure_for(test, "brake", figures.brake_speed_kmh)) if figures else None
+        if window is not None:  # the procedure's MFDD window
+            figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t,
+                                    slips=slips, mfdd_window_mps=window)
         if figures is not None:
-            iv = brake_intervals(t, v, a, figures, bt or None)
+            iv = brake_intervals(t, v, a, figures, bt or None, mfdd_window_mps=window)
             sd, md = iv["stopping_distance_m"], iv["mfdd_mps2"]
             figures = dataclasses.replace(figures, stopping_distance_m_lo=sd[0] if sd else None,
                                           stopping_distance_m_hi=sd[1] if sd else None,

@@ -22,6 +22,7 @@ import numpy as np
 
 from slipdaq.config import TestConfig
 from slipdaq.maneuver.figures import ManeuverSummary, WheelSummary
+from slipdaq.maneuver.test_set import procedure_for, run_speed_kmh
 from slipdaq.records.columns import Column, ColumnGroup, record_row
 
 MANEUVER_KINDS = ("accelerate", "brake")
@@ -71,6 +72,7 @@ class Maneuver:
     stopping_distance_m_hi: float | None = None
     mfdd_mps2_lo: float | None = None
     mfdd_mps2_hi: float | None = None
+    procedure: str | None = None
 
     def as_row(self) -> dict[str, object]:
         """Flat mapping in the /maneuver JSON's and the maneuvers CSV's column names (MANEUVER_COLUMNS)."""
@@ -133,6 +135,10 @@ MANEUVER_COLUMNS: tuple[ColumnGroup, ...] = (
         Column("mu_flag_{w}", "mu_flag", "text?", description="why the {w} tire has no mu peak although it has a curve: "
                "peak not passed, mu above MU_MAX, split exceeds the load, not determined; undefined: none"),
     ), per_wheel=True, csv="contract"),
+    ColumnGroup((
+        Column("procedure", "procedure", "text?", description="the [[test.procedure]] it belongs to (its kind, the "
+               "nearest target speed); undefined: none of its kind"),
+    ), per_wheel=False, csv="contract"),
 )
 """The /maneuver record's fields, in the order of its JSON and of `export --maneuvers-csv`."""
 
@@ -226,9 +232,17 @@ def _wheel(ws: WheelSummary) -> ManeuverWheel:
 
 def maneuver_record(m: ManeuverSummary, index: int, test: TestConfig, wheels: Sequence[str]) -> Maneuver:
     """The /maneuver record of an accelerate or brake maneuver (a figure whose interval is wider than itself: not
-    determined, None)."""
+    determined, None). With a procedure of its kind (test_set.procedure_for): the stopping distance corrected to the
+    procedure's target speed, d·(v_target/v0)² (ISO 21994), and the time to its target speed."""
     target, reasons, tts = judge(m, test)
     b = m.brake
+    proc = procedure_for(test, m.phase, run_speed_kmh(m.phase, b.brake_speed_kmh if b else None, m.speed_from_kmh,
+                                                      m.speed_to_kmh))
+    corrected = b.stopping_distance_corrected_m if b else None
+    if proc is not None and b is not None and b.stopping_distance_m is not None:
+        corrected = b.stopping_distance_m * (proc.target_speed_kmh / b.brake_speed_kmh) ** 2
+    if proc is not None and m.phase == "accelerate":
+        tts = _time_to_speed(m, proc.target_speed_kmh)
     return Maneuver(
         index=index, kind=m.phase, t_start_s=m.t_start_s, t_end_s=m.t_end_s,
         speed_from_kmh=m.speed_from_kmh, speed_to_kmh=m.speed_to_kmh, target_speed_kmh=target,
@@ -236,11 +250,12 @@ def maneuver_record(m: ManeuverSummary, index: int, test: TestConfig, wheels: Se
         brake_speed_kmh=b.brake_speed_kmh if b else None,
         stopping_distance_m=determined(b.stopping_distance_m, b.stopping_distance_m_lo, b.stopping_distance_m_hi)
         if b else None,
-        stopping_distance_corrected_m=b.stopping_distance_corrected_m if b else None,
+        stopping_distance_corrected_m=corrected,
         mfdd_mps2=determined(b.mfdd_mps2, b.mfdd_mps2_lo, b.mfdd_mps2_hi) if b else None,
         abs_cycles=b.abs_cycles if b else None, abs_frequency_hz=b.abs_frequency_hz if b else None,
         time_to_speed_s=tts, wheels={w: _wheel(m.wheels[w]) for w in wheels},
         stopping_distance_m_lo=b.stopping_distance_m_lo if b else None,
         stopping_distance_m_hi=b.stopping_distance_m_hi if b else None,
         mfdd_mps2_lo=b.mfdd_mps2_lo if b else None, mfdd_mps2_hi=b.mfdd_mps2_hi if b else None,
+        procedure=proc.name if proc is not None else None,
     )

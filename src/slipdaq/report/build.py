@@ -194,7 +194,7 @@ class ReportBuild:
 
     def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
         """The comparison (two or more logs), the tables and index.html over `logs` (each one added before)."""
-        from slipdaq.report import page, page_data, write
+        from slipdaq.report import page, page_data, sets, write
 
         build, logs, links = self.build, list(logs), self.links
         comparisons = compare(logs) if len(logs) > 1 else []
@@ -215,13 +215,17 @@ class ReportBuild:
                       for g, files in write_tires(build / TIRES_DIR, tire_groups).items()}
         self.say(f"tire files: {sum(len(v) for v in tire_links.values())} in {TIRES_DIR}/")
         rows = table_rows(logs)
+        groups = sets.group_sets(logs)
+        group_records = {g.group: g.sets.records() for g in groups}
+        diffs = sets.differences(groups)
         cs, js, index = (build / name for name in TABLES)
         write.write_csv(rows, cs)
         write.write_json(logs, comparisons, rows, {n.name: links[n.name].page.plots for n in logs},
                          {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
-                         overviews={n.name: links[n.name].page.overview for n in logs})
+                         overviews={n.name: links[n.name].page.overview for n in logs},
+                         group_sets=group_records, differences=diffs)
         page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index,
-                        tires=(tire_groups, tire_links))
+                        tires=(tire_groups, tire_links), group_sets=group_records, differences=diffs)
         cs, js, index = (self.out / name for name in TABLES)
         return ReportResult(self.out, logs, comparisons, self.pngs, index, js, cs)
 

@@ -8,10 +8,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
+from typing import Any
 
 import slipdaq
 from slipdaq import WHEELS
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.report import page_sets
 from slipdaq.report import page_tables as tables
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, compare_name
 from slipdaq.report.style import PAGE_PLOTS, TIME_PLOTS
@@ -106,9 +108,12 @@ def _tires(groups: Sequence[GroupTires], files: dict[str, dict[str, str]]) -> li
 
 def write_html(logs: Sequence[LogSummary], comparisons: Sequence[Comparison], links: dict[str, LogLinks],
                compare_pngs: dict[str, str], path: Path,
-               tires: tuple[Sequence[GroupTires], dict[str, dict[str, str]]] = ((), {})) -> None:
+               tires: tuple[Sequence[GroupTires], dict[str, dict[str, str]]] = ((), {}), *,
+               group_sets: dict[str, list[dict[str, Any]]] | None = None,
+               differences: Sequence[dict[str, Any]] = ()) -> None:
     """index.html at path; links: per log name its plots and PNGs; compare_pngs: phase -> PNG path; tires: the tire
-    files' groups and their paths (report/tires.py)."""
+    files' groups and their paths (report/tires.py); group_sets: per label group its test sets; differences: between
+    the groups (report.sets)."""
     now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     any_png = bool(compare_pngs) or any(v.pngs for v in links.values())
     out = [
@@ -142,6 +147,16 @@ def write_html(logs: Sequence[LogSummary], comparisons: Sequence[Comparison], li
             out.append('<div class="plots">' + _plot(compare_name(c.phase), COMPARE_SCRIPT,
                                                      f"Fx against slip, {c.phase}, by label group",
                                                      compare_pngs.get(c.phase), wide=True) + "</div>")
+    if len(logs) > 1 and any(group_sets.values() if group_sets else ()):
+        out.append("<h2>Test sets by label group</h2>")
+        out += [page_sets.sets_table(rs, f": {g}") for g, rs in (group_sets or {}).items() if rs]
+    if differences:
+        out.append("<h2>Differences between groups</h2>")
+        out.append('<p class="note">Each group\'s mean with its 95 % interval (Student t) and the difference of '
+                   "the means with its 95 % interval (Welch–Satterthwaite), for each figure of a test set (its "
+                   "counted runs) and of every valid maneuver of a kind; in bold where the interval excludes "
+                   "zero.</p>")
+        out.append(page_sets.differences_table(differences))
     for log in logs:
         lk = links.get(log.name, LogLinks(PagePlots({}, None, b"")))
         out.append(f'<section id="{escape(tables.log_anchor(log))}"><h2>{escape(log.title)}</h2>')
@@ -153,6 +168,8 @@ def write_html(logs: Sequence[LogSummary], comparisons: Sequence[Comparison], li
             out.append('<p class="note">No maneuver with a defined slip in this log.</p>')
         if log.records:
             out.append(tables.records_table(log))
+        if log.test_sets:
+            out.append(page_sets.sets_table(log.test_sets))
         out += [_maneuver(log, m, lk) for m in log.maneuvers]
         out.append("</section>")
     out.append(f'<script src="{PLOTLY_JS}"></script><script src="{PAGE_JS}"></script>')

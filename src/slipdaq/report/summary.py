@@ -24,6 +24,7 @@ from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
 from slipdaq.maneuver.record import Z95, Maneuver, determined, maneuver_record
+from slipdaq.maneuver.test_set import sets_of
 from slipdaq.report.labels import format_labels
 
 
@@ -45,6 +46,10 @@ class LogSummary:
     """The accelerate and brake maneuvers as their /maneuver records, in time order."""
     config: Config | None = None
     """The config the log was recorded with (None: none this version reads)."""
+    test: TestConfig = dataclasses.field(default_factory=TestConfig)
+    """The log's [test]: its procedures."""
+    test_sets: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """The last /test_set record of each of its procedures' sets (maneuver.test_set)."""
 
     @property
     def title(self) -> str:
@@ -133,6 +138,7 @@ def summarize_log(
         path=path, name=name, labels=dict(labels), group=group_of(labels, group_by),
         mode=metadata.get("mode", ""), estimates=len(rows), t0_s=rows[0]["time_s"] if rows else None,
         lost_frames=lost, bad_sentences=diag.get("bad_sentences"), maneuvers=maneuvers, records=records, config=cfg,
+        test=test, test_sets=sets_of(test, records),
     )
 
 

@@ -51,11 +51,13 @@ PlotTree = dict[str, dict[str, dict[str, str]]]
 def write_json(
     logs: Sequence[LogSummary], comparisons: Sequence[Comparison], rows: Sequence[dict[str, Any]],
     plots: PlotTree, pngs: PlotTree, compare_pngs: dict[str, str], path: Path,
-    overviews: dict[str, str | None] | None = None,
+    overviews: dict[str, str | None] | None = None, group_sets: dict[str, list[dict[str, Any]]] | None = None,
+    differences: Sequence[dict[str, Any]] = (),
 ) -> None:
-    """{version, generated_utc, linearity_rule, columns, rows (= summary.csv), logs, comparison}. Per maneuver
-    `plots` (stem -> the name of its plot on the page, `data-slipdaq-plot`) and `pngs` (stem -> file, `--png`);
-    per comparison `plot` (its name on the page) and `png`."""
+    """{version, generated_utc, linearity_rule, columns, rows (= summary.csv), logs, comparison, test_sets,
+    differences}. Per maneuver `plots` (stem -> the name of its plot on the page, `data-slipdaq-plot`) and `pngs`
+    (stem -> file, `--png`); per comparison `plot` (its name on the page) and `png`; per log its `test_sets`
+    (/test_set records), `test_sets` per label group, `differences` between groups (report.sets)."""
     doc = {
         "slipdaq_version": slipdaq.__version__,
         "generated_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -68,6 +70,7 @@ def write_json(
                 "estimates": log.estimates, "lost_frames": log.lost_frames, "bad_sentences": log.bad_sentences,
                 "overview": (overviews or {}).get(log.name),
                 "maneuver_records": [{k: _json_value(v) for k, v in r.as_row().items()} for r in log.records],
+                "test_sets": [{k: _json_value(v) for k, v in r.items()} for r in log.test_sets],
                 "maneuvers": [
                     {"maneuver": m.title, "phase": m.phase, "t_start_s": m.t_start_s, "t_end_s": m.t_end_s,
                      "gps_latency_s": m.gps_latency_s, "plots": plots.get(log.name, {}).get(m.key, {}),
@@ -93,5 +96,7 @@ def write_json(
             }
             for c in comparisons
         ],
+        "test_sets": {g: [{k: _json_value(v) for k, v in r.items()} for r in rs] for g, rs in (group_sets or {}).items()},
+        "differences": [{k: _json_value(v) for k, v in d.items()} for d in differences],
     }
     path.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")

@@ -62,6 +62,9 @@ class Sink:
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         """One maneuver's results, at the log time it was decided (its end and its span's high-rate rows came)."""
 
+    def on_test_set(self, record: dict[str, Any], log_time_s: float) -> None:
+        """A procedure's set after one of its maneuvers (its /test_set record, maneuver.test_set), at that time."""
+
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         """The pipeline's counters, once a second of log time and at the end."""
 
@@ -141,6 +144,7 @@ class CollectingSink(Sink):
         self.sensors: list[SensorSample] = []
         self.diagnostics: list[dict[str, object]] = []
         self.maneuvers: list[Maneuver] = []
+        self.test_sets: list[dict[str, Any]] = []
 
     def on_raw(self, record: RawRecord) -> None:
         self.raw.append(record)
@@ -165,3 +169,6 @@ class CollectingSink(Sink):
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self.maneuvers.append(maneuver)
+
+    def on_test_set(self, record: dict[str, Any], log_time_s: float) -> None:
+        self.test_sets.append(record)

@@ -1,13 +1,15 @@
 """The day's maneuvers as text for the live view: one line per maneuver (the status stream), and a table, newest
-first (the terminal view)."""
+first (the terminal view); a line per test set (its /test_set record)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 from rich.table import Table
 
 from slipdaq.maneuver.record import Maneuver
+from slipdaq.maneuver.test_set import MAIN_FIGURE
 
 AXLES = (("front", ("FL", "FR")), ("rear", ("RL", "RR")))
 
@@ -59,3 +61,25 @@ def maneuver_table(ms: Sequence[Maneuver], rows: int = 8) -> Table:
                   _num(ax["front"], "+.1f"), _num(ax["rear"], "+.1f"), verdict(m),
                   style="" if m.valid else "yellow")
     return t
+
+
+MAIN_UNIT = {"brake": "m", "accelerate": "s", "coast": "N"}
+
+
+def test_set_line(record: dict[str, Any]) -> str:
+    """'brake 100-0: 4 of 5, 36.42 m ± 0.31 (CV 0.9 %)': the runs counted, the main figure's mean ± the half width
+    of its 95 % interval and its CV; then the runs excluded, and ok or why not once complete."""
+    main = MAIN_FIGURE[record["kind"]]
+    text = f"{record['procedure']}: {record['runs_valid']} of {record['runs_required']}"
+    mean, hi, cv = record.get(f"{main}_mean"), record.get(f"{main}_ci_hi"), record.get(f"{main}_cv_percent")
+    if mean is not None:
+        text += f", {mean:.2f} {MAIN_UNIT[record['kind']]}"
+        if hi is not None:
+            text += f" ± {hi - mean:.2f}"
+        if cv is not None:
+            text += f" (CV {cv:.1f} %)"
+    if record["excluded"]:
+        text += f", {len(record['excluded'])} excluded"
+    if record["complete"]:
+        text += ", ok" if record["ok"] else ", NOT OK: " + "; ".join(record["reasons"])
+    return text

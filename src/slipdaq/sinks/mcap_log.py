@@ -38,6 +38,7 @@ from slipdaq.logformat.topics import (
     TOPIC_NMEA,
     TOPIC_RTCM,
     TOPIC_SENSORS,
+    TOPIC_TEST_SET,
     TOPIC_UBX,
     TOPIC_WPT,
 )
@@ -451,6 +452,9 @@ class McapLogSink(Sink):
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))
+
+    def on_test_set(self, record: dict[str, Any], log_time_s: float) -> None:
+        self._write(TOPIC_TEST_SET, log_time_s, dumps(record))
 
     def on_sensor(self, sample: SensorSample) -> None:
         self._write(TOPIC_SENSORS, sample.time_s, dumps(dataclasses.asdict(sample)))

@@ -10,7 +10,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 from rich.console import Console, Group
@@ -38,7 +38,7 @@ from slipdaq.records import (
     WheelSampleBatch,
 )
 from slipdaq.sinks import Sink
-from slipdaq.sinks.maneuver_text import maneuver_line, maneuver_table
+from slipdaq.sinks.maneuver_text import maneuver_line, maneuver_table, test_set_line
 
 
 @dataclass
@@ -98,6 +98,10 @@ class StatusSink(Sink):
     """The day's maneuvers so far (/maneuver), oldest first."""
     maneuvers_printed: int = 0
     """How many of them the status stream has printed (one line each)."""
+    test_sets: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """The latest /test_set record of each procedure's set."""
+    test_sets_unprinted: list[str] = field(default_factory=list)
+    """The sets updated since the status stream's last line of them."""
 
     def on_raw(self, record: RawRecord) -> None:
         if isinstance(record, CanFrame):
@@ -144,6 +148,11 @@ class StatusSink(Sink):
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self.maneuvers.append(maneuver)
+
+    def on_test_set(self, record: dict[str, Any], log_time_s: float) -> None:
+        self.test_sets[record["procedure"]] = record
+        if record["procedure"] not in self.test_sets_unprinted:
+            self.test_sets_unprinted.append(record["procedure"])
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics = diagnostics
@@ -229,7 +238,9 @@ def render(s: StatusSink, rates: _Rates) -> Group:
              + (f"  {log_problem}" if log_problem else ""), style="bold red" if log_problem else ""),
     ]
     lines += [Text(f"event {_event_text(ev)}", style="dim") for ev in s.events]
-    return Group(wheels, *lines, *([maneuver_table(s.maneuvers)] if s.maneuvers else []))
+    return Group(wheels, *lines, *([maneuver_table(s.maneuvers)] if s.maneuvers else []),
+                 *(Text(f"set   {test_set_line(r)}", style="" if r["ok"] or not r["complete"] else "yellow")
+                   for r in s.test_sets.values()))
 
 
 def imu_text(s: StatusSink, rates: _Rates) -> Text:
@@ -337,7 +348,10 @@ async def show(s: StatusSink, stream: TextIO | None = None, line_every_s: float 
 
 
 def print_maneuvers(s: StatusSink, stream: TextIO) -> None:
-    """One line for each maneuver not printed yet."""
+    """One line for each maneuver not printed yet, then one for each test set updated since."""
     for m in s.maneuvers[s.maneuvers_printed:]:
         print(maneuver_line(m), file=stream, flush=True)
     s.maneuvers_printed = len(s.maneuvers)
+    for name in s.test_sets_unprinted:
+        print(f"test set {test_set_line(s.test_sets[name])}", file=stream, flush=True)
+    s.test_sets_unprinted.clear()
