@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from pyubx2 import GET, UBXMessage, UBXReader
 
+from conftest import CONFIG
 from slipdaq.cli import main
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.timemark import GPS_EPOCH_UNIX_S, LEAP_SECONDS, SECONDS_PER_WEEK, decode_tim_tm2, gps_minus_utc_s
@@ -24,7 +25,6 @@ from slipdaq.records import UbxFrame
 from slipdaq.sim.emit import SimSettings, generate, tim_tm2_frame
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import brake_onset_time_s, speed_at_onset_mps, stopping_distance_m
-from tests.conftest import CONFIG
 
 # ---- TIM-TM2 against pyubx2 ----------------------------------------------------------------------------------------
 

@@ -23,10 +23,10 @@ from slipdaq.config.calibration import Calibration
 from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
+from slipdaq.decode.timemark import TimeMark
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.decode.xbus import MtiAccel
 from slipdaq.estimator import EstimatorParams, SlipEstimator
-from slipdaq.decode.timemark import TimeMark
 from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
