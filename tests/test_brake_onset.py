@@ -246,3 +246,53 @@ def test_50_hz_brake_switch_within_30_cm_and_truth_inside_its_interval(abs_drive
     assert abs(s["stopping_distance_m"] - truth) < 0.3
     assert s["stopping_distance_m_lo"] <= truth <= s["stopping_distance_m_hi"]
     assert s["stopping_distance_m_hi"] - s["stopping_distance_m_lo"] >= 100.0 / 3.6 * 0.02  # the switch's interval
+
+
+def test_live_time_mark_on_the_gps_port(tmp_path: Path) -> None:
+    """The daemon reading NMEA with the TIM-TM2 mark between on a real pty ([brake] source = "gps-timemark"): the
+    mark is placed on the host's clock within 5 ms of the press, and the stop's onset is it."""
+    import asyncio
+    import os
+    import time
+    from dataclasses import replace
+
+    import can
+
+    from slipdaq.daemon import run_daemon
+    from slipdaq.demo import demo_config
+    from slipdaq.logformat.reader import iter_topic
+    from slipdaq.sim.realtime import play
+    from slipdaq.simulate import PtyGps
+
+    gps = PtyGps()
+    channel = f"timemark-live-{id(gps)}"
+    cfg = demo_config(gps.path, channel, "brake-abs").with_overrides(brake={"source": "gps-timemark"})
+    log = tmp_path / "live.mcap"
+    run = replace(ABS_SETTINGS, start_utc_s=time.time() + 10.0)
+
+    async def main_() -> None:
+        with can.Bus(interface="virtual", channel=channel) as daemon_bus, \
+                can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus:
+            async def drive() -> None:
+                while not log.exists():
+                    await asyncio.sleep(0.02)
+                await asyncio.sleep(0.3)
+                nonlocal run
+                run = replace(run, start_utc_s=time.time() + 0.1)
+                await play(generate(cfg, "brake-abs", "paved", run, 11.0), bus=sim_bus, nmea_write=gps.write,
+                           start_wall_s=run.start_utc_s, stamp_frames=True)
+
+            async with asyncio.TaskGroup() as tg:
+                sim = tg.create_task(drive())
+                await run_daemon(cfg, daemon_bus, log, duration_s=12.5, status_stream=open(os.devnull, "w"))
+                sim.cancel()
+
+    try:
+        asyncio.run(main_())
+    finally:
+        gps.close()
+    marks = [d for _, _, d in iter_topic(log, ("/can/sensors",)) if d["kind"] == "brake_mark"]
+    assert len(marks) == 1
+    assert abs(marks[0]["time_s"] - (run.start_utc_s + ONSET_S)) < 0.005
+    stops = [d for _, _, d in iter_topic(log, ("/maneuver",)) if d["kind"] == "brake"]
+    assert len(stops) == 1 and abs(stops[0]["brake_speed_kmh"] - 100.0) < 1.0
