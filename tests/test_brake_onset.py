@@ -92,6 +92,19 @@ def test_simulated_time_mark_is_the_edge_to_a_microsecond(edge: str) -> None:
     assert [r.data for r in framed if isinstance(r, UbxFrame)] == [frame]
 
 
+def test_brake_source_keys() -> None:
+    from slipdaq.config import ConfigError, parse_config
+
+    assert parse_config("").brake.source == "can" and parse_config("").brake.edge == "rising"
+    b = parse_config('[brake]\nsource = "gps-timemark"\nedge = "falling"\n').brake
+    assert (b.source, b.edge, b.message) == ("gps-timemark", "falling", None)
+    with pytest.raises(ConfigError, match="edge"):
+        parse_config('[brake]\nedge = "both"\n')
+    with pytest.raises(ConfigError, match="serial port"):
+        parse_config('[gps]\nsource = "can"\nmessage = "REF_SPEED"\nsignal = "Speed"\n'
+                     '[brake]\nsource = "gps-timemark"\n')
+
+
 # ---- the onset of a sampled brake signal -------------------------------------------------------------------------
 
 def _stop(onset_s: float, v0_mps: float = 27.0, decel_mps2: float = 9.0, dt: float = 0.01):

@@ -312,6 +312,13 @@ class Config(_Section):
     dbc_text: str | None = Field(None, exclude=True)
     """DBC text, when the config was read from a log rather than from disk."""
 
+    @model_validator(mode="after")
+    def _time_mark_from_the_receiver(self) -> Config:
+        if self.brake.source == "gps-timemark" and self.gps.source == "can":
+            raise ValueError('brake.source = "gps-timemark" needs the GPS receiver on its serial port ([gps] source = '
+                             '"serial"): the time mark is its UBX-TIM-TM2, placed by its fixes\' UTC')
+        return self
+
     def resolve(self, path: str) -> Path:
         """A path from the config, relative to the config file's folder."""
         p = Path(path).expanduser()
