@@ -5,7 +5,7 @@ sample) and from the GPS receiver's UBX-TIM-TM2 time mark of the same press ([br
 several seeds. Each seed draws the press's instant off the switch's 20 ms grid, the GPS noise and CAN jitter; both
 sources run the same records through slipdaq's pipeline in process (as `import` does).
 
-    python benchmarks/brake_onset.py [--seeds N] [--write]
+    python -m benchmarks.brake_onset [--seeds N] [--write]
 
 --write puts the table into docs/accuracy.md between its brake-onset markers.
 """
@@ -13,20 +13,17 @@ sources run the same records through slipdaq's pipeline in process (as `import` 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.doc_block import machine, write_block
 from slipdaq.config import Config, load_config
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.truth import stopping_distance_m
 from slipdaq.sinks import CollectingSink
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_block import machine, write_block  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "accuracy.md"
@@ -89,7 +86,7 @@ def main() -> int:
     t0 = time.perf_counter()
     rows = [one_seed(cfg, s) for s in seeds]
     text = table(rows, seeds)
-    block = (f"`python benchmarks/brake_onset.py --seeds {args.seeds} --write` ({time.perf_counter() - t0:.0f} s; "
+    block = (f"`python -m benchmarks.brake_onset --seeds {args.seeds} --write` ({time.perf_counter() - t0:.0f} s; "
              f"{machine()}): an ABS stop from {SPEED_KMH:.0f} km/h on the paved road (WPT 100 Hz, IMU 100 Hz, GPS "
              "10 Hz with 50 ms latency, CAN jitter 0.5 ms), the press at a random instant of the switch's 20 ms; "
              "error = slipdaq's stopping distance − the truth's, interval = [stopping_distance_m_lo, _hi].\n\n" + text)

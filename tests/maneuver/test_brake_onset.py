@@ -15,7 +15,6 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from pyubx2 import GET, UBXMessage, UBXReader
 
-from conftest import CONFIG
 from slipdaq.cli import main
 from slipdaq.decode.framing import GpsFramer
 from slipdaq.decode.timemark import GPS_EPOCH_UNIX_S, LEAP_SECONDS, SECONDS_PER_WEEK, decode_tim_tm2, gps_minus_utc_s
@@ -25,6 +24,7 @@ from slipdaq.records import UbxFrame
 from slipdaq.sim.emit import SimSettings, generate, tim_tm2_frame
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import brake_onset_time_s, speed_at_onset_mps, stopping_distance_m
+from support.paths import CONFIG
 
 # ---- TIM-TM2 against pyubx2 ----------------------------------------------------------------------------------------
 
@@ -271,11 +271,11 @@ def test_live_time_mark_on_the_gps_port(tmp_path: Path) -> None:
 
     import can
 
-    from slipdaq.daemon import run_daemon
-    from slipdaq.demo import demo_config
+    from slipdaq.live.daemon import run_daemon
+    from slipdaq.live.demo import demo_config
+    from slipdaq.live.simulate import PtyGps
     from slipdaq.logformat.reader import iter_topic
     from slipdaq.sim.realtime import play
-    from slipdaq.simulate import PtyGps
 
     gps = PtyGps()
     channel = f"timemark-live-{id(gps)}"

@@ -13,11 +13,11 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from conftest import CONFIG, ROOT
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.logs import write_drive_logs
+from support.paths import CONFIG, ROOT
 
 LAYOUTS = sorted((ROOT / "config" / "foxglove").glob("*.json"))
 _SEGMENT = re.compile(r"^(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<index>(\[[^\]]*\])*)$")
