@@ -309,3 +309,14 @@ def test_live_time_mark_on_the_gps_port(tmp_path: Path) -> None:
     assert abs(marks[0]["time_s"] - (run.start_utc_s + ONSET_S)) < 0.005
     stops = [d for _, _, d in iter_topic(log, ("/maneuver",)) if d["kind"] == "brake"]
     assert len(stops) == 1 and abs(stops[0]["brake_speed_kmh"] - 100.0) < 1.0
+
+
+def test_raw_capture_without_a_gnss_time_is_a_clear_error(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    can = tmp_path / "one.log"
+    can.write_text("(1700000000.000000) can0 123#00\n")
+    raw = tmp_path / "no-time.ubx"
+    raw.write_bytes(b"$GPTXT,01,01,02,u-blox*00\r\n" + tim_tm2_frame(1_700_000_000.5, "rising", 1) + b"(12.5) x\n")
+    rc = main(["import", "--can", str(can), "--gps-raw", str(raw), "--config", str(CONFIG), "-o", str(tmp_path / "o.mcap")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "no-time.ubx" in err and "GNSS time" in err
+    assert not (tmp_path / "o.mcap").exists()
