@@ -23,10 +23,11 @@ from slipdaq.config.calibration import Calibration
 from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
+from slipdaq.decode.timemark import TimeMark
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.decode.xbus import MtiAccel
 from slipdaq.estimator import EstimatorParams, SlipEstimator
-from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
 from slipdaq.maneuver.test_set import TestSets
@@ -125,6 +126,7 @@ class Pipeline:
         self.xbus = MtiAccel(config.imu)
         """An Xsens MTi on a serial port ([imu] source = "serial"): its forward acceleration, as the CAN IMU's, at its own
         sample time placed on the host's clock."""
+        self._marks_brake = config.brake.source == "gps-timemark"
         self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
@@ -172,7 +174,20 @@ class Pipeline:
         fix: GpsFix | None = self.nmea.decode(record) if isinstance(record, NmeaLine) else self.ubx.decode(record)
         if fix is not None and isinstance(record, self._velocity_from):  # else gps.velocity names the other protocol
             self._fix(fix, record.timestamp_s)
+        elif self._marks_brake and isinstance(record, UbxFrame) and self.ubx.is_time_mark(record):
+            self._time_mark(self.ubx.time_mark(record))
         self._tick(record.timestamp_s)
+
+    def _time_mark(self, mark: TimeMark | None) -> None:
+        """A TIM-TM2 time mark: its new edge of the brake's press ([brake] edge), valid and in GNSS or UTC time, placed
+        on the host's clock as a fix's UTC time is, is a brake_mark sample (dropped before the first fix with UTC)."""
+        if mark is None or not mark.valid:
+            return
+        rising = self.config.brake.edge == "rising"
+        utc_s, new = (mark.rising_utc_s, mark.new_rising) if rising else (mark.falling_utc_s, mark.new_falling)
+        host_s = self.estimator.host_time_s(utc_s) if new and utc_s is not None else None
+        if host_s is not None:
+            self._sensor(SensorSample(host_s, BRAKE_MARK, 1.0))
 
     def _fix(self, fix: GpsFix, log_time_s: float) -> None:
         """A reference-speed fix (GPS on the serial port, or the reference on CAN) to the sinks and the estimator."""
@@ -197,6 +212,8 @@ class Pipeline:
         self._out.on_sensor(sample)
         if sample.kind == "brake":
             self.maneuvers.add_brake(sample.time_s, sample.value)
+        elif sample.kind == BRAKE_MARK:
+            self.maneuvers.add_brake_mark(sample.time_s)
         elif sample.kind == "imu_accel":
             self.estimator.add_imu(sample.time_s, sample.value)
         elif sample.kind == "reference_speed":

@@ -180,9 +180,14 @@ def test_stopping_distance_and_mfdd() -> None:
     bt[np.argmin(abs(bt - T_ON))] = T_ON
     fig = brake_figures(t, v, a, brake_time_s=bt, brake_value=(bt >= T_ON).astype(float))
     assert isinstance(fig, BrakeFigures)
-    assert fig.onset_source == "brake signal" and fig.onset_s == T_ON
+    # the press lies between the last released and the first pressed sample: their midpoint, ± half their interval
+    assert fig.onset_source == "brake signal" and fig.onset_s == pytest.approx(T_ON - 0.01)
+    assert fig.onset_half_s == pytest.approx(0.01)
     assert fig.brake_speed_kmh == pytest.approx(80.0, abs=0.01)
-    assert fig.stopping_distance_m is not None and abs(fig.stopping_distance_m - dist) < 0.1
+    assert fig.stopping_distance_m is not None and abs(fig.stopping_distance_m - dist) < V0 * 0.01 + 0.1
+    marked = brake_figures(t, v, a, brake_time_s=bt, brake_value=(bt >= T_ON).astype(float), mark_time_s=[T_ON])
+    assert marked is not None and marked.onset_s == T_ON and marked.stopping_distance_m is not None
+    assert abs(marked.stopping_distance_m - dist) < 0.1
     assert fig.stop_s == pytest.approx(t_stop, abs=0.02)
     assert fig.mfdd_mps2 == pytest.approx(DECEL, rel=0.01)  # the ramp ends before 0.8·v0
     assert fig.nominal_speed_kmh == 80.0
@@ -224,12 +229,13 @@ def test_onset_from_50hz_brake_signal() -> None:
     for phase in (0.0, 0.0037, 0.011, 0.0199):
         bt = np.arange(phase, 5.0, 0.02)
         onset = brake_onset_s(t, a, bt, (bt >= T_ON).astype(int))
-        assert onset is not None and 0.0 <= onset - T_ON < 0.02
-        assert onset in bt  # the sample's own time, not rounded to the 100 Hz grid
+        assert onset is not None and abs(onset - T_ON) <= 0.01 + 1e-12
+        k = int(np.argmax(bt >= T_ON))  # the samples' own times, not rounded to the 100 Hz grid
+        assert onset == pytest.approx(0.5 * (bt[k - 1] + bt[k]), abs=1e-12)
     # the first press after a release counts; a pedal pressed throughout the span falls back on the deceleration
     bt = np.arange(0.0, 5.0, 0.02)
     pressed = ((bt >= 0.5) & (bt < 0.7)) | (bt >= T_ON)
-    assert brake_onset_s(t[t >= 0.6], a[t >= 0.6], bt, pressed) == bt[np.argmax(bt >= T_ON)]
+    assert brake_onset_s(t[t >= 0.6], a[t >= 0.6], bt, pressed) == pytest.approx(bt[np.argmax(bt >= T_ON)] - 0.01)
     assert brake_onset_s(t, a, bt, np.ones_like(bt)) == pytest.approx(T_ON, abs=0.03)
 
 

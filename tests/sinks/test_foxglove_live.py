@@ -338,7 +338,7 @@ def test_the_layout_is_a_foxglove_layout_of_the_log_s_topics_and_fields() -> Non
             continue  # the maneuvers' topic, in logs that have it
         assert topic in fields, path
         assert not field_ or field_ in fields[topic], path
-    assert {TOPIC_ESTIMATE, "/slip/fast", TOPIC_GPS_LOCATION, TOPIC_MANEUVER} <= {p.partition(".")[0] for p in paths}
+    assert {TOPIC_ESTIMATE, "/slip/fast/row", TOPIC_GPS_LOCATION, TOPIC_MANEUVER} <= {p.partition(".")[0] for p in paths}
     scatter = [c for c in doc["configById"].values() if c.get("xAxisVal") == "custom"]
     assert [c["xAxisPath"]["value"] for c in scatter] == [f"/estimate.slip_{w}" for w in ("FL", "FR", "RL", "RR")]
 

@@ -45,8 +45,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imu-xbus", metavar="FILE", help="an Xsens MTi's serial capture (Xbus MTData2, the bytes as "
                    "sent), its packets stamped from the MTi's UTCTime; the config's [imu] source = \"serial\" takes "
                    "their acceleration (axis, sign)")
-    p.add_argument("--nmea", metavar="LOG", help="NMEA log file; not needed when the config takes the reference "
-                   "speed from CAN ([gps] source = \"can\": a CANmod.gps or a CANedge's GNSS in the same file)")
+    gps = p.add_mutually_exclusive_group()
+    gps.add_argument("--nmea", metavar="LOG", help="NMEA log file; not needed when the config takes the reference "
+                     "speed from CAN ([gps] source = \"can\": a CANmod.gps or a CANedge's GNSS in the same file)")
+    gps.add_argument("--gps-raw", metavar="FILE", help="a receiver's raw byte capture instead (NMEA and UBX mixed as "
+                     "u-center or `cat /dev/ttyACM0` records it, no host stamps): each message placed by its own GNSS "
+                     "time (RMC date and time, NAV-PVT UTC), the CAN log's clock taken as UTC")
     _add_config(p)
     p.add_argument("-o", "--output", required=True, metavar="RAW.mcap")
     _add_allow_empty(p, "a CAN log without frames, or an NMEA log without lines or without one fix")
@@ -132,42 +136,45 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 def cmd_import(args: argparse.Namespace) -> int:
     from slipdaq.offline.run import frame_runs, process_to_log
-    from slipdaq.sources.files import iter_can_logs, iter_nmea_log, merge_by_time
+    from slipdaq.sources.files import iter_can_logs, iter_gps_capture, iter_nmea_log, merge_by_time
     from slipdaq.sources.xbus_file import iter_xbus_capture
 
     cfg = _config(args.config)
     can_logs = args.mf4 if args.mf4 else [args.can]
     if args.mf4:
         _require_mdf()
-    if args.nmea is None and cfg.gps.source != "can":
-        raise OutputError("import: give --nmea LOG, or a config whose reference speed comes from CAN "
-                          "([gps] source = \"can\")")
+    gps_file = args.nmea or args.gps_raw
+    if gps_file is None and cfg.gps.source != "can":
+        raise OutputError("import: give --nmea LOG or --gps-raw FILE, or a config whose reference speed comes from "
+                          "CAN ([gps] source = \"can\")")
     if args.imu_xbus and cfg.imu.source != "serial":
         raise OutputError("import --imu-xbus: the config's IMU must be the MTi ([imu] source = \"serial\", axis, sign)")
-    streams = [iter_can_logs(can_logs)] + ([iter_nmea_log(args.nmea)] if args.nmea else []) \
+    gps_stream = [iter_nmea_log(args.nmea)] if args.nmea else [iter_gps_capture(args.gps_raw)] if args.gps_raw else []
+    streams = [iter_can_logs(can_logs)] + gps_stream \
         + ([iter_xbus_capture(args.imu_xbus)] if args.imu_xbus else [])
     records = frame_runs(merge_by_time(*streams))
     meta = {"import_can": " ".join(map(str, can_logs)), "import_nmea": str(args.nmea or ""),
+            **({"import_gps_raw": str(args.gps_raw)} if args.gps_raw else {}),
             "import_imu_xbus": str(args.imu_xbus or "")} | _labels_meta(args)
     cal = _run_calibration(args, cfg, Path(args.output).resolve().parent)
-    inputs = [*can_logs, *([args.nmea] if args.nmea else []), *([args.imu_xbus] if args.imu_xbus else []),
+    inputs = [*can_logs, *([gps_file] if gps_file else []), *([args.imu_xbus] if args.imu_xbus else []),
               *_config_files(cfg)]
     with atomic_output(args.output, inputs=inputs) as tmp, _imports_frozen():
         p = process_to_log(cfg, records, tmp, "import", metadata=meta, description="import", calibration=cal.start)
         d = p.diagnostics()
         _require(d.can_frames, f"{' '.join(map(str, can_logs))}: no CAN frames in it", args)
-        if args.nmea:
-            _require(d.nmea_lines + d.ubx_frames, f"{args.nmea}: no NMEA lines in it", args)
+        if gps_file:
+            _require(d.nmea_lines + d.ubx_frames, f"{gps_file}: no NMEA lines in it", args)
             why = ", ".join(f"{reason} {n}" for reason, n in d.dropped_sentences.items() if n)
-            _require(p.fixes, f"{args.nmea}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
+            _require(p.fixes, f"{gps_file}: no usable NMEA: 0 fixes from {d.nmea_lines} lines "
                      f"({d.bad_sentences} bad sentences{'; dropped: ' + why if why else ''})", args)
-            _require(p.valid_fixes, f"{args.nmea}: no valid fix: {p.fixes} fixes, all marked invalid (no satellite fix)",
+            _require(p.valid_fixes, f"{gps_file}: no valid fix: {p.fixes} fixes, all marked invalid (no satellite fix)",
                      args)
         else:
             _require(p.fixes, f"{' '.join(map(str, can_logs))}: no reference speed in it: no frame of "
                      f"{cfg.gps.message}.{cfg.gps.signal} ([gps] message and signal; their DBC in can.dbc)", args)
     ubx = f" ({d.ubx_frames} UBX frames)" if d.ubx_frames else ""
-    gps = f"{d.nmea_lines} NMEA lines{ubx}" if args.nmea else f"{p.fixes} reference-speed frames"
+    gps = f"{d.nmea_lines} NMEA lines{ubx}" if gps_file else f"{p.fixes} reference-speed frames"
     print(f"imported {d.can_frames} CAN frames and {gps} -> {args.output} "
           f"({d.estimates} estimates, {sum(d.lost_frames.values())} lost frames, {d.bad_sentences} bad sentences)")
     _save_calibration(cal, p.estimator.learned(), cfg, str(args.output))

@@ -199,9 +199,17 @@ class ImuConfig(_CanSignalSection):
 
 
 class BrakeConfig(_CanSignalSection):
-    """A brake signal on CAN (a pedal switch, or a pressure: nonzero = pressed), for the brake onset."""
+    """The brake onset: a brake signal on CAN (a pedal switch, or a pressure: nonzero = pressed; the onset lies
+    between its last released and first pressed sample), or the GPS receiver's time mark of the brake-light switch
+    (source = "gps-timemark": UBX-TIM-TM2 of the edge on its EXTINT pin)."""
 
     section: ClassVar[str] = "brake"
+    source: Literal["can", "gps-timemark"] = Field(
+        "can", description="where the onset comes from: 'can' (message and signal, sampled) or 'gps-timemark' (the "
+        "receiver's UBX-TIM-TM2 time mark of the brake-light switch's edge, placed on the host's clock as a fix's "
+        "UTC is; a CAN signal, if also given, is the fallback for a stop without a mark)")
+    edge: Literal["rising", "falling"] = Field(
+        "rising", description="gps-timemark: the edge that the brake's press gives on the receiver's EXTINT pin")
 
 
 class EstimatorConfig(_Section):
@@ -348,6 +356,13 @@ class Config(_Section):
     """The TOML text as read, stored in every log so that replay needs no other input."""
     dbc_text: str | None = Field(None, exclude=True)
     """DBC text, when the config was read from a log rather than from disk."""
+
+    @model_validator(mode="after")
+    def _time_mark_from_the_receiver(self) -> Config:
+        if self.brake.source == "gps-timemark" and self.gps.source == "can":
+            raise ValueError('brake.source = "gps-timemark" needs the GPS receiver on its serial port ([gps] source = '
+                             '"serial"): the time mark is its UBX-TIM-TM2, placed by its fixes\' UTC')
+        return self
 
     def resolve(self, path: str) -> Path:
         """A path from the config, relative to the config file's folder."""

@@ -15,7 +15,7 @@ from slipdaq.config import Config
 from slipdaq.decode.can_wheels import MPS_PER_UNIT, DbcError, load_dbc
 from slipdaq.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, SENSOR_KINDS, CanFrameBatch, SensorSample
 
-REFERENCE, IMU, BRAKE = SENSOR_KINDS
+REFERENCE, IMU, BRAKE = SENSOR_KINDS[:3]
 STANDARD_GRAVITY_MPS2 = 9.80665
 """1 g, for an acceleration signal in g."""
 _MPS2_PER_UNIT = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "mps2": 1.0, "g": STANDARD_GRAVITY_MPS2}

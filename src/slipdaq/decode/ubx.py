@@ -9,6 +9,7 @@ from __future__ import annotations
 import calendar
 import datetime as dt
 
+from slipdaq.decode.timemark import TIM_TM2, TimeMark, decode_tim_tm2
 from slipdaq.records import GpsFix, UbxFrame
 
 SYNC = b"\xb5\x62"
@@ -34,6 +35,17 @@ class UbxDecoder:
         self.bad_frames = 0
         self.unused_frames = 0
         self.fixes = 0
+        self.time_marks = 0
+
+    @staticmethod
+    def is_time_mark(frame: UbxFrame) -> bool:
+        return frame.data[2:4] == TIM_TM2
+
+    def time_mark(self, frame: UbxFrame) -> TimeMark | None:
+        """A TIM-TM2 frame's time mark (decode/timemark.py), counted in time_marks; None for another message."""
+        mark = decode_tim_tm2(frame.data)
+        self.time_marks += mark is not None
+        return mark
 
     def decode(self, frame: UbxFrame) -> GpsFix | None:
         from pyubx2 import UBXReader  # imported with the first UBX frame (most logs have none)

@@ -108,6 +108,13 @@ class SlipEstimator:
             self._utc_offset_s = self._utc.offset_s()
         return self._latency
 
+    def host_time_s(self, utc_s: float) -> float | None:
+        """A UTC instant on the host's clock, as a fix's UTC time is placed: UTC + offset - GPS latency (module
+        docstring); None before a fix with a UTC time."""
+        latency_s = self.latency.latency_s
+        offset_s = self._utc_offset_s
+        return None if offset_s is None or not math.isfinite(utc_s) else utc_s + offset_s - latency_s
+
     @property
     def events(self) -> list[SourceEvent]:
         """Stored values the run replaced, for /diagnostics/events (the pipeline takes them)."""

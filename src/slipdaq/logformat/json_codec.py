@@ -113,6 +113,14 @@ fast_slip_json = ColumnsJson(FAST_SLIP_COLUMNS)
 message)."""
 
 
+def fast_slip_row_json(row: Any) -> bytes:
+    """/slip/fast/row payload: {"header": {"stamp": {"sec", "nsec"}, "frame_id": ""}} and then the row's columns
+    (FAST_SLIP_COLUMNS): the stamp is the row's instant, time_s, to the nanosecond."""
+    ns = round(row.time_s * 1e9)
+    return dumps({"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": ""}}
+                 | row.as_row())
+
+
 def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:
     """/nmea/raw payload: dumps({"timestamp_s": ..., "line": ..., "can_index": can_index})."""
     return dumps({"timestamp_s": line.timestamp_s, "line": line.line, "can_index": can_index})

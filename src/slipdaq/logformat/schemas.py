@@ -15,6 +15,7 @@ from slipdaq.logformat.topics import (
     TOPIC_ESTIMATE,
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
+    TOPIC_FAST_SLIP_ROW,
     TOPIC_GPS,
     TOPIC_GPS_LOCATION,
     TOPIC_IMU_RAW,
@@ -75,6 +76,19 @@ def columnar_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, An
         flat["properties"][name] = {"type": "array", "items": item} | (
             {"description": prop["description"]} if "description" in prop else {})
     return flat
+
+
+_TIME = {"type": "object", "title": "time", "properties": {
+    "sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
+HEADER = {"type": "object", "properties": {"stamp": _TIME | {"description": "the record's instant (time_s)"},
+                                           "frame_id": {"type": "string"}}, "required": ["stamp", "frame_id"]}
+"""A ROS-style header: Foxglove's Plot panel orders and places a message by header.stamp (timestamp "header stamp")."""
+
+
+def stamped_schema(title: str, groups: tuple[ColumnGroup, ...]) -> dict[str, Any]:
+    """columns_schema with a header (HEADER) first."""
+    flat = columns_schema(title, groups)
+    return _obj(title, {"header": HEADER} | flat["properties"])
 
 
 def _per_wheel(title: str) -> dict[str, Any]:
@@ -173,6 +187,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     } | LIVE_DIAGNOSTICS, optional=tuple(LIVE_DIAGNOSTICS)),
     TOPIC_EVENTS: dataclass_schema("slipdaq.SourceEvent", SourceEvent),
     TOPIC_FAST_SLIP: columnar_schema("slipdaq.FastSlipRows", FAST_SLIP_COLUMNS),
+    TOPIC_FAST_SLIP_ROW: stamped_schema("slipdaq.FastSlipRow", FAST_SLIP_COLUMNS),
     TOPIC_SENSORS: dataclass_schema("slipdaq.SensorSample", SensorSample),
     TOPIC_MANEUVER: columns_schema("slipdaq.Maneuver", MANEUVER_COLUMNS),
     TOPIC_GPS_LOCATION: LOCATION_FIX_SCHEMA,

@@ -2,14 +2,16 @@
 
 Inputs and their noise: the speed (the fused high-rate speed: its noise sigma_v is the RMS of its difference from a
 centred moving average over SMOOTH_S, taken as correlated over CORRELATION_S, as a GPS speed's error is between
-fixes) and the onset (from the brake signal: uniform within its sample interval; from the deceleration's rise:
-DECEL_ONSET_SIGMA_S). DRAWS draws of both (a fixed seed: live and report agree) recompute the figures
-(brake_test.brake_figures with the onset given); the interval is their 2.5 and 97.5 percentiles.
+fixes) and the onset (from the deceleration's rise: DECEL_ONSET_SIGMA_S; from a time mark: none). DRAWS draws of
+both (a fixed seed: live and report agree) recompute the figures (brake_test.brake_figures with the onset given);
+the interval is their 2.5 and 97.5 percentiles. From a sampled brake signal the press lies anywhere within the
+onset ± onset_half_s (between the last released and the first pressed sample): the interval of the draws at the
+onset is widened by how far each figure moves with the onset at either end of that range.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -48,13 +50,15 @@ def brake_intervals(
     brake_time_s: npt.ArrayLike | None = None, mfdd_window_mps: tuple[float, float] | None = None,
 ) -> dict[str, tuple[float, float] | None]:
     """{stopping_distance_m, mfdd_mps2}: (lo, hi) each, None where fewer than 80 % of the draws give the figure;
-    mfdd_window_mps: as brake_figures'."""
+    mfdd_window_mps: as brake_figures'. brake_time_s: the brake signal's sample times (old callers: its interval
+    when onset_half_s is not set)."""
     t, v = np.asarray(time_s, dtype=float), np.asarray(speed_mps, dtype=float)
     sigma_v = speed_noise_mps(t, v)
-    if figures.onset_source == "brake signal" and brake_time_s is not None and np.asarray(brake_time_s).size > 1:
-        sigma_onset = float(np.median(np.diff(np.asarray(brake_time_s, dtype=float)))) / math.sqrt(12.0)
-    else:
-        sigma_onset = DECEL_ONSET_SIGMA_S
+    half = figures.onset_half_s
+    if figures.onset_source == "brake signal" and half == 0.0 and brake_time_s is not None \
+            and np.asarray(brake_time_s).size > 1:
+        half = 0.5 * float(np.median(np.diff(np.asarray(brake_time_s, dtype=float))))
+    sigma_onset = DECEL_ONSET_SIGMA_S if figures.onset_source == "deceleration" else 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.01
     n_corr = max(1, int(round(CORRELATION_S / max(dt, 1e-6))))
     rng = np.random.default_rng(SEED)
@@ -71,5 +75,23 @@ def brake_intervals(
             x = getattr(f, k)
             if x is not None:
                 got[k].append(float(x))
-    return {k: (float(np.percentile(x, 2.5)), float(np.percentile(x, 97.5))) if len(x) >= 0.8 * DRAWS else None
-            for k, x in got.items()}
+    out = {k: (float(np.percentile(x, 2.5)), float(np.percentile(x, 97.5))) if len(x) >= 0.8 * DRAWS else None
+           for k, x in got.items()}
+    return _widened(out, figures, half, lambda onset: brake_figures(t, v, accel_mps2, onset_s=onset,
+                                                                           mfdd_window_mps=mfdd_window_mps)) \
+        if half > 0.0 else out
+
+
+def _widened(intervals: dict[str, tuple[float, float] | None], figures: BrakeFigures, half_s: float,
+             at_onset: Callable[[float], BrakeFigures | None]) -> dict[str, tuple[float, float] | None]:
+    """Each interval widened by how far its figure moves when the onset is at either end of onset ± half_s."""
+    ends = [at_onset(figures.onset_s - half_s), at_onset(figures.onset_s + half_s)]
+    out: dict[str, tuple[float, float] | None] = {}
+    for k, iv in intervals.items():
+        x = getattr(figures, k)
+        moved = [getattr(f, k) for f in ends if f is not None]
+        if iv is None or x is None or len(moved) < 2 or any(m is None for m in moved):
+            out[k] = iv
+            continue
+        out[k] = (iv[0] - max(0.0, x - min(moved)), iv[1] + max(0.0, max(moved) - x))
+    return out

@@ -5,7 +5,10 @@ maneuver's span; optionally the brake signal's samples (times, values; nonzero =
 slip (fractions, braking < 0).
 
 Figures
-    onset t0: `brake_onset_s`; v0 = v(t0) (linear interpolation).
+    onset t0: `brake_onset_s`; v0 = v(t0) (linear interpolation on the fused high-rate speed). From a time mark (the
+        receiver's UBX-TIM-TM2 of the brake-light switch, on the host's clock): that instant; from a sampled brake
+        signal: the midpoint between the last released and the first pressed sample, the press lying anywhere
+        within ± half their interval (`onset_half_s`, carried into the stopping distance's interval).
     Stopping distance (ISO 21994): d = ∫ v dt from t0 to standstill, trapezoids (the ends interpolated linearly).
         Standstill: the first time after t0 that v falls to STANDSTILL_MPS (interpolated crossing); the distance
         still rolled below it, v²/(2·a), is under 1 mm at any real deceleration and left out.
@@ -56,14 +59,26 @@ def _arrays(*cols: npt.ArrayLike) -> list[FloatArray]:
     return [c[ok] for c in out]
 
 
-def _onset_from_brake(t_from: float, t_to: float, brake_time_s: npt.ArrayLike, brake_value: npt.ArrayLike) -> float | None:
-    """Time of the first brake sample pressed (nonzero) right after a released one, within [t_from, t_to]."""
+def _onset_from_brake(t_from: float, t_to: float, brake_time_s: npt.ArrayLike,
+                      brake_value: npt.ArrayLike) -> tuple[float, float] | None:
+    """(midpoint, half interval) of the first brake sample pressed (nonzero) within [t_from, t_to] and the released
+    one right before it: the press happened between the two samples."""
     bt, bv = _arrays(brake_time_s, brake_value)
     order = np.argsort(bt, kind="stable")
     bt, pressed = bt[order], bv[order] != 0
     rising = np.flatnonzero(pressed[1:] & ~pressed[:-1]) + 1
     rising = rising[(bt[rising] >= t_from) & (bt[rising] <= t_to)]
-    return float(bt[rising[0]]) if rising.size else None
+    if not rising.size:
+        return None
+    before, after = float(bt[rising[0] - 1]), float(bt[rising[0]])
+    return 0.5 * (before + after), 0.5 * (after - before)
+
+
+def _onset_from_marks(t_from: float, t_to: float, mark_time_s: npt.ArrayLike) -> float | None:
+    """The first time mark of the brake's press within [t_from, t_to]."""
+    (mt,) = _arrays(mark_time_s)
+    mt = np.sort(mt[(mt >= t_from) & (mt <= t_to)])
+    return float(mt[0]) if mt.size else None
 
 
 def _onset_from_decel(t: FloatArray, a: FloatArray, threshold_mps2: float) -> float | None:
@@ -99,33 +114,40 @@ def _onset_from_decel(t: FloatArray, a: FloatArray, threshold_mps2: float) -> fl
 def brake_onset_s(
     time_s: npt.ArrayLike, accel_mps2: npt.ArrayLike,
     brake_time_s: npt.ArrayLike | None = None, brake_value: npt.ArrayLike | None = None,
-    threshold_mps2: float = DECEL_THRESHOLD_MPS2,
+    threshold_mps2: float = DECEL_THRESHOLD_MPS2, mark_time_s: npt.ArrayLike | None = None,
 ) -> float | None:
     """Brake onset (s, the clock of time_s) in the maneuver's span [time_s[0], time_s[-1]].
 
-    From the brake signal when given: the time of the first sample pressed (nonzero) right after a released one
-    (the previous sample may lie before the span), exactly, no rounding to the time_s grid. Without the signal,
+    From a time mark of the press when one lies in the span (mark_time_s: the first). Else from the brake signal
+    when given: the midpoint between the first sample pressed (nonzero) in the span and the released one right
+    before it (which may lie before the span), no rounding to the time_s grid. Without the signal,
     or without such a transition in the span (pressed throughout, never pressed): from the deceleration d = −a,
     the first sample with d > threshold_mps2; the line fitted to d over its rise between RISE_LOW and RISE_HIGH of
     the peak (the largest d within PEAK_SEARCH_S) above the pre-brake level (median d over BASE_WINDOW_S before
     the rise) intersects that level at the onset (the rise's first part is a ramp, the brake's pressure build-up).
     With fewer than 2 points on the rise: the interpolated threshold crossing. None: no deceleration above it."""
-    return _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2)[0]
+    return _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2, mark_time_s)[0]
 
 
 def _onset(
     time_s: npt.ArrayLike, accel_mps2: npt.ArrayLike,
     brake_time_s: npt.ArrayLike | None, brake_value: npt.ArrayLike | None, threshold_mps2: float,
-) -> tuple[float | None, str]:
+    mark_time_s: npt.ArrayLike | None = None,
+) -> tuple[float | None, str, float]:
+    """(onset, its source, half the interval it lies in: 0 unless from sampled brake signal)."""
     t, a = _arrays(time_s, accel_mps2)
     if t.size < 2:
-        return None, "none"
+        return None, "none", 0.0
+    if mark_time_s is not None:
+        mark = _onset_from_marks(float(t[0]), float(t[-1]), mark_time_s)
+        if mark is not None:
+            return mark, "time mark", 0.0
     if brake_time_s is not None and brake_value is not None:
-        onset = _onset_from_brake(float(t[0]), float(t[-1]), brake_time_s, brake_value)
-        if onset is not None:
-            return onset, "brake signal"
+        sampled = _onset_from_brake(float(t[0]), float(t[-1]), brake_time_s, brake_value)
+        if sampled is not None:
+            return sampled[0], "brake signal", sampled[1]
     onset = _onset_from_decel(t, a, threshold_mps2)
-    return (onset, "deceleration") if onset is not None else (None, "none")
+    return (onset, "deceleration", 0.0) if onset is not None else (None, "none", 0.0)
 
 
 def _falls_to(t: FloatArray, v: FloatArray, t_from: float, level: float) -> float | None:
@@ -207,7 +229,7 @@ def abs_cycling(
 class BrakeFigures:
     onset_s: float
     onset_source: str
-    """'brake signal' or 'deceleration' (brake_onset_s)."""
+    """'time mark', 'brake signal' or 'deceleration' (brake_onset_s); 'given'."""
     brake_speed_kmh: float
     """v0: the speed at onset."""
     stop_s: float | None
@@ -228,6 +250,9 @@ class BrakeFigures:
     stopping_distance_m_hi: float | None = None
     mfdd_mps2_lo: float | None = None
     mfdd_mps2_hi: float | None = None
+    onset_half_s: float = 0.0
+    """The press lies within onset_s ± this (a sampled brake signal: half the interval between the last released
+    and the first pressed sample; 0 otherwise)."""
 
 
 def brake_figures(
@@ -236,13 +261,15 @@ def brake_figures(
     slip_time_s: npt.ArrayLike | None = None, slips: Mapping[str, npt.ArrayLike] | None = None,
     standstill_mps: float = STANDSTILL_MPS, threshold_mps2: float = DECEL_THRESHOLD_MPS2, abs_band: float = ABS_BAND,
     onset_s: float | None = None, mfdd_window_mps: tuple[float, float] | None = None,
+    mark_time_s: npt.ArrayLike | None = None,
 ) -> BrakeFigures | None:
     """The figures of one brake maneuver (module docstring) over the span of time_s. slips: wheel -> slip series
     on slip_time_s (default time_s); onset_s: the onset, given (source 'given'); mfdd_window_mps: the MFDD's (vb, ve)
-    (default 0.8·v0, 0.1·v0). None when no onset is found or the car is not moving at it."""
+    (default 0.8·v0, 0.1·v0); mark_time_s: time marks of the brake's press. None when no onset is found or the car
+    is not moving at it."""
     t, v = _arrays(time_s, speed_mps)
-    onset, source = (onset_s, "given") if onset_s is not None else \
-        _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2)
+    onset, source, half = (onset_s, "given", 0.0) if onset_s is not None else \
+        _onset(time_s, accel_mps2, brake_time_s, brake_value, threshold_mps2, mark_time_s)
     if onset is None or t.size < 2:
         return None
     v0 = float(np.interp(onset, t, v))
@@ -273,5 +300,5 @@ def brake_figures(
     return BrakeFigures(
         onset_s=onset, onset_source=source, brake_speed_kmh=v0_kmh, stop_s=stop, stopping_distance_m=dist,
         nominal_speed_kmh=nominal_kmh, stopping_distance_corrected_m=corrected, mfdd_mps2=mfdd,
-        abs_cycles=cycles, abs_frequency_hz=freq, abs_wheel=wheel,
+        abs_cycles=cycles, abs_frequency_hz=freq, abs_wheel=wheel, onset_half_s=half,
     )

@@ -25,6 +25,9 @@ from slipdaq.maneuver.linearity import LinearityRule
 
 ANCHOR_KEYS = ("speed_mps",) + tuple(k for w in WHEELS for k in (f"slip_{w}", f"force_{w}_n"))
 """What the linearity rule takes of a cruise row."""
+BRAKE_MARK = "brake_mark"
+"""The sensor kind (/can/sensors) of a time mark of the brake's press: the GPS receiver's UBX-TIM-TM2 of the brake-light
+switch ([brake] source = "gps-timemark"), placed on the host's clock."""
 KEEP_S = SPAN_BEFORE_S + BRAKE_SIGNAL_BEFORE_S + 15.0
 """High-rate rows and brake samples are kept this long before the oldest open row (a window is at most 10 s)."""
 
@@ -70,6 +73,7 @@ class ManeuverDetector:
         self._fast: deque[tuple[float, Any]] = deque()
         self._fast_last_s = float("-inf")
         self._brake: deque[tuple[float, float]] = deque()
+        self._marks: deque[float] = deque()
         self.decided: list[Callable[[], ManeuverSummary]] = []
         """Maneuvers decided and not taken yet: each the summary's computation, on its own data (take(), take_jobs())."""
 
@@ -98,6 +102,10 @@ class ManeuverDetector:
     def add_brake(self, time_s: float, value: float) -> None:
         """One sample of the brake signal (nonzero: pressed)."""
         self._brake.append((time_s, value))
+
+    def add_brake_mark(self, time_s: float) -> None:
+        """One time mark of the brake's press (the receiver's, on the host's clock)."""
+        self._marks.append(time_s)
 
     def take(self) -> list[ManeuverSummary]:
         """The maneuvers decided since the last take, summarized here."""
@@ -145,11 +153,13 @@ class ManeuverDetector:
             p, ev, anchors, t_from, t_to = self._queue.popleft()
             fast = [r for t, r in self._fast if t_from <= t <= t_to]
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
+            marks = [t for t in self._marks if t_from <= t <= t_to]
             assert self.t0_s is not None
             self.decided.append(partial(
                 summarize_maneuver, p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
                 anchors=anchors, fast=fast, brake=brake,
-                vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test))
+                vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test,
+                marks=marks))
         self._prune()
 
     def _prune(self) -> None:
@@ -160,3 +170,5 @@ class ManeuverDetector:
             self._fast.popleft()
         while self._brake and self._brake[0][0] < keep_from:
             self._brake.popleft()
+        while self._marks and self._marks[0] < keep_from:
+            self._marks.popleft()

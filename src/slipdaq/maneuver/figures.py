@@ -17,8 +17,10 @@ by the hydraulic split or the joint fit over every wheel at once, whichever expl
 the load transfer M*a*h/L (vehicle.wheelbase_m, cg_height_m, front_axle_load_share); mu_peak and slip_at_mu_peak
 when the data pass the peak and it is plausible (else none, and mu_flag says why).
 
-Brake-test figures (per brake maneuver; brake_test.py): the onset from the brake signal on CAN ([brake], nonzero =
-pressed) when the log has one, else from the onset of deceleration; the speed there, the stopping distance to
+Brake-test figures (per brake maneuver; brake_test.py): the onset from the receiver's time mark of the brake-light
+switch ([brake] source = "gps-timemark") when one lies in the span, else from the brake signal on CAN ([brake],
+nonzero = pressed; between the last released and the first pressed sample) when the log has one, else from the onset
+of deceleration; the speed there, the stopping distance to
 standstill, corrected to the nominal speed (ISO 21994), the MFDD (ECE R13-H) and the ABS cycles of the high-rate slip.
 
 Start and end: an acceleration from standstill starts at its launch, the last high-rate instant at standstill (fused
@@ -184,11 +186,13 @@ def summarize_maneuver(
     anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
     lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max, test: TestConfig | None = None,
+    marks: Sequence[float] = (),
 ) -> ManeuverSummary:
     """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
     fast: the high-rate rows over its span (`span_s`; /slip/fast dicts or FastSlip records); brake: (time, value) of
     the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max (tire_limit); test:
-    its procedures (a brake's MFDD over its procedure's window)."""
+    its procedures (a brake's MFDD over its procedure's window); marks: the times of the brake's press by the
+    receiver's time mark, on the host's clock."""
     prow = tuple(rows)
     title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
     lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]
@@ -205,12 +209,12 @@ def summarize_maneuver(
         speed_from_kmh=v_from, speed_to_kmh=v_to, gps_latency_s=latency, gps_latency_source=lat_src,
         wheels={w: summarize_wheel(prow, w, rule, lost.get(w), anchors) for w in WHEELS},
     )
-    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig(), mu_max, test or TestConfig()) \
+    return _high_rate(m, FastSpan.of(fast), brake, vehicle or VehicleConfig(), mu_max, test or TestConfig(), marks) \
         if len(fast) >= 3 else m
 
 
 def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, float]],
-               vehicle: VehicleConfig, mu_max: float, test: TestConfig) -> ManeuverSummary:
+               vehicle: VehicleConfig, mu_max: float, test: TestConfig, marks: Sequence[float] = ()) -> ManeuverSummary:
     """The maneuver with each wheel's mu-slip fit over its high-rate rows and, braking, its brake-test figures;
     accelerating, its launch."""
     t, v, a, slips = span.time_s, span.speed_mps, span.accel_mps2, span.slips
@@ -228,11 +232,12 @@ def _high_rate(m: ManeuverSummary, span: FastSpan, brake: Sequence[tuple[float, 
         t_from = float(t[0]) - BRAKE_SIGNAL_BEFORE_S
         bt = [x for x, _ in brake if t_from <= x <= t[-1]]
         bv = [y for x, y in brake if t_from <= x <= t[-1]]
-        figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips)
+        figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t, slips=slips,
+                                mark_time_s=list(marks) or None)
         window = mfdd_window_mps(procedure_for(test, "brake", figures.brake_speed_kmh)) if figures else None
         if window is not None:  # the procedure's MFDD window
             figures = brake_figures(t, v, a, brake_time_s=bt or None, brake_value=bv or None, slip_time_s=t,
-                                    slips=slips, mfdd_window_mps=window)
+                                    slips=slips, mfdd_window_mps=window, mark_time_s=list(marks) or None)
         if figures is not None:
             iv = brake_intervals(t, v, a, figures, bt or None, mfdd_window_mps=window)
             sd, md = iv["stopping_distance_m"], iv["mfdd_mps2"]

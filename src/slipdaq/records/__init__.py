@@ -348,7 +348,7 @@ class GpsFix:
     """The receiver's own 1-sigma speed accuracy estimate, where it gives one (UBX NAV-PVT sAcc)."""
 
 
-SENSOR_KINDS = ("reference_speed", "imu_accel", "brake")
+SENSOR_KINDS = ("reference_speed", "imu_accel", "brake", "brake_mark")
 
 
 @dataclass(frozen=True, slots=True)
@@ -358,7 +358,7 @@ class SensorSample:
     time_s: float
     """The frame's receive time."""
     kind: str = field(metadata={"enum": SENSOR_KINDS})
-    """reference_speed (m/s), imu_accel (longitudinal, forward positive, m/s^2) or brake (1 pressed, 0 released)."""
+    """reference_speed (m/s), imu_accel (forward, m/s^2), brake (1 pressed, 0 released) or brake_mark (1: pressed)."""
     value: float
     valid: bool = True
     """reference_speed: false when its valid signal says so."""

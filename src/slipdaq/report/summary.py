@@ -19,7 +19,7 @@ from slipdaq import WHEELS
 from slipdaq.config import Config, ConfigError, TestConfig, parse_config
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_test import BrakeFigures
-from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
@@ -91,6 +91,8 @@ def detect_maneuvers(
     for d in sensors:
         if d.get("kind") == "brake":
             det.add_brake(d["time_s"], d["value"])
+        elif d.get("kind") == BRAKE_MARK:
+            det.add_brake_mark(d["time_s"])
     out: list[ManeuverSummary] = []
     stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)),
                          ((r["time_s"], 1, i) for i, r in enumerate(fast)))

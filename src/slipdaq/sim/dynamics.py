@@ -68,6 +68,7 @@ class DynamicVehicleSim(SteppedModel):
     ) -> None:
         self._setup(config, road, r0_offset_m, max_step_s)
         self.controller = controller
+        self.brake_onset_s: float | None = getattr(controller, "onset_s", None)
         self.vehicle = config.vehicle
         self._static_fz = axle_loads_n(self.vehicle, 0.0)
         self.cx_n = {w: self.tire.stiffness_n(fz) for w, fz in zip(WHEELS, self._static_fz)}

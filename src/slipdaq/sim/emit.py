@@ -3,13 +3,15 @@
 WPT:   PulseCount = (start_count + floor(theta/(2*pi) * pulses_per_rev)) mod 2^32 at the nominal sampling instant,
        Seq = frame index mod 256 per wheel; wheel i of WHEELS is sampled at k/rate + i/(4*rate).
 GPS:   epoch k at k/gps_rate describes the truth at that instant; its RMC, GGA, VTG lines arrive gps_latency_s later.
+       With brake_timemark_edge, the brake's press is that edge on the receiver's EXTINT pin: a UBX TIM-TM2 of it
+       (its exact instant in GPS time) follows the first epoch at or after it.
 CAN sensors (each only with its SimSettings rate > 0 and the config naming its message and signal; sensors.py):
        IMU at k/imu_rate: truth a + N(0, imu_noise); brake switch at k/brake_rate: truth brake_pressed;
        reference speed measured at k/ref_rate: truth V + N(0, ref_noise), sent ref_speed_latency_s later.
        Their frames arrive with CAN jitter from their own generator; the WPT's random draws are not disturbed.
 MTi:   with [imu] source = "serial", the IMU's samples (the same values and arrival jitter) are an Xsens MTi's MTData2
        messages instead (XbusBytes; xbus_encode.SimulatedMti), not affected by a CAN stall.
-Truth: a TruthSample every 10 ms and at every GPS epoch.
+Truth: a TruthSample every 10 ms, at every GPS epoch and at the brake's press (where the model knows it).
 Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
 Stall: with SimSettings.can_stall, frames are stamped when a stalled reader reads them (_StalledReader).
 """
@@ -88,6 +90,13 @@ class SimSettings:
     """A reference speed frame sent at t carries the speed at t - ref_speed_latency_s."""
     ref_speed_noise_mps: float = 0.02
     """Standard deviation of the Gaussian noise on the reference speed (also its reported accuracy)."""
+    brake_speed_kmh: float | None = None
+    """brake-abs, brake-abs-all, brake-lock: the speed the brake is applied at (None: the scenario's, 80 km/h)."""
+    brake_onset_s: float | None = None
+    """... and when, in sim time (None: the scenario's, 3 s); off the sensors' sampling grid, as a driver's foot is."""
+    brake_timemark_edge: str | None = None
+    """"rising" or "falling": the GPS stream carries a UBX TIM-TM2 time mark of the brake's press as this edge (the
+    brake-light switch on the receiver's EXTINT pin); None: no time mark."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,6 +218,25 @@ def nav_pvt_frame(truth: TruthSample, speed_mps: float, settings: SimSettings) -
     return bytes(msg.serialize())
 
 
+def tim_tm2_frame(edge_utc_s: float, edge: str, count: int) -> bytes:
+    """A UBX TIM-TM2 frame marking an edge ("rising" or "falling") at edge_utc_s (UTC seconds since 1970) in GPS
+    time (time base GNSS, UTC available, time valid); the other edge's fields 0."""
+    from pyubx2 import GET, UBXMessage
+
+    from slipdaq.decode.timemark import GPS_EPOCH_UNIX_S, SECONDS_PER_WEEK, utc_to_gps_s
+
+    since_epoch_s = utc_to_gps_s(edge_utc_s) - GPS_EPOCH_UNIX_S
+    week = math.floor(since_epoch_s / SECONDS_PER_WEEK)
+    tow_ms_f = (since_epoch_s - week * SECONDS_PER_WEEK) * 1000.0
+    tow_ms = math.floor(tow_ms_f)
+    sub_ns = min(round((tow_ms_f - tow_ms) * 1e6), 999_999)
+    key = "R" if edge == "rising" else "F"
+    msg = UBXMessage("TIM", "TIM-TM2", GET, ch=0, mode=1, run=1, newFallingEdge=int(key == "F"), timeBase=1, utc=1,
+                     time=1, newRisingEdge=int(key == "R"), count=count, accEst=20,
+                     **{f"wn{key}": week, f"towMs{key}": tow_ms, f"towSubMs{key}": sub_ns})
+    return bytes(msg.serialize())
+
+
 class _Jitter:
     """Uniform [0, jitter_s) delays from a seeded generator, drawn in blocks."""
 
@@ -289,7 +317,12 @@ def generate(
     r0_offset_m: float | Mapping[str, float] = 0.0,
 ) -> Iterator[SimEvent]:
     """Events in nondecreasing time_s over [0, duration_s) (forever when duration_s is None)."""
-    sim = vehicle_model(config, scenario, road, r0_offset_m, max_step_s=settings.step_s)
+    sim = vehicle_model(config, scenario, road, r0_offset_m, max_step_s=settings.step_s,
+                        brake_speed_mps=None if settings.brake_speed_kmh is None else settings.brake_speed_kmh / 3.6,
+                        brake_onset_s=settings.brake_onset_s)
+    # the brake's press: a truth sample then; with brake_timemark_edge, its TIM-TM2 after the next epoch
+    t_press = sim.brake_onset_s if sim.brake_onset_s is not None else math.inf
+    marked: float | None = None
     encoder = WptEncoder(config)
     wants_sensors = settings.imu_rate_hz > 0 or settings.brake_rate_hz > 0 or settings.ref_speed_rate_hz > 0
     sensors = SensorEncoder(config) if wants_sensors else None
@@ -333,7 +366,7 @@ def generate(
     t_slot, t_truth, t_gps = _instant(0, slot_rate_hz), 0.0, _instant(0, settings.gps_rate_hz)
     t_imu, t_brake, t_ref = _instant(0, imu_rate_hz), _instant(0, brake_rate_hz), _instant(0, ref_rate_hz)
     while True:
-        t = min(t_slot, t_truth, t_gps, t_imu, t_brake, t_ref)
+        t = min(t_slot, t_truth, t_gps, t_imu, t_brake, t_ref, t_press)
         if stall is not None and not stall.flushed and t >= stall.end_s:  # all frames of the stall known
             for stamp_s, make in stall.flush():
                 push(stamp_s, make(host_t0_s + stamp_s))
@@ -342,8 +375,10 @@ def generate(
         if t >= end_s:
             return
         sim.advance_to(t)
-        if t_truth == t or t_gps == t:
+        if t_truth == t or t_gps == t or t_press == t:
             push(t, None, sim.state)
+        if t_press == t:
+            marked, t_press = (t if settings.brake_timemark_edge else None), math.inf
         if t_slot == t:
             frame_index, wheel = divmod(n_slot, wheel_count)
             count = pulse_count(sim.angles_rad()[wheel], settings.start_count, pulses_per_rev)
@@ -362,6 +397,10 @@ def generate(
             if settings.gps_protocol in ("nmea", "both"):
                 for line in gps_epoch_lines(sim.state, speed_mps, settings):
                     push(arrival_s, NmeaLine(host_t0_s + arrival_s, line))
+            if marked is not None and settings.brake_timemark_edge is not None:
+                push(arrival_s, UbxFrame(host_t0_s + arrival_s, tim_tm2_frame(
+                    settings.start_utc_s + marked, settings.brake_timemark_edge, 1)))
+                marked = None
             n_gps += 1
             t_gps = _instant(n_gps, settings.gps_rate_hz)
         if sensors is not None:

@@ -82,13 +82,14 @@ def abs_cycle(phase: float) -> float:
 
 
 class AbsBraking:
-    """brake-abs: cruise CRUISE_BEFORE_BRAKE_S, then ABS braking (SlipController). The brake is pressed from onset_s
-    on (slip 0 at that instant, then the onset ramp)."""
+    """brake-abs: cruise CRUISE_BEFORE_BRAKE_S (or onset_s) at BRAKE_TEST_SPEED_MPS (or speed_mps), then ABS braking
+    (SlipController). The brake is pressed from onset_s on (slip 0 at that instant, then the onset ramp)."""
 
-    def __init__(self, tire: TireModel, vehicle: VehicleConfig) -> None:
+    def __init__(self, tire: TireModel, vehicle: VehicleConfig, speed_mps: float | None = None,
+                 onset_s: float | None = None) -> None:
         self.tire = tire
-        self.initial_speed_mps = BRAKE_TEST_SPEED_MPS
-        self.onset_s = CRUISE_BEFORE_BRAKE_S
+        self.initial_speed_mps = BRAKE_TEST_SPEED_MPS if speed_mps is None else speed_mps
+        self.onset_s = CRUISE_BEFORE_BRAKE_S if onset_s is None else onset_s
         self.limiting_axle = limiting_axle(tire.mu, vehicle)
         other_axle = "rear" if self.limiting_axle == "front" else "front"
         self._limiting = _axle_index(self.limiting_axle)
@@ -165,9 +166,9 @@ class LockedBraking:
     """brake-lock: cruise CRUISE_BEFORE_BRAKE_S, then every wheel's slip ramps 0 -> -1 in LOCK_ONSET_S and stays
     locked (SlipController)."""
 
-    def __init__(self) -> None:
-        self.initial_speed_mps = BRAKE_TEST_SPEED_MPS
-        self.onset_s = CRUISE_BEFORE_BRAKE_S
+    def __init__(self, speed_mps: float | None = None, onset_s: float | None = None) -> None:
+        self.initial_speed_mps = BRAKE_TEST_SPEED_MPS if speed_mps is None else speed_mps
+        self.onset_s = CRUISE_BEFORE_BRAKE_S if onset_s is None else onset_s
 
     def command(self, time_s: float, speed_mps: float, fz_n: Sequence[float]) -> SlipCommand:
         tau = time_s - self.onset_s
@@ -206,14 +207,16 @@ class LaunchSpin:
         return SlipCommand(slips, False)
 
 
-def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleConfig) -> SlipController:
-    """The controller of a slip-driven scenario."""
+def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleConfig,
+                    brake_speed_mps: float | None = None, brake_onset_s: float | None = None) -> SlipController:
+    """The controller of a slip-driven scenario; the brake scenarios' cruise speed and onset time (None: their
+    defaults, BRAKE_TEST_SPEED_MPS and CRUISE_BEFORE_BRAKE_S)."""
     if scenario == "brake-abs":
-        return AbsBraking(tire, vehicle)
+        return AbsBraking(tire, vehicle, brake_speed_mps, brake_onset_s)
     if scenario == "brake-abs-all":
-        return AbsBrakingAll(tire, vehicle)
+        return AbsBrakingAll(tire, vehicle, brake_speed_mps, brake_onset_s)
     if scenario == "brake-lock":
-        return LockedBraking()
+        return LockedBraking(brake_speed_mps, brake_onset_s)
     if scenario == "launch-spin":
         return LaunchSpin(vehicle)
     raise ValueError(f"unknown slip scenario {scenario!r}: expected one of {', '.join(get_args(SlipScenario))}")
@@ -221,14 +224,16 @@ def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleCon
 
 def vehicle_model(
     config: Config, scenario: Scenario, road: Road, r0_offset_m: float | Mapping[str, float] = 0.0,
-    max_step_s: float = 0.001,
+    max_step_s: float = 0.001, brake_speed_mps: float | None = None, brake_onset_s: float | None = None,
 ) -> SteppedModel:
-    """The kinematic model for a profile scenario (accelerate, brake, cycle), the slip-driven one otherwise."""
+    """The kinematic model for a profile scenario (accelerate, brake, cycle), the slip-driven one otherwise (the brake
+    scenarios' cruise speed and onset: slip_controller)."""
     if scenario in get_args(ProfileScenario):
         return VehicleSim(config, scenario, road, r0_offset_m, max_step_s=max_step_s)  # type: ignore[arg-type]  # checked just above
     if scenario not in get_args(SlipScenario):
         raise ValueError(f"unknown scenario {scenario!r}")
     if road not in ROADS:
         raise ValueError(f"unknown road {road!r}: expected paved or sand")
-    controller = slip_controller(scenario, ROADS[road], config.vehicle)  # type: ignore[arg-type]  # checked just above
+    controller = slip_controller(scenario, ROADS[road], config.vehicle,  # type: ignore[arg-type]  # checked above
+                                 brake_speed_mps, brake_onset_s)
     return DynamicVehicleSim(config, controller, road, r0_offset_m, max_step_s)

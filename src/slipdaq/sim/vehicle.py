@@ -256,6 +256,8 @@ class SteppedModel:
     _v_mps: float
     _slips: list[float]
     cx_n: dict[str, float]
+    brake_onset_s: float | None = None
+    """The instant the driver's brake is pressed, where the model knows it (the slip-driven brake scenarios)."""
 
     def _setup(self, config: Config, road: Road, r0_offset_m: float | Mapping[str, float], max_step_s: float) -> None:
         """What every model starts with: the road's tire, the mass, each wheel's r0 (the tire's radius plus its

@@ -21,7 +21,15 @@ import slipdaq
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.logformat import cdr
-from slipdaq.logformat.json_codec import dumps, estimate_json, fast_slip_json, fix_json, location_fix_json, nmea_line_json
+from slipdaq.logformat.json_codec import (
+    dumps,
+    estimate_json,
+    fast_slip_json,
+    fast_slip_row_json,
+    fix_json,
+    location_fix_json,
+    nmea_line_json,
+)
 from slipdaq.logformat.rotation import RotationPolicy
 from slipdaq.logformat.topics import (
     MAX_BATCH_FRAMES,
@@ -31,6 +39,7 @@ from slipdaq.logformat.topics import (
     TOPIC_ESTIMATE,
     TOPIC_EVENTS,
     TOPIC_FAST_SLIP,
+    TOPIC_FAST_SLIP_ROW,
     TOPIC_GPS,
     TOPIC_GPS_LOCATION,
     TOPIC_IMU_RAW,
@@ -441,7 +450,8 @@ class McapLogSink(Sink):
         self.on_fast_slip_rows((row,), log_time_s)
 
     def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
-        """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice)."""
+        """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice), then
+        each row on /slip/fast/row (at the same log time, stamped with its own)."""
         i, n = 0, len(rows)
         while i < n:
             wheels, k = tuple(rows[i].wheels), i + 1
@@ -449,6 +459,8 @@ class McapLogSink(Sink):
                 k += 1
             self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json.columns(rows[i:k]))
             i = k
+        for row in rows:
+            self._write(TOPIC_FAST_SLIP_ROW, log_time_s, fast_slip_row_json(row))
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))

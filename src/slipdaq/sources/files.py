@@ -2,6 +2,8 @@
 python-can's MF4 reader with asammdf) and timestamped NMEA logs. Several CAN logs of one session (a CANedge splits a
 session into numbered MF4 files) are joined in time order.
 
+A receiver's raw capture (iter_gps_capture) has no stamps: its messages take their own GNSS time.
+
 NMEA log lines are `(EPOCH_SECONDS) $SENTENCE` in the CAN log's clock; bare `$SENTENCE` lines are
 accepted too and take the time of the sentence itself (RMC date + time, or a UBX NAV-PVT's UTC time), else of the
 record before. The bytes after the
@@ -171,6 +173,42 @@ def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]
                 yield replace(record, timestamp_s=last_t)
     for earlier in pending:  # a file with no time at all
         yield earlier
+
+
+CAPTURE_READ_BYTES = 1 << 16
+
+
+def iter_gps_capture(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]:
+    """A receiver's raw byte capture (NMEA, UBX and RTCM mixed as the port sent them, no host stamps: u-center's
+    .ubx, `cat /dev/ttyACM0 > FILE`), framed as the live reader frames it (decode/framing.py). Each record takes its
+    own GNSS time as a bare sentence of an NMEA log does (an RMC's date and time, a NAV-PVT's UTC time), else the
+    time of the record before (the records before the first such time take that time): the CAN log's clock is
+    taken to be UTC. The bytes are read as they are: a stamp-like `(123.4)` is no stamp here."""
+    p = Path(path)
+    if not p.is_file():
+        raise ImportError_(f"{p}: no such GPS capture")
+    last_t: float | None = None
+    pending: list[NmeaLine | UbxFrame | RtcmFrame] = []
+    probe, probe_ubx = NmeaDecoder(), UbxDecoder()
+    framer = GpsFramer()
+    with open(p, "rb") as f:
+        chunks = iter(lambda: f.read(CAPTURE_READ_BYTES), b"")
+        for chunk in chain(guarded(p, chunks, "block"), [None]):
+            for record in framer.feed(chunk, 0.0) if chunk is not None else framer.flush():
+                fix = probe.decode(record) if isinstance(record, NmeaLine) else \
+                    probe_ubx.decode(record) if isinstance(record, UbxFrame) else None
+                if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(p, "", fix.fix_time_utc_s):
+                    last_t = fix.fix_time_utc_s
+                if last_t is None:
+                    pending.append(record)
+                    continue
+                for earlier in pending:
+                    yield replace(earlier, timestamp_s=last_t)
+                pending.clear()
+                yield replace(record, timestamp_s=last_t)
+    if pending:
+        raise ImportError_(f"{p}: no message with a GNSS time in it (an RMC with date and time, or a UBX NAV-PVT "
+                           "with valid UTC): the capture cannot be placed on the CAN log's clock")
 
 
 MERGE_RUN_FRAMES = 4096
