@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
@@ -33,6 +34,7 @@ from slipdaq.estimator.fast_slip import FastSlipRows
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
+from slipdaq.estimator.imu_gain import SOURCE_RAW, ImuCorrection, ImuGainFit
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
 from slipdaq.estimator.linear_region import WindowSpread
 from slipdaq.estimator.params import EstimatorParams
@@ -93,7 +95,13 @@ class SlipEstimator:
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
         self._last_epoch_s = -math.inf
         self._imu = SeriesRing(1024)
-        """IMU sample time -> longitudinal acceleration."""
+        """IMU sample time -> longitudinal acceleration, as the IMU read it."""
+        self._imu_source = SOURCE_RAW
+        """Where the last IMU sample came from (accel_source: imu, imu-orientation, imu-free)."""
+        self._imu_correction = ImuCorrection(stored.imu.gain, stored.imu.offset_mps2) \
+            if stored is not None and stored.imu is not None else None
+        """The stored gain and offset of an IMU without orientation (imu_gain.py), applied to the raw IMU's."""
+        self._imu_gain = ImuGainFit()
         self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) if params.fast_rate_hz > 0 else None
         self.fast_rows: list[FastSlip] = []
         """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
@@ -157,12 +165,17 @@ class SlipEstimator:
             pos = stop
         return out
 
-    def add_imu(self, time_s: float, accel_mps2: float) -> None:
-        """One IMU sample (longitudinal acceleration, forward positive) on the host's clock; older than the last: dropped."""
+    def add_imu(self, time_s: float, accel_mps2: float, source: str = SOURCE_RAW) -> None:
+        """One IMU sample (longitudinal acceleration, forward positive) on the host's clock; older than the last: dropped.
+        source: imu (as the sensor read it: gravity and the body's pitch in it), imu-orientation or imu-free (gravity
+        taken out, decode/mti_accel.py)."""
         if time_s > self._imu.last_t and math.isfinite(accel_mps2):
             self._imu.append(time_s, accel_mps2)
+            self._imu_source = source
             if self._fast is not None:
-                self._fast.speed.add_imu(time_s, accel_mps2)
+                cor = self._imu_correction
+                self._fast.speed.add_imu(time_s, cor.apply(accel_mps2) if cor is not None and source == SOURCE_RAW
+                                         else accel_mps2)
 
     def take_fast(self) -> list[FastSlip]:
         rows, self.fast_rows = self.fast_rows, []
@@ -248,7 +261,12 @@ class SlipEstimator:
         p, track, cal = self.p, self._track, self._cal
         smooth = track.smooth_arrivals(self._utc_offset_s)
         i = int(track.speed.times.searchsorted(arrival_s))
-        win = measure_window(p, track, self._grade, self._windows, self._imu, smooth - lat.latency_s, i, lat)
+        fix_arr = smooth - lat.latency_s
+        win = measure_window(p, track, self._grade, self._windows, self._imu, fix_arr, i, lat, self._imu_source,
+                             self._imu_correction)
+        if self._imu_source == SOURCE_RAW and not self.frozen:
+            self._imu_gain.observe(win.imu_raw_mps2, fix_arr, track.speed.values, win.t0, win.t1, win.speed_mps,
+                                   lat.source != "none" and not win.disturbed)
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
@@ -269,7 +287,7 @@ class SlipEstimator:
         if self.frozen:
             return Learned()
         lat = self.latency
-        return self._cal.learned(lat, self._utc_offset_s)
+        return replace(self._cal.learned(lat, self._utc_offset_s), imu_gain=self._imu_gain.result())
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
     def _gps_lost(self) -> list[Estimate]:

@@ -84,7 +84,7 @@ class ColumnGroup:
 
 PHASES = ("standstill", "accelerate", "cruise", "brake")
 QUALITIES = ("ok", "uncalibrated", "disturbed")
-ACCEL_SOURCES = ("imu", "gps")
+ACCEL_SOURCES = ("imu", "gps", "imu-orientation", "imu-free", "imu-calibrated")
 
 ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((
@@ -127,7 +127,10 @@ ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
                         "from the tire size or the other wheels); disturbed (a gap in the samples, GPS lost)"),),
                 per_wheel=False, csv="extra"),
     ColumnGroup((Column("accel_source", "accel_source", "enum", ACCEL_SOURCES, "where accel_mps2 comes from: imu "
-                        "(the IMU's mean over the window) or gps (the reference speed's central difference)"),),
+                        "(the IMU's mean over the window, as it read: gravity and the body's pitch in it), "
+                        "imu-orientation (an MTi's Acceleration less gravity by its orientation), imu-free (an MTi's "
+                        "FreeAcceleration on the heading), imu-calibrated (imu corrected by the calibration's gain "
+                        "and offset) or gps (the reference speed's central difference)"),),
                 per_wheel=False, csv="extra"),
     ColumnGroup((Column("window_s", "window_s", "number", description="the window's length"),),
                 per_wheel=False, csv=""),
