@@ -16,7 +16,7 @@ import pytest
 from slipdaq.cli import main
 from slipdaq.config import ConfigError, load_config, parse_config
 from slipdaq.decode.mti_accel import forward_without_gravity
-from slipdaq.decode.xbus import XbusDecoder, XbusFramer, forward_accel_mps2
+from slipdaq.decode.xbus import XbusDecoder, XbusFramer
 from slipdaq.logformat.reader import iter_estimates, iter_topic
 from slipdaq.logformat.topics import TOPIC_IMU_RAW, TOPIC_SENSORS
 from slipdaq.pipeline import Pipeline

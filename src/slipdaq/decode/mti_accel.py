@@ -9,7 +9,8 @@ ENU and NWU, -z in NED), so
     a_forward = sign * a_S[axis]
 FreeAcceleration is a_L (gravity already out, in L); its forward part is its projection on the vehicle's heading,
 the horizontal direction of the forward axis R_LS (sign * e_axis) where the packet has an orientation, else the GNSS
-course ("imu-free"). Acceleration alone is taken as sent ("imu": gravity in it).
+course: the MTi's own VelocityXYZ's, else the GNSS fixes' ("imu-free"; none before a course is known). Acceleration
+alone is taken as sent ("imu": gravity in it).
 """
 
 from __future__ import annotations
@@ -77,6 +78,16 @@ def heading_axis(course_deg: float, frame: str | None) -> tuple[float, float]:
     return s, c
 
 
+def velocity_course_deg(packet: MtiPacket, min_speed_mps: float) -> float | None:
+    """The course (degrees from north, clockwise) of the packet's VelocityXYZ, None without it or slower than
+    min_speed_mps."""
+    v = packet.velocity_mps
+    if v is None or math.hypot(v[0], v[1]) < min_speed_mps:
+        return None
+    east, north = {"NED": (v[1], v[0]), "NWU": (-v[1], v[0])}.get(packet.velocity_frame or "ENU", (v[0], v[1]))
+    return math.degrees(math.atan2(east, north)) % 360.0
+
+
 def gravity_free_forward(packet: MtiPacket, rot: Matrix, axis: int, sign: int) -> float | None:
     """sign * (f_S - g R^T up_L)[axis] of the packet's Acceleration, or None without it."""
     f = packet.acceleration_mps2
@@ -139,6 +150,8 @@ class MtiAccel:
         self.clock = SampleClock()
         self.course_deg: float | None = None
         self.source = SOURCE_RAW
+        self.min_course_speed_mps = 2.0
+        """The MTi's VelocityXYZ sets course_deg from this horizontal speed on."""
 
     def sample(self, record: XbusBytes) -> tuple[float, float] | None:
         """(time on the host's clock, forward acceleration), or None."""
@@ -148,6 +161,9 @@ class MtiAccel:
         if packet is None:
             return None
         if self.remove_gravity:
+            course = velocity_course_deg(packet, self.min_course_speed_mps)
+            if course is not None:
+                self.course_deg = course
             got = forward_without_gravity(packet, self.axis, self.sign, self.course_deg)
         else:
             acc = packet.acceleration_mps2
