@@ -120,8 +120,9 @@ def _pipeline_samples(records: list[XbusBytes], axis: str) -> tuple[list[float],
 def test_real_captures_with_acceleration_or_free_acceleration_give_one_sample_per_packet(
         capture: str, tmp_path: Path) -> None:
     """The real capture (Acceleration, EulerAngles) and the same packets with FreeAcceleration in place of
-    Acceleration, imported from a file: one sample per inertial packet each (the GNSS's PVT packets carry neither); the FreeAcceleration on the orientation's
-    heading is the oriented Acceleration's forward part (the sensor's x lay level: to 0.01 m/s^2)."""
+    Acceleration, imported from a file: one sample per inertial packet each (the GNSS's PVT packets carry neither);
+    the FreeAcceleration on the orientation's heading is the oriented Acceleration's forward part (the sensor's x lay
+    level: to 0.01 m/s^2)."""
     path = CAPTURES / capture / "output.bin"
     oriented, sources, packets = _pipeline_samples(list(iter_xbus_capture(path)), "x")
     assert packets >= 95 and len(oriented) == packets
