@@ -190,11 +190,6 @@ class ImuConfig(_CanSignalSection):
     """serial: the MTi's MTData2 messages (Acceleration in the sensor's axes, gravity included)."""
     axis: Literal["x", "y", "z"] = "x"
     """serial: the sensor axis that points forward (backwards: sign = -1)."""
-    remove_gravity: bool = Field(True, description=(
-        "serial: take gravity out of the MTi's acceleration: its Acceleration less gravity by its orientation "
-        "(Quaternion, RotationMatrix or EulerAngles in MTData2), else its FreeAcceleration on the heading (the "
-        "orientation's, else the GNSS course); a packet with neither is taken as sent. false: its Acceleration as "
-        "sent"))
 
     @model_validator(mode="after")
     def _serial(self) -> ImuConfig:

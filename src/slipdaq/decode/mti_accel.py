@@ -137,15 +137,14 @@ def forward_without_gravity(packet: MtiPacket, axis: Literal["x", "y", "z"], sig
 
 class MtiAccel:
     """An MTi's forward acceleration per raw record, as the pipeline takes it ([imu] source = "serial"): each MTData2
-    packet's (forward_without_gravity; with remove_gravity false, its Acceleration as sent) on `axis`, times `sign`,
-    at the packet's SampleTimeFine placed on the host's clock (decode/sample_clock.py); None for other records or
-    without an IMU on serial. `source` is the last sample's; `course_deg` the GNSS course the pipeline last set."""
+    packet's forward_without_gravity on `axis`, times `sign`, at the packet's SampleTimeFine placed on the host's
+    clock (decode/sample_clock.py); None for other records or without an IMU on serial. `source` is the last
+    sample's; `course_deg` the last course: its VelocityXYZ's, or the GNSS fixes' (the pipeline sets it)."""
 
     def __init__(self, imu: Any) -> None:
         self.enabled = getattr(imu, "source", "can") == "serial"
         self.axis: Literal["x", "y", "z"] = getattr(imu, "axis", "x")
         self.sign = int(getattr(imu, "sign", 1))
-        self.remove_gravity = bool(getattr(imu, "remove_gravity", True))
         self.decoder = XbusDecoder()
         self.clock = SampleClock()
         self.course_deg: float | None = None
@@ -160,14 +159,10 @@ class MtiAccel:
         packet = self.decoder.decode(record)
         if packet is None:
             return None
-        if self.remove_gravity:
-            course = velocity_course_deg(packet, self.min_course_speed_mps)
-            if course is not None:
-                self.course_deg = course
-            got = forward_without_gravity(packet, self.axis, self.sign, self.course_deg)
-        else:
-            acc = packet.acceleration_mps2
-            got = None if acc is None else (self.sign * acc["xyz".index(self.axis)], SOURCE_RAW)
+        course = velocity_course_deg(packet, self.min_course_speed_mps)
+        if course is not None:
+            self.course_deg = course
+        got = forward_without_gravity(packet, self.axis, self.sign, self.course_deg)
         if got is None:
             return None
         self.source = got[1]
