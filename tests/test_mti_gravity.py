@@ -5,6 +5,7 @@ carries FreeAcceleration) each give one sample per packet."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import math
 from pathlib import Path
@@ -12,6 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.decode.mti_accel import (
     GRAVITY_MPS2,
@@ -21,10 +23,14 @@ from slipdaq.decode.mti_accel import (
     rotation_from_quaternion,
     rotation_of,
 )
-from slipdaq.decode.xbus import MtiPacket, XbusDecoder, XbusFramer
+from slipdaq.decode.xbus import MID_MTDATA2, MtiPacket, XbusDecoder, XbusFramer, xbus_message
+from slipdaq.logformat.reader import iter_estimates, iter_topic
+from slipdaq.logformat.topics import TOPIC_SENSORS
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import XbusBytes
-from slipdaq.sim.xbus_encode import XDI_ACCELERATION, XDI_FREE_ACCELERATION, encode_packet
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.logs import write_drive_logs
+from slipdaq.sim.xbus_encode import XDI_ACCELERATION, XDI_FREE_ACCELERATION, encode_item, encode_packet, utc_time
 from slipdaq.sinks import CollectingSink
 from slipdaq.sources.xbus_file import iter_xbus_capture
 
@@ -156,3 +162,39 @@ def test_free_acceleration_without_orientation_takes_the_course() -> None:
     s30, c30 = math.sin(math.radians(30.0)), math.cos(math.radians(30.0))
     assert got == pytest.approx([a[0] * s30 + a[1] * c30 for a in free[10:]], abs=1e-5)  # Float32 and its formats
     assert mti.source == "imu-free"
+
+
+def test_import_of_a_free_acceleration_capture_feeds_the_estimator(tmp_path: Path) -> None:
+    """A simulated drive heading east, its acceleration as an MTi's FreeAcceleration only (no Acceleration, no
+    orientation: ENU, (a, 0, 0)): `import --imu-xbus` takes it on the NMEA course (imu-free), one sample per packet
+    from the first course on, the moving windows' Fx from it, and `export --imu-csv` writes those samples."""
+    cfg_path = tmp_path / "slipdaq.toml"
+    cfg_path.write_text(CONFIG.read_text() + '\n[imu]\nsource = "serial"\nport = "/dev/ttyUSB1"\naxis = "x"\n')
+    (tmp_path / "wpt.dbc").write_text((CONFIG.parent / "wpt.dbc").read_text())
+    cfg = load_config(cfg_path)
+    settings = SimSettings(gps_latency_s=0.0, gps_noise_mps=0.02, can_jitter_s=0.0005, seed=5, heading_deg=90.0)
+    events = list(generate(cfg, "cycle", "paved", settings, 20.0))
+    truth = write_drive_logs(events, tmp_path / "drive.log", tmp_path / "drive.nmea")
+    capture = bytearray()
+    for k, tr in enumerate(truth):
+        items = [encode_item(0x1020, k), encode_item(0x1060, round(tr.time_s * 10_000)),
+                 encode_item(0x1010, utc_time(settings.start_utc_s + tr.time_s)),
+                 encode_item(XDI_FREE_ACCELERATION, (tr.accel_mps2, 0.0, 0.0))]
+        capture += xbus_message(MID_MTDATA2, b"".join(items))
+    (tmp_path / "mti.bin").write_bytes(bytes(capture))
+    log = tmp_path / "raw.mcap"
+    assert main(["import", "--config", str(cfg_path), "--can", str(tmp_path / "drive.log"), "--nmea",
+                 str(tmp_path / "drive.nmea"), "--imu-xbus", str(tmp_path / "mti.bin"), "-o", str(log),
+                 "--no-calibration"]) == 0
+    imu = [(d["time_s"], d["value"]) for _t, _t2, d in iter_topic(log, (TOPIC_SENSORS,)) if d["kind"] == "imu_accel"]
+    sent = {round(settings.start_utc_s + tr.time_s, 3): tr.accel_mps2 for tr in truth}
+    first_moving = next(tr.time_s for tr in truth if tr.speed_mps >= 2.5)
+    assert len(imu) >= len(truth) - round(first_moving * 100) - 2  # the truth at 100 Hz: one packet each
+    assert all(abs(v - sent[round(t, 3)]) < 1e-5 for t, v in imu)  # Float32, on the course of 90 degrees
+    rows = list(iter_estimates(log))
+    moving = [r for r in rows if r["speed_mps"] > 5 and r["force_n"] is not None]
+    assert moving and sum(r["accel_source"] == "imu-free" for r in moving) >= 0.9 * len(moving)
+    out = tmp_path / "imu.csv"
+    assert main(["export", str(log), "--imu-csv", str(out)]) == 0
+    with open(out, newline="") as f:
+        assert [float(r["accel_mps2"]) for r in csv.DictReader(f)] == [v for _t, v in imu]
