@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slipdaq.estimator.ring import SeriesRing
+
 SOURCE_RAW = "imu"
 SOURCE_CALIBRATED = "imu-calibrated"
 MIN_WINDOWS = 100
@@ -78,3 +80,31 @@ class ImuGainFit:
             return None
         alpha = my - beta * mx
         return 1.0 / beta, -alpha / beta, n
+
+
+class ImuInput:
+    """The IMU's samples as they read (ring: time -> forward acceleration), where the last came from (source), the
+    stored correction of a raw IMU's, and the run's gain fit over the raw IMU's windows."""
+
+    def __init__(self, stored: tuple[float, float] | None) -> None:
+        """stored: the calibration's (gain, offset_mps2), or None."""
+        self.ring = SeriesRing(1024)
+        self.source = SOURCE_RAW
+        self.correction = ImuCorrection(*stored) if stored is not None else None
+        self.fit = ImuGainFit()
+
+    def add(self, time_s: float, accel_mps2: float, source: str) -> float | None:
+        """Keeps a sample newer than the last; returns it as a kinematic acceleration (corrected where raw and a
+        correction is stored), or None where it was dropped."""
+        if not (time_s > self.ring.last_t and math.isfinite(accel_mps2)):
+            return None
+        self.ring.append(time_s, accel_mps2)
+        self.source = source
+        cor = self.correction
+        return cor.apply(accel_mps2) if cor is not None and source == SOURCE_RAW else accel_mps2
+
+    def observe(self, imu_raw_mps2: float | None, fix_times: np.ndarray, speeds: np.ndarray, t0: float, t1: float,
+                speed_mps: float, usable: bool) -> None:
+        """One window into the gain fit, where the IMU is a raw one (ImuGainFit.observe)."""
+        if self.source == SOURCE_RAW:
+            self.fit.observe(imu_raw_mps2, fix_times, speeds, t0, t1, speed_mps, usable)

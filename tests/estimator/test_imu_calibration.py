@@ -13,21 +13,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import CONFIG
-from slipdaq.calibration import Learned, load_calibration, merged, save_calibration, show, usable
-from slipdaq.columns import ACCEL_SOURCES, ESTIMATE_COLUMNS
 from slipdaq.config import Config, load_config
+from slipdaq.config.calibration import Learned, load_calibration, merged, save_calibration, show, usable
 from slipdaq.decode.mti_accel import forward_without_gravity, rotation_of
 from slipdaq.decode.xbus import XbusDecoder
 from slipdaq.estimator.imu_gain import ImuGainFit
 from slipdaq.logformat.schemas import SCHEMAS
 from slipdaq.logformat.topics import TOPIC_ESTIMATE
-from slipdaq.offline import Rows, process
+from slipdaq.offline.run import Rows, process
 from slipdaq.records import XbusBytes
+from slipdaq.records.columns import ACCEL_SOURCES, ESTIMATE_COLUMNS
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.pitch import GRAVITY_MPS2, BodyPitch
 from slipdaq.sim.truth import truth_series
 from slipdaq.sim.xbus_encode import SimulatedMti
+from support.paths import CONFIG
 
 IMU = {"message": "IMU_ACCEL", "signal": "AccelX"}
 PITCH_DEG_PER_G, GRADE_DEG = 1.5, 1.0

@@ -33,9 +33,9 @@ from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.xbus_encode import XDI_ACCELERATION, XDI_FREE_ACCELERATION, encode_item, encode_packet, utc_time
 from slipdaq.sinks import CollectingSink
 from slipdaq.sources.xbus_file import iter_xbus_capture
+from support.paths import CONFIG, DATA
 
-CAPTURES = Path(__file__).resolve().parent / "data" / "xsens-mti"
-CONFIG = Path(__file__).resolve().parent.parent / "config" / "slipdaq.toml"
+CAPTURES = DATA / "xsens-mti"
 
 SIN10, COS10 = 0.17364817766693033, 0.984807753012208
 """sin and cos of 10 degrees."""
