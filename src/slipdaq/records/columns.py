@@ -85,6 +85,8 @@ class ColumnGroup:
 PHASES = ("standstill", "accelerate", "cruise", "brake")
 QUALITIES = ("ok", "uncalibrated", "disturbed")
 ACCEL_SOURCES = ("imu", "gps", "imu-orientation", "imu-free", "imu-calibrated")
+FAST_ACCEL_SOURCES = ACCEL_SOURCES[:2]
+"""The high-rate slip's: imu (the IMU fed its filter, whatever its kind) or gps."""
 
 ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((
@@ -151,7 +153,7 @@ FAST_SLIP_COLUMNS: tuple[ColumnGroup, ...] = (
                         "undefined below the minimum speed or without the wheel's samples around the instant"),),
                 per_wheel=True, csv="contract"),
     ColumnGroup((Column("accel_mps2", "accel_mps2", "number", description="the fused longitudinal acceleration"),
-                 Column("accel_source", "accel_source", "enum", ACCEL_SOURCES,
+                 Column("accel_source", "accel_source", "enum", FAST_ACCEL_SOURCES,
                         "imu when the IMU's samples fed the filter, else gps")), per_wheel=False, csv=""),
     ColumnGroup((Column("wheel_speed_{w}_mps", "speed_mps", "number?",
                         description="circumferential speed omega*r0 of the {w} wheel at the instant"),),
