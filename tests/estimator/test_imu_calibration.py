@@ -150,3 +150,24 @@ def test_accel_source_is_declared_once() -> None:
     column = next(c for g in ESTIMATE_COLUMNS for c in g.columns if c.name == "accel_source")
     assert column.values == ACCEL_SOURCES
     assert SCHEMAS[TOPIC_ESTIMATE]["properties"]["accel_source"]["enum"] == list(ACCEL_SOURCES)
+
+
+def test_a_pitched_mti_s_orientation_takes_the_pitch_out_of_the_force(cfg: Config) -> None:
+    """The simulated MTi on a body pitching 1.5 deg/g on a 1-degree grade: the windows take its Acceleration less
+    gravity by its Quaternion (imu-orientation), and Fx is within 40 N RMS of M*a (the pitch and grade's g*sin
+    would put about 250 N into it: the CAN IMU's raw row above)."""
+    mti = cfg.with_overrides(imu={"source": "serial", "port": "/dev/ttyUSB1", "axis": "x"})
+    settings = SimSettings(gps_latency_s=0.05, gps_noise_mps=0.03, can_jitter_s=0.0005, imu_rate_hz=100.0, seed=3,
+                           pitch_deg_per_g=PITCH_DEG_PER_G, grade_deg=GRADE_DEG)
+    records, truth = [], []
+    for ev in generate(mti, "cycle", "paved", settings, 30.0):
+        if ev.record is not None:
+            records.append(ev.record)
+        if ev.truth is not None:
+            truth.append(ev.truth)
+    ts = truth_series(truth, settings.start_utc_s)
+    rows = Rows()
+    process(mti, records, [rows], stream=io.StringIO())
+    moving = [r for r in rows.rows if r["force_n"] is not None and r["speed_mps"] > 5]
+    assert moving and sum(r["accel_source"] == "imu-orientation" for r in moving) >= 0.95 * len(moving)
+    assert _force_error_n(moving, ts, mti.vehicle.mass_kg) < 40.0
