@@ -11,6 +11,9 @@ Rows:
                    ("auto" and fixed), against the serial GPS at 10 Hz on the same drive
   IMU              Fx RMS error (window mean of the truth's M*a) with an IMU on CAN at 100 Hz against the GPS
                    central difference at 10 Hz, on the same drive
+  IMU pitch        the body pitching 1.5 deg/g on a 1-degree grade (seeds 1-3) and level (0 deg/g, no grade): the
+                   CAN IMU's learned gain and offset, Fx RMS and the front wheels' fitted Cx against the fit's
+                   linear truth, two-pass with the calibration's IMU gain and offset (imu-calibrated) and without
   ABS brake        high-rate slip RMS at 50 Hz (WPT 500 Hz, 0.5 ms jitter) against the truth; mu_peak,
                    slip_at_mu_peak of the cycling (limiting) axle; MFDD; stopping distance (brake switch at 50 Hz)
   report line Cx   the report's fitted line Cx (front wheels) on the paved cycle against the linear-fit truth
@@ -155,6 +158,53 @@ def row_imu() -> list[tuple[str, str, str, str]]:
              f"ratio {i / g:.2f} (target <= 0.5); accel_source imu in {share:.0%} of windows")]
 
 
+def _imu_pitch_case(pitch_deg_per_g: float, grade_deg: float, seed: int) -> tuple[tuple[float, float] | None,
+                                                                                  dict[str, tuple[float, list[float]]]]:
+    """The learned (gain, offset) and, per way ("raw", "calibrated"), Fx RMS and the front wheels' Cx errors (%)."""
+    from slipdaq.sim.truth import linear_stiffness_truth
+
+    cfg = base_config().with_overrides(imu={"message": "IMU_ACCEL", "signal": "AccelX"})
+    settings = SimSettings(gps_latency_s=0.085, gps_noise_mps=0.03, can_jitter_s=0.0005, seed=seed,
+                           imu_rate_hz=100.0, imu_noise_mps2=0.05, pitch_deg_per_g=pitch_deg_per_g,
+                           grade_deg=grade_deg)
+    records, truth = drive(cfg, "cycle", "paved", settings, 60.0)
+    ts = truth_series(truth, settings.start_utc_s)
+    first = first_pass(cfg, records, None, "benchmark", stream=_Quiet())
+    learned = first.learned.imu_gain
+    out = {}
+    for way in ("raw", "calibrated"):
+        options = first.second_pass()
+        if way == "raw":
+            options["calibration"] = options["calibration"].model_copy(update={"imu": None})
+        rows = Rows()
+        process(cfg, records, [rows], stream=_Quiet(), **options)
+        fx, _ = force_rms_n(rows.rows, ts, cfg.vehicle.mass_kg)
+        cx = []
+        for w in ("FL", "FR"):
+            fitted = next((r[f"cx_fit_{w}_n"] for r in reversed(rows.rows) if r[f"cx_fit_{w}_n"] is not None), None)
+            true = linear_stiffness_truth(rows.rows, ts, w)
+            if fitted is not None and true:
+                cx.append((fitted / true - 1) * 100)
+        out[way] = (fx, cx)
+    return (learned[0], learned[1]) if learned is not None else None, out
+
+
+def row_imu_pitch() -> list[tuple[str, str, str, str]]:
+    out = []
+    for pitch, grade, seeds in ((1.5, 1.0, (1, 2, 3)), (0.0, 0.0, (1,))):
+        for seed in seeds:
+            learned, ways = _imu_pitch_case(pitch, grade, seed)
+            gain = f"gain {learned[0]:.4f}, offset {learned[1]:+.3f} m/s^2" if learned else "nothing learned"
+            true = (f"true {1 + math.radians(pitch) * math.cos(math.radians(grade)):.4f}, "
+                    f"{9.80665 * math.sin(math.radians(grade)):+.3f}")
+            case = f"{pitch} deg/g, {grade} deg grade, seed {seed}"
+            for way, (fx, cx) in ways.items():
+                out.append(("IMU pitch", f"{case}, two-pass, {way}", f"Fx {fx:.0f} N RMS; Cx front "
+                            + ", ".join(f"{e:+.1f} %" for e in cx), f"{gain} ({true})" if way == "calibrated"
+                            else "accel_source imu (gravity and pitch in it)"))
+    return out
+
+
 def maneuver_rows(scenario: str, road: str, *, imu: bool, brake_switch: bool, wpt_rate_hz: float = 500.0,
                   duration_s: float = 16.0) -> list[tuple[str, str, str, str]]:
     """High-rate slip, mu-slip peak and (braking) the brake-test figures of one simulated maneuver."""
@@ -288,7 +338,8 @@ def row_report_line_seeds() -> list[tuple[str, str, str, str]]:
 
 
 ROWS: dict[str, Callable[[], list[tuple[str, str, str, str]]]] = {
-    "CAN reference": row_can_reference, "IMU": row_imu, "ABS brake": row_abs, "lock and spin": row_beyond,
+    "CAN reference": row_can_reference, "IMU": row_imu, "IMU pitch": row_imu_pitch, "ABS brake": row_abs,
+    "lock and spin": row_beyond,
     "report line Cx": row_report_line, "seeds": row_report_line_seeds,
 }
 

@@ -22,10 +22,10 @@ from slipdaq.config import Config
 from slipdaq.config.calibration import Calibration
 from slipdaq.decode.can_signals import SignalDecoder
 from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.decode.mti_accel import MtiAccel
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.timemark import TimeMark
 from slipdaq.decode.ubx import UbxDecoder
-from slipdaq.decode.xbus import MtiAccel
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
@@ -49,6 +49,8 @@ from slipdaq.records import (
 from slipdaq.sinks import Sink, SinkFanout
 
 DIAGNOSTICS_PERIOD_S = 1.0
+COURSE_MIN_SPEED_MPS = 2.0
+"""A fix's course is the heading of an MTi's FreeAcceleration (without orientation) from this speed on."""
 MERGE_MAX_FRAMES = 8192
 """process_all decodes and estimates at most this many frames of consecutive batches at once."""
 
@@ -196,6 +198,8 @@ class Pipeline:
             fix = replace(fix, speed_mps=self._gps_speeds[self.fixes])
         self.fixes += 1
         self.valid_fixes += bool(fix.valid)
+        if fix.valid and fix.course_deg is not None and fix.speed_mps >= COURSE_MIN_SPEED_MPS:
+            self.xbus.course_deg = fix.course_deg  # the heading of an MTi's FreeAcceleration without orientation
         for e in self.estimator.add_gps(fix):
             self._estimate(e, log_time_s)
         if self.estimator.events:
@@ -215,7 +219,7 @@ class Pipeline:
         elif sample.kind == BRAKE_MARK:
             self.maneuvers.add_brake_mark(sample.time_s)
         elif sample.kind == "imu_accel":
-            self.estimator.add_imu(sample.time_s, sample.value)
+            self.estimator.add_imu(sample.time_s, sample.value, self.xbus.source)
         elif sample.kind == "reference_speed":
             self._fix(GpsFix(sample.time_s, sample.value, None, sample.valid, sentence="CAN",
                              speed_accuracy_mps=sample.accuracy), sample.time_s)

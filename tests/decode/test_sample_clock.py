@@ -65,7 +65,7 @@ def test_a_restarted_sensor_or_a_stepped_host_clock_starts_the_envelope_again() 
 def test_an_imported_capture_keeps_its_stamps_exactly() -> None:
     """Real MTi captures (tests/data/xsens-mti), stamped by the import from the MTi's own UTCTime and SampleTimeFine:
     the estimator's samples take those stamps, not within a rounding of them."""
-    from slipdaq.decode.xbus import MtiAccel
+    from slipdaq.decode.mti_accel import MtiAccel
     from slipdaq.sources.xbus_file import iter_xbus_capture
 
     captures = sorted((Path(__file__).resolve().parents[1] / "data" / "xsens-mti").glob("*/output.bin"))

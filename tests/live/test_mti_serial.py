@@ -15,7 +15,8 @@ import pytest
 
 from slipdaq.cli import main
 from slipdaq.config import ConfigError, load_config, parse_config
-from slipdaq.decode.xbus import XbusDecoder, XbusFramer, forward_accel_mps2
+from slipdaq.decode.mti_accel import forward_without_gravity
+from slipdaq.decode.xbus import XbusDecoder, XbusFramer
 from slipdaq.logformat.reader import iter_estimates, iter_topic
 from slipdaq.logformat.topics import TOPIC_IMU_RAW, TOPIC_SENSORS
 from slipdaq.pipeline import Pipeline
@@ -43,8 +44,8 @@ def test_imu_serial_config_is_checked() -> None:
 @pytest.mark.parametrize("capture", ["1", "2", "3"])
 def test_a_real_capture_is_stamped_from_its_utc_and_decoded_as_its_golden(capture: str) -> None:
     """Every record of the real captures comes back, in order, each packet at its own UTCTime; the pipeline's
-    imu_accel samples are the packets' Acceleration on the chosen axis (the decoder is checked against xsens-go's
-    values in test_xbus.py)."""
+    imu_accel samples, one per packet, are the packets' Acceleration on the chosen axis less gravity by their
+    EulerAngles (the decoder is checked against xsens-go's values in test_xbus.py)."""
     path = CAPTURES / capture / "output.bin"
     records = list(iter_xbus_capture(path))
     assert b"".join(r.data for r in records) == path.read_bytes()
@@ -58,12 +59,18 @@ def test_a_real_capture_is_stamped_from_its_utc_and_decoded_as_its_golden(captur
     cfg = load_config(CONFIG).with_overrides(imu=SERIAL_IMU)
     sink = CollectingSink()
     pipeline = Pipeline(cfg, [sink])
+    sources = []
     for r in records:
+        n = len(sink.sensors)
         pipeline.process(r)
-    expected = [forward_accel_mps2(p, "y", 1) for p in packets if p is not None]
-    assert [s.value for s in sink.sensors] == [a for a in expected if a is not None]
+        sources += [pipeline.xbus.source] * (len(sink.sensors) - n)
+    expected = [forward_without_gravity(p, "y", 1, None) for p in packets if p is not None]
+    assert [(s.value, src) for s, src in zip(sink.sensors, sources)] == [a for a in expected if a is not None]
     assert len(sink.sensors) >= 90 and all(s.kind == "imu_accel" for s in sink.sensors)
-    assert abs(abs(sum(s.value for s in sink.sensors) / len(sink.sensors)) - 9.8) < 0.3  # Y near vertical: g
+    assert sum(src == "imu-orientation" for src in sources) >= 0.95 * len(sources)
+    # Y near vertical: g in its Acceleration (about 9.7 m/s^2), taken out by the EulerAngles: the sensor lay still
+    oriented = [s.value for s, src in zip(sink.sensors, sources) if src == "imu-orientation"]
+    assert abs(sum(oriented) / len(oriented)) < 0.1 and max(abs(v) for v in oriented) < 0.3
 
 
 def test_import_with_an_mti_capture_feeds_the_estimator_and_replays(tmp_path: Path) -> None:

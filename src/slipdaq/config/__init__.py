@@ -187,7 +187,8 @@ class ImuConfig(_CanSignalSection):
     port: str | None = Field(None, min_length=1, description="serial: the MTi's port, e.g. /dev/ttyUSB1")
     baudrate: int = Field(115200, gt=0, description="serial: the MTi port's baud rate")
     protocol: Literal["xbus"] = "xbus"
-    """serial: the MTi's MTData2 messages (Acceleration in the sensor's axes, gravity included)."""
+    """serial: the MTi's MTData2 messages: Acceleration less gravity by the packet's orientation, else
+    FreeAcceleration on the heading, else Acceleration as sent (decode/mti_accel.py)."""
     axis: Literal["x", "y", "z"] = "x"
     """serial: the sensor axis that points forward (backwards: sign = -1)."""
 

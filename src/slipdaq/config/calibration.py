@@ -12,6 +12,8 @@ learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, 
     [host_clock] offset_s (host clock minus UTC, when the fixes carried UTC), learned_at, learned_from
     [r0.FL]      radius_m, se_m, learned_at, learned_from         (one table per wheel)
     [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
+    [imu]        gain, offset_mps2, windows, reference ("can:MSG.SIGNAL" or "serial": the IMU it belongs to),
+                 learned_at, learned_from                          (an IMU without orientation: a = (a_imu - offset)/gain)
 """
 
 from __future__ import annotations
@@ -78,6 +80,22 @@ class StoredStiffness(Provenance):
     confidence: float = Field(ge=0, le=1)
 
 
+class StoredImuGain(Provenance):
+    """An IMU without orientation against the GNSS speed (estimator/imu_gain.py): a_imu = gain*a + offset."""
+
+    gain: float = Field(gt=0.5, lt=2.0)
+    offset_mps2: float = Field(ge=-5.0, le=5.0)
+    windows: int = Field(0, ge=0)
+    """The windows it was fitted over."""
+    reference: str = "can"
+    """The IMU it is the gain of (imu_of): a run with another one does not use it."""
+
+
+def imu_of(config: Config) -> str:
+    """The IMU's identity: "serial" (an MTi), or "can:MESSAGE.SIGNAL"."""
+    return "serial" if config.imu.source == "serial" else f"can:{config.imu.message}.{config.imu.signal}"
+
+
 class Calibration(_Section):
     format: int = CALIBRATION_FORMAT
     vehicle: VehicleIdentity = VehicleIdentity()
@@ -85,10 +103,11 @@ class Calibration(_Section):
     host_clock: StoredClock | None = None
     r0: dict[Wheel, StoredRadius] = {}
     cx: dict[Wheel, StoredStiffness] = {}
+    imu: StoredImuGain | None = None
 
     @property
     def empty(self) -> bool:
-        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx
+        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx and self.imu is None
 
 
 @dataclass(frozen=True)
@@ -102,6 +121,8 @@ class Learned:
     """wheel -> (radius_m, se_m)."""
     cx: dict[str, tuple[float, float]] = field(default_factory=dict)
     """wheel -> (cx_n, confidence)."""
+    imu_gain: tuple[float, float, int] | None = None
+    """(gain, offset_mps2, windows) of an IMU without orientation."""
 
 
 def vehicle_identity(config: Config) -> VehicleIdentity:
@@ -185,9 +206,14 @@ def merged(stored: Calibration | None, learned: Learned, config: Config, learned
     r0 |= {w: StoredRadius(radius_m=r, se_m=se, **prov) for w, (r, se) in learned.r0.items()}
     cx: dict[str, StoredStiffness] = {str(w): v for w, v in base.cx.items()}
     cx |= {w: StoredStiffness(cx_n=c, confidence=conf, **prov) for w, (c, conf) in learned.cx.items()}
+    imu = base.imu
+    if learned.imu_gain is not None:
+        gain, offset, windows = learned.imu_gain
+        imu = StoredImuGain.model_validate({"gain": gain, "offset_mps2": offset, "windows": windows,
+                                            "reference": imu_of(config)} | prov)
     return Calibration.model_validate({
         "vehicle": vehicle_identity(config), "latency": latency, "host_clock": clock,
-        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}})
+        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}, "imu": imu})
 
 
 def reset(cal: Calibration, wheels: list[str] | None) -> Calibration:
@@ -207,6 +233,8 @@ def summary(cal: Calibration) -> str:
         parts.append("r0 " + ", ".join(f"{w} {r.radius_m * 1000:.2f} mm" for w, r in cal.r0.items()))
     if cal.cx:
         parts.append("Cx " + ", ".join(f"{w} {c.cx_n / 1000:.1f} kN" for w, c in cal.cx.items()))
+    if cal.imu is not None:
+        parts.append(f"IMU gain {cal.imu.gain:.4f}, offset {cal.imu.offset_mps2:+.3f} m/s^2")
     return "; ".join(parts) or "nothing learned yet"
 
 
@@ -230,6 +258,10 @@ def show(cal: Calibration, path: str) -> str:
     for w in WHEELS:
         if (c := cal.cx.get(w)) is not None:  # type: ignore[call-overload]  # w is one of the Literal keys
             lines.append(f"  Cx {w}        {c.cx_n / 1000:8.1f} kN (confidence {c.confidence:.2f}), {when(c)}")
+    if cal.imu is not None:
+        i = cal.imu
+        lines.append(f"  IMU {i.reference}  gain {i.gain:.4f}, offset {i.offset_mps2:+.3f} m/s^2 ({i.windows} "
+                     f"windows), {when(i)}")
     if cal.empty:
         lines.append("  nothing learned yet")
     return "\n".join(lines)
@@ -267,15 +299,20 @@ def for_run(path: Path | None, config: Config) -> RunCalibration:
         return RunCalibration(None, None, f"calibration: {path} neither used nor written over: {why} (give another "
                                           f"with --calibration, or `slipdaq calibration reset {path}`)")
     start = usable(cal, config)
-    other = "" if start is cal else f"; its GPS latency is {cal.latency.reference}'s, not used" if cal.latency else ""
+    other = "".join(f"; its {what} is {stored.reference}'s, not used" for what, stored, kept in (
+        ("GPS latency", cal.latency, start.latency), ("IMU gain", cal.imu, start.imu)) if stored and kept is None)
     return RunCalibration(start, path, f"calibration: starting from {path} ({summary(start)}{other})", base=cal)
 
 
 def usable(cal: Calibration, config: Config) -> Calibration:
-    """cal without a latency stored for another reference speed (reference_of): that one stays in the file."""
-    if cal.latency is None or cal.latency.reference == reference_of(config):
-        return cal
-    return cal.model_copy(update={"latency": None})
+    """cal without a latency stored for another reference speed (reference_of), nor an IMU gain stored for another
+    IMU (imu_of): those stay in the file."""
+    update: dict[str, None] = {}
+    if cal.latency is not None and cal.latency.reference != reference_of(config):
+        update["latency"] = None
+    if cal.imu is not None and cal.imu.reference != imu_of(config):
+        update["imu"] = None
+    return cal.model_copy(update=update) if update else cal
 
 
 def for_replay(logged: Calibration | None, path: Path, config: Config) -> RunCalibration:

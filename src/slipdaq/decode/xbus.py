@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
 from slipdaq.decode.framing import arrival_s
-from slipdaq.decode.sample_clock import SampleClock
 from slipdaq.records import XbusBytes
 
 PREAMBLE = 0xFA
@@ -466,26 +465,3 @@ def forward_accel_mps2(packet: MtiPacket, axis: Literal["x", "y", "z"], sign: in
     if accel is None:
         return None
     return sign * accel["xyz".index(axis)]
-
-
-class MtiAccel:
-    """An MTi's forward acceleration per raw record, as the pipeline takes it ([imu] source = "serial"): the
-    Acceleration of each MTData2 packet on `axis`, times `sign`, at the packet's SampleTimeFine placed on the host's
-    clock (decode/sample_clock.py); None for other records or without an IMU on serial."""
-
-    def __init__(self, imu: Any) -> None:
-        self.enabled = getattr(imu, "source", "can") == "serial"
-        self.axis: Literal["x", "y", "z"] = getattr(imu, "axis", "x")
-        self.sign = int(getattr(imu, "sign", 1))
-        self.decoder = XbusDecoder()
-        self.clock = SampleClock()
-
-    def sample(self, record: XbusBytes) -> tuple[float, float] | None:
-        """(time on the host's clock, forward acceleration), or None."""
-        if not self.enabled:
-            return None
-        packet = self.decoder.decode(record)
-        accel = forward_accel_mps2(packet, self.axis, self.sign) if packet is not None else None
-        if packet is None or accel is None:
-            return None
-        return self.clock.place(record.timestamp_s, packet.sample_time_fine), accel

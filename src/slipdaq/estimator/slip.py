@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
@@ -33,6 +34,7 @@ from slipdaq.estimator.fast_slip import FastSlipRows
 from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
+from slipdaq.estimator.imu_gain import SOURCE_RAW, ImuInput
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
 from slipdaq.estimator.linear_region import WindowSpread
 from slipdaq.estimator.params import EstimatorParams
@@ -46,7 +48,6 @@ from slipdaq.estimator.readiness import (
     head_ready,
     scan_samples,
 )
-from slipdaq.estimator.ring import SeriesRing
 from slipdaq.estimator.run_calibration import RunCalibration
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
@@ -92,8 +93,9 @@ class SlipEstimator:
         self.rejected_fixes = 0
         self._head: tuple[int, float, float] | None = None  # the head epoch's readiness constants (_head_consts)
         self._last_epoch_s = -math.inf
-        self._imu = SeriesRing(1024)
-        """IMU sample time -> longitudinal acceleration."""
+        self._imu = ImuInput((stored.imu.gain, stored.imu.offset_mps2)
+                             if stored is not None and stored.imu is not None else None)
+        """The IMU's samples, their source, a raw IMU's stored gain and offset and its gain fit (imu_gain.py)."""
         self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) if params.fast_rate_hz > 0 else None
         self.fast_rows: list[FastSlip] = []
         """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
@@ -164,12 +166,13 @@ class SlipEstimator:
             pos = stop
         return out
 
-    def add_imu(self, time_s: float, accel_mps2: float) -> None:
-        """One IMU sample (longitudinal acceleration, forward positive) on the host's clock; older than the last: dropped."""
-        if time_s > self._imu.last_t and math.isfinite(accel_mps2):
-            self._imu.append(time_s, accel_mps2)
-            if self._fast is not None:
-                self._fast.speed.add_imu(time_s, accel_mps2)
+    def add_imu(self, time_s: float, accel_mps2: float, source: str = SOURCE_RAW) -> None:
+        """One IMU sample (longitudinal acceleration, forward positive) on the host's clock; older than the last: dropped.
+        source: imu (as the sensor read it: gravity and the body's pitch in it), imu-orientation or imu-free (gravity
+        taken out, decode/mti_accel.py)."""
+        kinematic = self._imu.add(time_s, accel_mps2, source)
+        if kinematic is not None and self._fast is not None:
+            self._fast.speed.add_imu(time_s, kinematic)
 
     def take_fast(self) -> list[FastSlip]:
         rows, self.fast_rows = self.fast_rows, []
@@ -247,7 +250,7 @@ class SlipEstimator:
         self._track.drop_before(keep)
         self._grade.altitude.drop_before = keep
         self._windows.drop_before(keep)
-        self._imu.drop_before = keep
+        self._imu.ring.drop_before = keep
         return out
 
     # ---- the estimate -------------------------------------------------------------------------------
@@ -255,7 +258,13 @@ class SlipEstimator:
         p, track, cal = self.p, self._track, self._cal
         smooth = track.smooth_arrivals(self._utc_offset_s)
         i = int(track.speed.times.searchsorted(arrival_s))
-        win = measure_window(p, track, self._grade, self._windows, self._imu, smooth - lat.latency_s, i, lat)
+        fix_arr = smooth - lat.latency_s
+        imu = self._imu
+        win = measure_window(p, track, self._grade, self._windows, imu.ring, fix_arr, i, lat, imu.source,
+                             imu.correction)
+        if not self.frozen:
+            imu.observe(win.imu_raw_mps2, fix_arr, track.speed.values, win.t0, win.t1, win.speed_mps,
+                        lat.source != "none" and not win.disturbed)
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
@@ -276,7 +285,7 @@ class SlipEstimator:
         if self.frozen:
             return Learned()
         lat = self.latency
-        return self._cal.learned(lat, self._utc_offset_s)
+        return replace(self._cal.learned(lat, self._utc_offset_s), imu_gain=self._imu.fit.result())
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
     def _gps_lost(self) -> list[Estimate]:

@@ -10,6 +10,7 @@ import numpy as np
 
 from slipdaq.estimator.force import AltitudeGrade, longitudinal_force_n, tire_forces
 from slipdaq.estimator.gps_track import GpsTrack, integrate_speed_m
+from slipdaq.estimator.imu_gain import SOURCE_CALIBRATED, SOURCE_RAW, ImuCorrection
 from slipdaq.estimator.latency import LatencyEstimate
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2, phase_of
@@ -46,6 +47,8 @@ class Window:
     """The GPS distance slip is taken against: None also where an unknown latency makes a speed change unusable."""
     disturbed: bool
     latency_unknown: bool
+    imu_raw_mps2: float | None = None
+    """The IMU's mean as it read (before an ImuCorrection), None without the IMU."""
 
     def estimate(self, wheels: dict[str, WheelEstimate], lat: LatencyEstimate, window_s: float) -> Estimate:
         if self.disturbed:
@@ -64,14 +67,18 @@ class Window:
 
 
 def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, windows: WheelWindows,
-                   imu: SeriesRing, fix_arr: np.ndarray, i: int, lat: LatencyEstimate) -> Window:
-    """The window centred on fix i (fix_arr: the fixes' times, arrival less latency)."""
+                   imu: SeriesRing, fix_arr: np.ndarray, i: int, lat: LatencyEstimate, imu_source: str = SOURCE_RAW,
+                   correction: ImuCorrection | None = None) -> Window:
+    """The window centred on fix i (fix_arr: the fixes' times, arrival less latency); imu_source: where the IMU's
+    samples come from (accel_source); correction: applied to a raw IMU's mean (accel_source imu-calibrated)."""
     fix_times, speeds = fix_arr.tolist(), track.speed.values.tolist()
     t_c = fix_times[i]
     t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
     speed_c = speeds[i]
-    accel = imu_accel(imu, t0, t1)
-    accel_source = "imu" if accel is not None else "gps"
+    imu_raw = accel = imu_accel(imu, t0, t1)
+    accel_source = imu_source if accel is not None else "gps"
+    if accel is not None and correction is not None and imu_source == SOURCE_RAW:
+        accel, accel_source = correction.apply(accel), SOURCE_CALIBRATED
     if accel is None:
         accel = track.accel(fix_times, speeds, t_c)
     covered = track.covers(fix_times, t0, t1)
@@ -90,7 +97,7 @@ def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, wi
     arcs, gapped = windows.window(t0, t1)
     weight = track.weight(fix_times, t0, t1)
     return Window(t_c, t0, t1, speed, accel, accel_source, force, per_tire, arcs, weight, d_gps, d_slip,
-                  bool(gapped) or gps_gap, latency_unknown)
+                  bool(gapped) or gps_gap, latency_unknown, imu_raw)
 
 
 def imu_accel(ring: SeriesRing, t0: float, t1: float) -> float | None:

@@ -84,7 +84,9 @@ class ColumnGroup:
 
 PHASES = ("standstill", "accelerate", "cruise", "brake")
 QUALITIES = ("ok", "uncalibrated", "disturbed")
-ACCEL_SOURCES = ("imu", "gps")
+ACCEL_SOURCES = ("imu", "gps", "imu-orientation", "imu-free", "imu-calibrated")
+FAST_ACCEL_SOURCES = ACCEL_SOURCES[:2]
+"""The high-rate slip's: imu (the IMU fed its filter, whatever its kind) or gps."""
 
 ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((
@@ -127,7 +129,10 @@ ESTIMATE_COLUMNS: tuple[ColumnGroup, ...] = (
                         "from the tire size or the other wheels); disturbed (a gap in the samples, GPS lost)"),),
                 per_wheel=False, csv="extra"),
     ColumnGroup((Column("accel_source", "accel_source", "enum", ACCEL_SOURCES, "where accel_mps2 comes from: imu "
-                        "(the IMU's mean over the window) or gps (the reference speed's central difference)"),),
+                        "(the IMU's mean over the window, as it read: gravity and the body's pitch in it), "
+                        "imu-orientation (an MTi's Acceleration less gravity by its orientation), imu-free (an MTi's "
+                        "FreeAcceleration on the heading), imu-calibrated (imu corrected by the calibration's gain "
+                        "and offset) or gps (the reference speed's central difference)"),),
                 per_wheel=False, csv="extra"),
     ColumnGroup((Column("window_s", "window_s", "number", description="the window's length"),),
                 per_wheel=False, csv=""),
@@ -148,7 +153,7 @@ FAST_SLIP_COLUMNS: tuple[ColumnGroup, ...] = (
                         "undefined below the minimum speed or without the wheel's samples around the instant"),),
                 per_wheel=True, csv="contract"),
     ColumnGroup((Column("accel_mps2", "accel_mps2", "number", description="the fused longitudinal acceleration"),
-                 Column("accel_source", "accel_source", "enum", ACCEL_SOURCES,
+                 Column("accel_source", "accel_source", "enum", FAST_ACCEL_SOURCES,
                         "imu when the IMU's samples fed the filter, else gps")), per_wheel=False, csv=""),
     ColumnGroup((Column("wheel_speed_{w}_mps", "speed_mps", "number?",
                         description="circumferential speed omega*r0 of the {w} wheel at the instant"),),

@@ -11,6 +11,8 @@ CAN sensors (each only with its SimSettings rate > 0 and the config naming its m
        Their frames arrive with CAN jitter from their own generator; the WPT's random draws are not disturbed.
 MTi:   with [imu] source = "serial", the IMU's samples (the same values and arrival jitter) are an Xsens MTi's MTData2
        messages instead (XbusBytes; xbus_encode.SimulatedMti), not affected by a CAN stall.
+Pitch: with pitch_deg_per_g or grade_deg, the IMUs read the pitched body's specific force (sim/pitch.py): the CAN
+       IMU a*cos(theta) + g*sin(theta + grade), the MTi its tilted axes' with its Quaternion.
 Truth: a TruthSample every 10 ms, at every GPS epoch and at the brake's press (where the model knows it).
 Event times are seconds since the simulation start; record timestamps are start_utc_s + time_s.
 Stall: with SimSettings.can_stall, frames are stamped when a stalled reader reads them (_StalledReader).
@@ -34,6 +36,7 @@ from slipdaq.config import Config
 from slipdaq.decode.can_wheels import load_dbc
 from slipdaq.records import CanFrame, NmeaLine, UbxFrame, XbusBytes
 from slipdaq.sim import Scenario
+from slipdaq.sim.pitch import BodyPitch
 from slipdaq.sim.scenarios import vehicle_model
 from slipdaq.sim.sensors import SensorEncoder
 from slipdaq.sim.vehicle import Road, TruthSample
@@ -97,6 +100,10 @@ class SimSettings:
     brake_timemark_edge: str | None = None
     """"rising" or "falling": the GPS stream carries a UBX TIM-TM2 time mark of the brake's press as this edge (the
     brake-light switch on the receiver's EXTINT pin); None: no time mark."""
+    pitch_deg_per_g: float = 0.0
+    """The body's pitch per g of acceleration, nose up accelerating (sim/pitch.py): in the IMUs' readings."""
+    grade_deg: float = 0.0
+    """The road's grade as the IMUs see it (sim/pitch.py; the vehicle model's road stays level)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -326,7 +333,8 @@ def generate(
     encoder = WptEncoder(config)
     wants_sensors = settings.imu_rate_hz > 0 or settings.brake_rate_hz > 0 or settings.ref_speed_rate_hz > 0
     sensors = SensorEncoder(config) if wants_sensors else None
-    mti = SimulatedMti(config.imu.axis, config.imu.sign, settings.start_utc_s, settings.heading_deg) \
+    body = BodyPitch(settings.pitch_deg_per_g, settings.grade_deg)
+    mti = SimulatedMti(config.imu.axis, config.imu.sign, settings.start_utc_s, settings.heading_deg, body) \
         if config.imu.source == "serial" and settings.imu_rate_hz > 0 else None
     imu_rate_hz = settings.imu_rate_hz if mti is not None or (sensors is not None and sensors.imu is not None) else 0.0
     brake_rate_hz = settings.brake_rate_hz if sensors is not None and sensors.brake is not None else 0.0
@@ -408,9 +416,10 @@ def generate(
                 accel_mps2 = sim.state.accel_mps2 + float(imu_rng.normal(0.0, settings.imu_noise_mps2))
                 arrival_s = t + sensor_jitter.next_s()
                 if mti is not None:
-                    push(arrival_s, XbusBytes(host_t0_s + arrival_s, mti.message(t, accel_mps2)))
+                    push(arrival_s, XbusBytes(host_t0_s + arrival_s, mti.message(t, accel_mps2, sim.state.accel_mps2)))
                 else:
-                    push_can(arrival_s, partial(sensors.imu_frame, accel_mps2=accel_mps2))
+                    reading = body.forward_reading(sim.state.accel_mps2, accel_mps2) if body.active else accel_mps2
+                    push_can(arrival_s, partial(sensors.imu_frame, accel_mps2=reading))
                 n_imu += 1
                 t_imu = _instant(n_imu, imu_rate_hz)
             if t_brake == t:

@@ -31,10 +31,12 @@ from slipdaq.decode.xbus import (
     UtcTime,
     xbus_message,
 )
+from slipdaq.sim.pitch import BodyPitch, cross, quaternion_of
 
 XDI_UTC_TIME = 0x1010
 XDI_PACKET_COUNTER = 0x1020
 XDI_SAMPLE_TIME_FINE = 0x1060
+XDI_QUATERNION = 0x2010
 XDI_ACCELERATION = 0x4020
 XDI_FREE_ACCELERATION = 0x4030
 _INTS = {0x1020: ">H", 0x1060: ">I", 0x1070: ">I", 0x3010: ">I", 0xE010: ">B", 0xE020: ">I"}
@@ -99,16 +101,18 @@ def _civil(days: int) -> tuple[int, int, int]:
 
 def mti_message(packet_counter: int, sample_time_fine: int, acceleration_mps2: Sequence[float],
                 utc: UtcTime | float | None = None, free_acceleration_mps2: Sequence[float] | None = None,
-                precision: int = FLOAT32) -> bytes:
+                precision: int = FLOAT32, quaternion: Sequence[float] | None = None) -> bytes:
     """The simulated MTi's MTData2 message: PacketCounter (mod 2^16), SampleTimeFine (10 kHz ticks, mod 2^32),
-    UTCTime where `utc` is given (as sent, or seconds since the Unix epoch: valid), Acceleration and FreeAcceleration
-    in `precision` (Float32: as an MTi sends by default)."""
+    UTCTime where `utc` is given (as sent, or seconds since the Unix epoch: valid), Quaternion (ENU) where given,
+    Acceleration and FreeAcceleration in `precision` (Float32: as an MTi sends by default)."""
     if len(acceleration_mps2) != 3 or not all(math.isfinite(v) for v in acceleration_mps2):
         raise ValueError(f"acceleration_mps2 must be three finite values, not {acceleration_mps2!r}")
     items = [encode_item(XDI_PACKET_COUNTER, packet_counter % (1 << 16)),
              encode_item(XDI_SAMPLE_TIME_FINE, sample_time_fine % (1 << 32))]
     if utc is not None:
         items.append(encode_item(XDI_UTC_TIME, utc if isinstance(utc, UtcTime) else utc_time(utc)))
+    if quaternion is not None:
+        items.append(encode_item(XDI_QUATERNION | precision, tuple(quaternion)))
     items.append(encode_item(XDI_ACCELERATION | precision, tuple(acceleration_mps2)))
     if free_acceleration_mps2 is not None:
         items.append(encode_item(XDI_FREE_ACCELERATION | precision, tuple(free_acceleration_mps2)))
@@ -124,23 +128,48 @@ class SimulatedMti:
     Its messages carry the forward acceleration a as Acceleration (a * sign on the forward axis, +g on the up one: an
     accelerometer's specific force in the sensor's axes) and FreeAcceleration (gravity taken out, in ENU: a along the
     heading), PacketCounter counting from 0, SampleTimeFine the sim time, UTCTime the true UTC (start_utc_s + sim
-    time)."""
+    time). With a BodyPitch (sim/pitch.py), the sensor pitches with the body and the road's grade: its Acceleration is
+    the specific force in its tilted axes, FreeAcceleration the acceleration along the road, and it sends its
+    orientation as a Quaternion."""
 
-    def __init__(self, axis: str, sign: int, start_utc_s: float, heading_deg: float) -> None:
+    def __init__(self, axis: str, sign: int, start_utc_s: float, heading_deg: float,
+                 pitch: BodyPitch | None = None) -> None:
         self.forward = "xyz".index(axis)
         self.up = 2 if axis != "z" else 0
         self.sign = sign
         self.start_utc_s = start_utc_s
         self.east_north = (math.sin(math.radians(heading_deg)), math.cos(math.radians(heading_deg)))
+        self.heading_deg = heading_deg
+        self.pitch = pitch or BodyPitch()
         self.count = 0
 
-    def message(self, time_s: float, accel_mps2: float) -> bytes:
-        """The message of the sample at sim time time_s."""
+    def message(self, time_s: float, accel_mps2: float, true_accel_mps2: float | None = None) -> bytes:
+        """The message of the sample at sim time time_s (true_accel_mps2: the acceleration without the sensor's
+        noise, which the body pitches by; default accel_mps2)."""
+        if self.pitch.active:
+            return self._pitched(time_s, accel_mps2, accel_mps2 if true_accel_mps2 is None else true_accel_mps2)
         acc = [0.0, 0.0, 0.0]
         acc[self.forward] = self.sign * accel_mps2
         acc[self.up] += GRAVITY_MPS2
         east, north = self.east_north
         msg = mti_message(self.count, round(time_s * TICKS_PER_S), acc, utc=self.start_utc_s + time_s,
                           free_acceleration_mps2=(accel_mps2 * east, accel_mps2 * north, 0.0))
+        self.count += 1
+        return msg
+
+    def _pitched(self, time_s: float, accel_mps2: float, true_accel_mps2: float) -> bytes:
+        forward, up = self.pitch.body_axes(true_accel_mps2, self.heading_deg)
+        axes: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 3
+        axes[self.forward] = (self.sign * forward[0], self.sign * forward[1], self.sign * forward[2])
+        axes[self.up] = up
+        k = 3 - self.forward - self.up
+        axes[k] = cross(axes[(k + 1) % 3], axes[(k + 2) % 3])
+        free = self.pitch.free_acceleration(accel_mps2, self.heading_deg)
+        specific = (free[0], free[1], free[2] + GRAVITY_MPS2)
+        acc = [sum(e[i] * specific[i] for i in range(3)) for e in axes]
+        rot = ((axes[0][0], axes[1][0], axes[2][0]), (axes[0][1], axes[1][1], axes[2][1]),
+               (axes[0][2], axes[1][2], axes[2][2]))
+        msg = mti_message(self.count, round(time_s * TICKS_PER_S), acc, utc=self.start_utc_s + time_s,
+                          free_acceleration_mps2=free, quaternion=quaternion_of(rot))
         self.count += 1
         return msg
