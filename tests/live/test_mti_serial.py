@@ -203,7 +203,10 @@ def test_the_live_daemon_reads_an_mti_on_a_pseudo_terminal(tmp_path: Path) -> No
     packets = [p for r in framer.feed(bytes(written), 0.0) if (p := decoder.decode(r)) is not None]
     assert len(imu) <= len(packets)  # the last few may come after the run's end
     off = [d["time_s"] - p.sample_time_fine / 10_000 for d, p in zip(imu, packets)][100:]
-    assert np.percentile(off, 98) - np.percentile(off, 2) < 0.002  # by read time: 3.5-3.9 ms on a quiet machine
+    # by read time they spread 3.5-3.9 ms on a quiet machine; placed, the 2nd to 98th percentile spread 0.4 ms there,
+    # and on a host so busy that the envelope starts again (stalls over a second) most still share one delay
+    near = np.abs(np.asarray(off) - np.median(off)) < 0.001
+    assert near.mean() >= 0.8, f"{near.mean():.0%} of the samples within 1 ms of the median delay"
     rows = [r for r in iter_estimates(log) if r["speed_mps"] > 5 and r["force_n"] is not None]
     # the writer shares the daemon's event loop here: on a busy machine it stalls and its messages come late in a
     # burst, after a window that needed them was estimated; that window, its IMU samples short of its end by more

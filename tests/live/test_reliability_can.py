@@ -289,6 +289,7 @@ def test_can_faults_on_a_live_bus(tmp_path) -> None:  # type: ignore[no-untyped-
     cfg = demo_config(str(tmp_path / "no-gps"), channel)
     status = io.StringIO()
     injected = {"error": 0, "unknown": 0, "short": 0, "gaps": {w: 0 for w in WHEELS}}
+    sent = asyncio.Event()
 
     async def send(bus: can.BusABC) -> None:
         for k in range(160):
@@ -307,13 +308,15 @@ def test_can_faults_on_a_live_bus(tmp_path) -> None:  # type: ignore[no-untyped-
                 injected["unknown"] += 1
                 injected["short"] += 1
             await asyncio.sleep(0.01)
+        await asyncio.sleep(0.5)  # what was sent read and decided, however busy the host
+        sent.set()
 
     async def run():  # type: ignore[no-untyped-def]
         with open_bus(cfg) as daemon_bus, can.Bus(interface="virtual", channel=channel) as sender:
             async with asyncio.TaskGroup() as tg:
                 tg.create_task(send(sender))
-                return await run_daemon(cfg, daemon_bus, new_log_path(tmp_path, "can"), duration_s=2.2,
-                                        status_stream=status, status_every_s=0.5)
+                return await run_daemon(cfg, daemon_bus, new_log_path(tmp_path, "can"), duration_s=60.0,
+                                        status_stream=status, status_every_s=0.5, stop=sent)
 
     result = asyncio.run(run())
     d = [d for _, _, d in iter_topic(result.log_path, (TOPIC_DIAGNOSTICS,))][-1]

