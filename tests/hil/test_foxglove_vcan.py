@@ -73,6 +73,9 @@ DURATION_S = 14.0
 1.5 s after its last window, must come), then the car stands."""
 GPS_LINK = "/tmp/hil-gps-foxglove"
 TOPIC_ESTIMATE, TOPIC_GPS_LOCATION, TOPIC_MANEUVER = "/estimate", "/gps/location", "/maneuver"
+TOPIC_TEST_SET = "/test_set"
+PROCEDURE = "brake 90-0"
+"""The daemon's config declares this procedure: the stop is its run (or is excluded from it, with why)."""
 CONNECT_TIMEOUT_S = 120.0
 MANEUVER_WAIT_S = 180.0
 """After the daemon has processed every frame sent: how long the stop's maneuver may still take to reach the client
@@ -138,6 +141,8 @@ async def _live_run(zygote: Zygote, d: Path) -> tuple[str, DaemonResult, dict[st
     t0 = time.monotonic()
     times: dict[str, float] = {}
     cfg = write_config(d, GPS_LINK)
+    cfg.write_text(cfg.read_text() + f'\n[[test.procedure]]\nname = "{PROCEDURE}"\nkind = "brake"\n'
+                                      "target_speed_kmh = 90.0\nruns = 1\n")
     daemon = FoxgloveDaemon(zygote, cfg, d / "logs")
     go = d / "client-subscribed"  # the sender starts once the client is subscribed (and the daemon reads the pty)
     sender = start_sender(RATE_HZ, DURATION_S, go=str(go), delay_s=1.5, drive=d / "drive.json",
@@ -297,6 +302,17 @@ def test_the_stop_s_maneuver_arrives_live(run: Run) -> None:
     assert kinds[:len(decided)] == decided, f"live {kinds}, decided during the run {decided}"
     brake = next(m for m in maneuvers if m["kind"] == "brake")
     assert brake["speed_to_kmh"] < 5.0 < brake["speed_from_kmh"], brake  # a stop
+
+
+def test_the_stop_fills_its_test_set_live(run: Run) -> None:
+    """The stop's test set reached the client live: the procedure's /test_set record after its run, counted or
+    excluded with its reason, each record one of the log's."""
+    sets = _live_and_valid(run, TOPIC_TEST_SET)
+    report(f"foxglove: /test_set live {[(s['procedure'], s['runs_valid'], s['excluded']) for s in sets]}")
+    assert sets, f"no /test_set live; logged {len(run.logged.get(TOPIC_TEST_SET, []))}"
+    last = sets[-1]
+    assert last["procedure"] == PROCEDURE and last["kind"] == "brake"
+    assert last["runs_valid"] + len(last["excluded"]) >= 1, last
 
 
 def _runs(values: list[Any]) -> list[tuple[Any, int]]:
