@@ -29,7 +29,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
 from slipdaq.fleet.storage import FleetError, UrlStore, expand_logs, is_url
 from slipdaq.fleet.task import (
@@ -52,6 +52,8 @@ from slipdaq.fleet.task import (
 from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
+
+T = TypeVar("T")
 
 __all__ = ["BatchResult", "ClientTime", "FleetError", "Job", "LogResult", "failure", "process_log", "run_batch"]
 
@@ -298,6 +300,13 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                 succeeded(cached, cached=True)
         skipped = set(results)
         clock.planning_s = time.perf_counter() - t0
+
+        def finish() -> Path | str | None:  # the report's tables and page over every log that succeeded
+            with clock.timing("report_s"):
+                summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
+                             for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
+                return report.finish(summaries)
+
         if todo:
             def ok(r: LogResult) -> None:
                 if clock.first_result_s is None:
@@ -305,13 +314,12 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                 clock.tasks_s += r.seconds
                 succeeded(r, cached=False)
 
-            failed += _run_tasks(todo, out, inputs, scheduler, workers, stream, ok,
-                                 lambda r: progress.line(f"FAILED {failure(r)}"), clock)
-        with clock.timing("report_s"):
-            order = [j.name for j in jobs if j.name in results]
-            summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
-                         for n in order if (s := results[n].summary) is not None]
-            index = report.finish(summaries)
+            lost, index = _run_tasks(todo, out, inputs, scheduler, workers, stream, ok,
+                                     lambda r: progress.line(f"FAILED {failure(r)}"), clock, finish)
+            failed += lost
+        else:
+            index = finish()
+        order = [j.name for j in jobs if j.name in results]
     rank = {str(log): i for i, log in enumerate(logs)}
     failed.sort(key=lambda r: rank.get(r.path, 0))
     clock.total_s = time.perf_counter() - t0
@@ -322,14 +330,17 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
 
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str | None, workers: int | None,
                stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None],
-               clock: ClientTime) -> list[LogResult]:
+               clock: ClientTime, then: Callable[[], T]) -> tuple[list[LogResult], T]:
     """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
     holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
-    first where the task could not write DIR) or `bad` as it comes; returns the failures. Each step's time goes to
-    the clock."""
+    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report) on a thread
+    while the cluster stops. Returns the failures and what `then` returned. Each step's time goes to the clock."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from slipdaq.fleet.cluster import connect
 
     failed: list[LogResult] = []
+    after = ThreadPoolExecutor(1, thread_name_prefix="slipdaq-batch-report")
     t = time.perf_counter()
     with connect(scheduler, workers) as client:
         clock.cluster_start_s += time.perf_counter() - t
@@ -377,9 +388,13 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
                 else:
                     failed.append(r)
                     bad(r)
+        last = after.submit(then)
         t = time.perf_counter()
     clock.cluster_stop_s += time.perf_counter() - t
-    return failed
+    try:
+        return failed, last.result()
+    finally:
+        after.shutdown()
 
 
 def _task_lost(e: BaseException) -> str:
