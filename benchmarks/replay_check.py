@@ -320,9 +320,14 @@ def _verdict(diff: str) -> str:
     return "identical" if not diff else diff if diff.startswith("same:") else "DIFFERENT: " + diff
 
 
+PROGRESS = re.compile(r"^[\w ]+: \d+(/\d+)? messages\n", re.MULTILINE)
+"""A progress line (one every 5 s of the run: how many depends on the machine's speed)."""
+
+
 def run(side: str, env: dict[str, str], args: list[str], cwd: Path) -> tuple[int, str]:
+    """The exit status and the output, without the progress lines."""
     p = subprocess.run([sys.executable, "-m", "slipdaq", *args], env=env, cwd=cwd, capture_output=True, text=True)
-    return p.returncode, (p.stdout + p.stderr).replace(f"-{side}.mcap", "-SIDE.mcap")
+    return p.returncode, PROGRESS.sub("", p.stdout + p.stderr).replace(f"-{side}.mcap", "-SIDE.mcap")
 
 
 def main() -> int:
