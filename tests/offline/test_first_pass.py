@@ -10,14 +10,14 @@ from typing import Any
 
 import pytest
 
-from conftest import CONFIG
-from slipdaq.calibration import Learned, StoredLatency, merged
 from slipdaq.config import Config, load_config
-from slipdaq.offline import batched, first_pass, read_ahead
+from slipdaq.config.calibration import Learned, StoredLatency, merged
+from slipdaq.offline.run import batched, first_pass, read_ahead
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import Estimate, SourceEvent
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sinks import Sink
+from support.paths import CONFIG
 
 
 class _Kept(Sink):
