@@ -173,8 +173,9 @@ def main() -> int:
         (work / "logs").mkdir()
         t = time.perf_counter()
         oldest = list(trees.values())[-1]  # the base's logs: the newer tree reads them, not the other way round
-        subprocess.run([sys.executable, __file__, "--make-logs", str(work / "logs"), "--logs", str(a.logs),
-                        "--seconds", str(a.seconds)], check=True, env=dict(os.environ, PYTHONPATH=python_path(oldest)))
+        subprocess.run([sys.executable, "-m", "benchmarks.batch_scaling", "--make-logs", str(work / "logs"), "--logs",
+                        str(a.logs), "--seconds", str(a.seconds)], check=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=python_path(oldest)))
         logs = sorted((work / "logs").glob("*.mcap"))
         size = sum(p.stat().st_size for p in logs)
         print(f"{a.logs} logs of {a.seconds:g} s ({size / 1e6:.0f} MB) made in {time.perf_counter() - t:.0f} s",

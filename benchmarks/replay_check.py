@@ -352,8 +352,8 @@ def main() -> int:
     env_new = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     if not list(work.glob("in-*.mcap")):
         print(f"writing the input logs with {a.base} in {work} ...", flush=True)
-        subprocess.run([sys.executable, __file__, "--make-inputs", str(work)] + (["--quick"] if a.quick else []),
-                       env=env_base, check=True)
+        subprocess.run([sys.executable, "-m", "benchmarks.replay_check", "--make-inputs", str(work)]
+                       + (["--quick"] if a.quick else []), env=env_base, check=True, cwd=ROOT)
         for side, env in (("base", env_base), ("new", env_new)):
             (work / "calibration.toml").unlink(missing_ok=True)  # each side starts cold (import saves what it learned)
             code, text = run(side, env, ["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea",
