@@ -51,12 +51,17 @@ print(frames)
 """
 
 
+def python_path(src: Path) -> str:
+    """PYTHONPATH for a side: its src first, then what PYTHONPATH held (packages installed elsewhere)."""
+    return os.pathsep.join([str(src), *filter(None, [os.environ.get("PYTHONPATH")])])
+
+
 def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float]:
     """(wall s, CPU s of the child) of one `python -m slipdaq replay`."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(out), *flags], check=True,
-                   env=dict(os.environ, PYTHONPATH=str(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                   env=dict(os.environ, PYTHONPATH=python_path(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -80,7 +85,7 @@ def main() -> int:
     frames_file = raw.with_suffix(".frames")
     if not raw.exists():
         made = subprocess.run([sys.executable, "-c", MAKE_LOG, str(raw), str(a.seconds), str(a.rate_hz)], check=True,
-                              env=dict(os.environ, PYTHONPATH=str(sides[f"base {base}"])), capture_output=True,
+                              env=dict(os.environ, PYTHONPATH=python_path(sides[f"base {base}"])), capture_output=True,
                               text=True)
         frames_file.write_text(made.stdout.strip().splitlines()[-1])
     frames = int(frames_file.read_text())
