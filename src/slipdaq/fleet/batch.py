@@ -9,7 +9,8 @@ this machine) the task itself, into DIR; on a cluster of --scheduler this proces
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
 worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: each
-log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last.
+log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
+on a thread while the cluster stops. Where the time went is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -72,8 +73,9 @@ class ClientTime:
     collecting_s: float = 0.0
     """Each result taken: saved where the task could not, its plots placed in the report, its line printed."""
     report_s: float = 0.0
-    """The report's tables and page after the last result."""
+    """The report's tables and page after the last result (on a thread, while the cluster stops)."""
     cluster_stop_s: float = 0.0
+    """The local cluster stopped (or the scheduler left)."""
     first_result_s: float | None = None
     """From run_batch's start to the first task's result."""
     tasks_s: float = 0.0
