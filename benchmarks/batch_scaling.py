@@ -1,15 +1,19 @@
 #!/usr/bin/env python3
 """`slipdaq batch` over the same logs with 1, 2, 4, ... workers (a local cluster), as whole processes: how it scales
-with cores. Figures for docs/performance.md, measured on a machine with as many cores as the largest worker count.
+with cores, and its serial part. Figures for docs/performance.md.
 
 The logs (cycle and brake drives on paved and sand, labelled road=...) are made once, in parallel, not timed, by the
 base where one is given (its logs are what both trees read). Each
 run is `python -m slipdaq batch LOGS -o DIR --workers N` from an empty DIR (interpreter start, cluster start and the
 report included), after one untimed run of each tree over two logs (numba's cache filled, as on a machine in
 use). From its progress lines on stderr: when the first log finished, and how long the process took after
-the last log finished (the report's tables and page, the cluster's stop). With --base REV (a source tree, or a git
+the last log finished (the report's tables and page, the cluster's stop); from its last line (BatchResult.client):
+the tasks' own times summed, and what the process did outside waiting on them: its start (interpreter, imports, the
+exit: the process's wall time less run_batch's), the cluster's start (workers warm), planning, taking the results,
+the report, the cluster's stop. The serial part is all of that; its share of the 1-worker run (serial / (serial +
+tasks)) gives Amdahl's speed-up at 16 and 64 workers, a projection. With --base REV (a source tree, or a git
 revision unpacked by base_revision), the same runs of that revision for the worker counts of --base-workers,
-interleaved with this tree's.
+interleaved with this tree's (a base without that last line has no serial columns).
 
     python -m benchmarks.batch_scaling [--logs 128] [--seconds 15] [--workers 1,2,4,8,16] [--base DIR|REV]
                                        [--base-workers 16] [--write]
@@ -20,6 +24,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -57,10 +62,24 @@ def make_log(args: tuple[Path, int, float]) -> Path:
     return path
 
 
+CLIENT = re.compile(r"batch: ([\d.]+) s in the tasks \(summed\), ([\d.]+) s in all; outside the tasks ([\d.]+) s: "
+                    r"cluster start ([\d.]+) s, planning ([\d.]+) s, results ([\d.]+) s, report ([\d.]+) s, "
+                    r"cluster stop ([\d.]+) s")
+"""The batch's last stderr line (fleet.ClientTime.line)."""
+PARTS = ("start", "cluster start", "planning", "results", "report", "cluster stop")
+"""The serial part's parts, in the table's order."""
+
+
+def python_path(src: Path) -> str:
+    """PYTHONPATH for a tree: its src first, then what PYTHONPATH held (packages installed elsewhere)."""
+    return os.pathsep.join([str(src), *filter(None, [os.environ.get("PYTHONPATH")])])
+
+
 def run_batch(src: Path, logs: list[Path], out: Path, workers: int) -> dict[str, float]:
-    """One `slipdaq batch` process: wall time, first log finished, after the last log finished (seconds)."""
+    """One `slipdaq batch` process: wall time, first log finished, after the last log finished (seconds); with the
+    client's line: the tasks summed, the serial part and its parts (PARTS)."""
     shutil.rmtree(out, ignore_errors=True)
-    env = dict(os.environ, PYTHONPATH=str(src), PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONPATH=python_path(src), PYTHONUNBUFFERED="1")
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "slipdaq", "batch", *map(str, logs), "-o", str(out),
                              "--workers", str(workers)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
@@ -68,28 +87,56 @@ def run_batch(src: Path, logs: list[Path], out: Path, workers: int) -> dict[str,
     assert proc.stderr is not None
     done: list[float] = []
     tail: list[str] = []
+    client = None
     for line in proc.stderr:
         if line.startswith("batch: ["):
             done.append(time.perf_counter() - t0)
+        client = CLIENT.match(line) or client
         tail = (tail + [line])[-5:]
     rc = proc.wait()
     wall = time.perf_counter() - t0
     if rc != 0 or len(done) != len(logs):
         raise SystemExit(f"batch --workers {workers} ({src}) exit {rc}, {len(done)} of {len(logs)} logs:\n"
                          + "".join(tail))
-    return {"wall": wall, "first": done[0], "after_last": wall - done[-1]}
+    r = {"wall": wall, "first": done[0], "after_last": wall - done[-1]}
+    if client:
+        tasks, total, outside, *parts = map(float, client.groups())
+        r |= {"tasks": tasks, "serial": wall - total + outside, "start": wall - total} | dict(zip(PARTS[1:], parts))
+    return r
+
+
+def amdahl(serial_share: float, workers: int) -> float:
+    """Amdahl's law: the speed-up over one worker at `workers` when serial_share of the 1-worker run is serial."""
+    return 1.0 / (serial_share + (1.0 - serial_share) / workers)
 
 
 def table(runs: dict[tuple[str, int], dict[str, float]], n: int) -> str:
     lines = ["| tree | workers | wall time | logs/s | × 1 worker (same tree) | efficiency | first log done | "
-             "after the last log |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "after the last log | tasks summed | serial part | serial / tasks | "
+             + " | ".join(PARTS) + " |", "|---|" + "---:|" * (11 + len(PARTS))]
     for (tree, w), r in sorted(runs.items(), key=lambda kv: (kv[0][0] != "this tree", kv[0][1])):
         one = runs.get((tree, 1))
         speedup = f"{one['wall'] / r['wall']:.2f}×" if one else "–"
         eff = f"{one['wall'] / r['wall'] / w:.2f}" if one else "–"
+        serial = (f"{r['tasks']:.1f} s | {r['serial']:.2f} s | {100 * r['serial'] / r['tasks']:.1f} % | "
+                  + " | ".join(f"{r[p]:.2f} s" for p in PARTS)) if "tasks" in r else " | ".join(["–"] * (3 + len(PARTS)))
         lines.append(f"| {tree} | {w} | {r['wall']:.1f} s | {n / r['wall']:.2f} | {speedup} | {eff} | "
-                     f"{r['first']:.1f} s | {r['after_last']:.1f} s |")
+                     f"{r['first']:.1f} s | {r['after_last']:.1f} s | {serial} |")
     return "\n".join(lines)
+
+
+def projection(runs: dict[tuple[str, int], dict[str, float]]) -> str:
+    """Amdahl's speed-up at 16 and 64 workers from each tree's 1-worker run: serial share = serial / (serial +
+    tasks)."""
+    out = []
+    for (tree, w), r in sorted(runs.items(), key=lambda kv: kv[0][0] != "this tree"):
+        if w != 1 or "tasks" not in r:
+            continue
+        f = r["serial"] / (r["serial"] + r["tasks"])
+        out.append(f"{tree}, 1 worker: serial part {r['serial']:.2f} s against {r['tasks']:.1f} s of tasks, a serial "
+                   f"share of {100 * f:.2f} %; Amdahl's law allows (a projection, not a measurement) "
+                   f"{amdahl(f, 16):.1f}× at 16 workers and {amdahl(f, 64):.1f}× at 64.")
+    return "\n".join(out)
 
 
 def main() -> int:
@@ -119,15 +166,16 @@ def main() -> int:
         trees["base " + (a.base if not Path(a.base).is_dir() else base.parent.name)] = base
     for tree, src in trees.items():  # each tree's slipdaq, not an installed one
         got = subprocess.run([sys.executable, "-c", "import slipdaq; print(slipdaq.__file__)"], capture_output=True,
-                             text=True, env=dict(os.environ, PYTHONPATH=str(src))).stdout.strip()
+                             text=True, env=dict(os.environ, PYTHONPATH=python_path(src))).stdout.strip()
         if not Path(got).resolve().is_relative_to(src.resolve()):
             raise SystemExit(f"{tree}: slipdaq comes from {got}, not {src}")
     try:
         (work / "logs").mkdir()
         t = time.perf_counter()
         oldest = list(trees.values())[-1]  # the base's logs: the newer tree reads them, not the other way round
-        subprocess.run([sys.executable, __file__, "--make-logs", str(work / "logs"), "--logs", str(a.logs),
-                        "--seconds", str(a.seconds)], check=True, env=dict(os.environ, PYTHONPATH=str(oldest)))
+        subprocess.run([sys.executable, "-m", "benchmarks.batch_scaling", "--make-logs", str(work / "logs"), "--logs",
+                        str(a.logs), "--seconds", str(a.seconds)], check=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=python_path(oldest)))
         logs = sorted((work / "logs").glob("*.mcap"))
         size = sum(p.stat().st_size for p in logs)
         print(f"{a.logs} logs of {a.seconds:g} s ({size / 1e6:.0f} MB) made in {time.perf_counter() - t:.0f} s",
@@ -141,14 +189,15 @@ def main() -> int:
                     continue
                 runs[(tree, w)] = r = run_batch(src, logs, work / "out", w)
                 print(f"{tree}, {w} workers: {r['wall']:.1f} s (first log {r['first']:.1f} s, after the last "
-                      f"{r['after_last']:.1f} s)", flush=True)
+                      f"{r['after_last']:.1f} s" + (f", tasks {r['tasks']:.1f} s, serial {r['serial']:.2f} s: "
+                      + ", ".join(f"{p} {r[p]:.2f} s" for p in PARTS) if "tasks" in r else "") + ")", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     block = (f"**Run.** `python -m benchmarks.batch_scaling --logs {a.logs} --seconds {a.seconds:g} --workers "
              f"{a.workers}" + (f" --base {a.base} --base-workers {a.base_workers}" if a.base else "")
              + f"` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of {a.seconds:g} s "
-             f"({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(runs, a.logs))
+             f"({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(runs, a.logs) + "\n\n" + projection(runs))
     print(block)
     if a.write:
         write_block(DOC, BEGIN, END, "Batch scaling with cores", block)

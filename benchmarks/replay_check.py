@@ -18,7 +18,10 @@ the same order, floats bit for bit, /slip/fast row by row however its rows are c
 estimates, fixes, wheel samples and diagnostics equal those the live pipeline logged when it wrote the input
 (live = replay, whatever the batching).
 
-    python -m benchmarks.replay_check [--base REV] [--work /tmp/replay-check] [--quick] [--values]
+With --two-pass each log is replayed `--two-pass` by both sides instead (the second pass's log compared; the live
+run is not compared with it, which the two-pass replay changes on purpose).
+
+    python -m benchmarks.replay_check [--base REV] [--work /tmp/replay-check] [--quick] [--values] [--two-pass]
 
 REV defaults to the merge base of HEAD with main.
 """
@@ -30,6 +33,7 @@ import json
 import os
 import pickle
 import random
+import re
 import shutil
 import subprocess
 import sys
@@ -44,6 +48,9 @@ BENCH = ROOT / "benchmarks"
 RAV4 = ROOT / "tests" / "data" / "rav4-comma2k19"
 EXCLUDED_METADATA = ("created_utc",)
 """Metadata keys whose value names the time of the run (not compared; same length, so the file offsets agree)."""
+LEARNED_AT = re.compile(r'learned_at = "\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ"')
+"""The time a calibration value was learned, in a two-pass replay's calibration_toml (the first pass's: the time of
+the run; not compared, the same length)."""
 
 
 # ---- inputs (run under the base's code) ----------------------------------------------------------
@@ -322,11 +329,14 @@ def compare(a: Path, b: Path, values: bool = False) -> str:
         va, vb = ma.get("slipdaq", {}).get(key), mb.get("slipdaq", {}).get(key)
         if va is not None and vb is not None and len(va) == len(vb):
             da, db = _mask(da, va), _mask(db, vb)
+    da, db = (LEARNED_AT.sub(lambda m: "X" * len(m.group()), d.decode("latin-1")).encode("latin-1") for d in (da, db))
     if da == db:
         return ""
     for m in (ma, mb):
         for key in EXCLUDED_METADATA:
             m.get("slipdaq", {}).pop(key, None)
+        if "calibration_toml" in m.get("slipdaq", {}):
+            m["slipdaq"]["calibration_toml"] = LEARNED_AT.sub("", m["slipdaq"]["calibration_toml"])
     if ma != mb and values:
         return by_topic(a, b, _metadata_change(ma, mb))
     if ma != mb:
@@ -376,9 +386,14 @@ def _verdict(diff: str) -> str:
     return "identical" if not diff else diff if diff.startswith("same:") else "DIFFERENT: " + diff
 
 
+PROGRESS = re.compile(r"^[\w ]+: \d+(/\d+)? messages\n", re.MULTILINE)
+"""A progress line (one every 5 s of the run: how many depends on the machine's speed)."""
+
+
 def run(side: str, env: dict[str, str], args: list[str], cwd: Path) -> tuple[int, str]:
+    """The exit status and the output, without the progress lines."""
     p = subprocess.run([sys.executable, "-m", "slipdaq", *args], env=env, cwd=cwd, capture_output=True, text=True)
-    return p.returncode, (p.stdout + p.stderr).replace(f"-{side}.mcap", "-SIDE.mcap")
+    return p.returncode, PROGRESS.sub("", p.stdout + p.stderr).replace(f"-{side}.mcap", "-SIDE.mcap")
 
 
 def main() -> int:
@@ -389,6 +404,7 @@ def main() -> int:
     ap.add_argument("--values", action="store_true",
                     help="where the bytes differ (an encoding changed on purpose), compare the decoded values: every "
                          "message's at the same log time, /slip/fast row by row")
+    ap.add_argument("--two-pass", action="store_true", help="replay --two-pass (the second pass's log compared)")
     ap.add_argument("--make-inputs", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.make_inputs:
@@ -420,14 +436,15 @@ def main() -> int:
     for inp in sorted(work.glob("in-*.mcap")):
         outs, texts = {}, {}
         for side, env in (("base", env_base), ("new", env_new)):
-            out = work / f"out-{inp.stem[3:]}-{side}.mcap"
-            code, texts[side] = run(side, env, ["replay", str(inp), "-o", str(out)], work)
+            out = work / f"out{'2' if a.two_pass else ''}-{inp.stem[3:]}-{side}.mcap"
+            code, texts[side] = run(side, env, ["replay", str(inp), "-o", str(out)] + ["--two-pass"] * a.two_pass,
+                                    work)
             assert code == 0, texts[side]
             outs[side] = out
         diff = compare(outs["base"], outs["new"], a.values)
         if texts["base"] != texts["new"]:
             diff += f" output text differs: {texts['base']!r} != {texts['new']!r}"
-        lvr = live_vs_replay(inp, outs["new"], a.values)
+        lvr = "n/a (two-pass)" if a.two_pass else live_vs_replay(inp, outs["new"], a.values)
         n = len(_messages(outs["new"]))
         print(f"replay {inp.stem[3:]:<15} {_verdict(diff)} ({n} messages);"
               f" live vs replay: {lvr}", flush=True)

@@ -9,7 +9,10 @@ spell of the machine falls on both), each side's `src` on PYTHONPATH (the base f
 CPU time (user + system, of the child) per run; the table shows medians, frames/s of the median wall time, and the
 ratio. Each side's output is kept for the guard (benchmarks/replay_check.py compares outputs the same way).
 
-    python -m benchmarks.replay_process --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
+With --two-pass: `replay --two-pass` (two passes over the log, the second written), frames/s counting the log's
+frames once.
+
+    python -m benchmarks.replay_process --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5] [--two-pass]
 """
 
 from __future__ import annotations
@@ -48,12 +51,17 @@ print(frames)
 """
 
 
-def run_replay(src: Path, raw: Path, out: Path) -> tuple[float, float]:
+def python_path(src: Path) -> str:
+    """PYTHONPATH for a side: its src first, then what PYTHONPATH held (packages installed elsewhere)."""
+    return os.pathsep.join([str(src), *filter(None, [os.environ.get("PYTHONPATH")])])
+
+
+def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float]:
     """(wall s, CPU s of the child) of one `python -m slipdaq replay`."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(out)], check=True,
-                   env=dict(os.environ, PYTHONPATH=str(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(out), *flags], check=True,
+                   env=dict(os.environ, PYTHONPATH=python_path(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -66,7 +74,9 @@ def main() -> int:
     ap.add_argument("--rate-hz", type=float, default=1000.0, help="each WPT message's rate (default 1000)")
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
     ap.add_argument("--work", type=Path, default=None, help="directory for the logs (default: a temporary one)")
+    ap.add_argument("--two-pass", action="store_true", help="replay --two-pass")
     a = ap.parse_args()
+    flags = ["--two-pass"] if a.two_pass else []
     base = resolve(a.base)
     work = a.work or Path(tempfile.mkdtemp(prefix="replay-process-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -75,21 +85,22 @@ def main() -> int:
     frames_file = raw.with_suffix(".frames")
     if not raw.exists():
         made = subprocess.run([sys.executable, "-c", MAKE_LOG, str(raw), str(a.seconds), str(a.rate_hz)], check=True,
-                              env=dict(os.environ, PYTHONPATH=str(sides[f"base {base}"])), capture_output=True,
+                              env=dict(os.environ, PYTHONPATH=python_path(sides[f"base {base}"])), capture_output=True,
                               text=True)
         frames_file.write_text(made.stdout.strip().splitlines()[-1])
     frames = int(frames_file.read_text())
     print(f"{raw.name}: {frames:,} frames, {raw.stat().st_size / 1e6:.1f} MB", flush=True)
     for src in sides.values():  # numba's cache for each tree, imports warm
-        run_replay(src, raw, work / "warm.mcap")
+        run_replay(src, raw, work / "warm.mcap", *flags)
     got: dict[str, list[tuple[float, float]]] = {name: [] for name in sides}
     for r in range(a.rounds):
         for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap"))
+            got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
             print(f"  round {r + 1} {name}: {got[name][-1][0]:.2f} s wall, {got[name][-1][1]:.2f} s CPU", flush=True)
     med = {name: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for name, v in got.items()}
     b, n = med[f"base {base}"], med["this tree"]
-    print(f"\n`python -m slipdaq replay` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz + 20 Hz NMEA ({frames:,} frames), "
+    print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "
+          f"+ 20 Hz NMEA ({frames:,} frames), "
           f"{a.rounds} interleaved rounds, medians\n")
     print("| side | wall | CPU (user + sys) | frames/s (wall) | frames/s (CPU) |\n|---|---:|---:|---:|---:|")
     for name, (w, c) in med.items():

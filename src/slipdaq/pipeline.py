@@ -109,14 +109,15 @@ class _Parts:
 class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
                  frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True,
-                 maneuver_executor: Executor | None = None) -> None:
+                 maneuver_executor: Executor | None = None, fast_slip: bool = True) -> None:
         """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
         gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
         pass's smoothed speeds); the sinks get the fixes as decoded. maneuvers=False: no maneuver is summarized (a
-        pass whose sinks take no /maneuver record; the events are still closed). maneuver_executor: where a decided
+        pass whose sinks take no /maneuver record: the maneuver detector gets nothing). maneuver_executor: where a decided
         maneuver's summary is computed (a live run: a thread, so that its fits never hold up reading); its record goes
         to the sinks, in order, with the first record processed after it is ready (its log time then); without one,
-        at once (replay, import: the log time of the record that decided it)."""
+        at once (replay, import: the log time of the record that decided it). fast_slip=False: no /slip/fast rows
+        (a pass that keeps none: the first; SlipEstimator's fast_rows)."""
         self.config = config
         self.sinks = list(sinks)
         self._out = SinkFanout(self.sinks)
@@ -132,8 +133,9 @@ class Pipeline:
         self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
-        self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen)
+        self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen, fast_rows=fast_slip)
         self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
+        self._detect = maneuvers
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
         self.maneuver_count = 0
         self.test_sets = TestSets(config.test)
@@ -207,17 +209,20 @@ class Pipeline:
         if self.estimator.fast_rows:
             rows = self.estimator.take_fast()
             self._out.on_fast_slip_rows(rows, log_time_s)
-            for row in rows:
-                self.maneuvers.add_fast(row.time_s, row)
-            if self.maneuvers.decided:
-                self._maneuvers(log_time_s)
+            if self._detect:
+                for row in rows:
+                    self.maneuvers.add_fast(row.time_s, row)
+                if self.maneuvers.decided:
+                    self._maneuvers(log_time_s)
 
     def _sensor(self, sample: SensorSample) -> None:
         self._out.on_sensor(sample)
         if sample.kind == "brake":
-            self.maneuvers.add_brake(sample.time_s, sample.value)
+            if self._detect:
+                self.maneuvers.add_brake(sample.time_s, sample.value)
         elif sample.kind == BRAKE_MARK:
-            self.maneuvers.add_brake_mark(sample.time_s)
+            if self._detect:
+                self.maneuvers.add_brake_mark(sample.time_s)
         elif sample.kind == "imu_accel":
             self.estimator.add_imu(sample.time_s, sample.value, self.xbus.source)
         elif sample.kind == "reference_speed":
@@ -368,9 +373,10 @@ class Pipeline:
     def _estimate(self, e: Estimate, log_time_s: float) -> None:
         self.estimates += 1
         self._out.on_estimate(e, log_time_s)
-        self.maneuvers.add_estimate(e.as_row())
-        if self.maneuvers.decided:
-            self._maneuvers(log_time_s)
+        if self._detect:
+            self.maneuvers.add_estimate(e.as_row())
+            if self.maneuvers.decided:
+                self._maneuvers(log_time_s)
 
     def _maneuvers(self, log_time_s: float, final: bool = False) -> None:
         """The maneuvers decided now, as /maneuver records, to every sink at this log time (with an executor: their

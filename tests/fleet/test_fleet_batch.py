@@ -11,6 +11,7 @@ import io
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -106,6 +107,15 @@ def _check_outputs(out: Path, logs: dict[str, Path], names: list[str], png: bool
         assert pngs == set()
 
 
+def _client_time(err: list[str]) -> list[float]:
+    """The batch's line of where its time went: tasks summed, all, outside the tasks, then its parts (cluster start,
+    planning, results, report, cluster stop), in seconds."""
+    line = next(line for line in err if line.startswith("batch: ") and "in the tasks (summed)" in line)
+    got = [float(x) for x in re.findall(r"([\d.]+) s\b", line)]
+    assert len(got) == 8, line
+    return got
+
+
 def test_batch_on_a_local_cluster_skip_rule_and_a_failing_log(logs: dict[str, Path], tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     good = [n for n in logs if n != "corrupt"]
@@ -118,10 +128,14 @@ def test_batch_on_a_local_cluster_skip_rule_and_a_failing_log(logs: dict[str, Pa
     assert len([line for line in err if line.startswith("batch: [")]) == 5
     assert "4 processed, 0 up to date, 1 failed" in stdout
     _check_outputs(out, logs, good, png=True)
+    tasks, total, outside, start, _, _, report, _ = _client_time(err)
+    assert 0 < tasks and 0 < outside < total and 0 < start < outside  # the time the batch process spent itself
 
     written = {p: p.stat().st_mtime_ns for p in (*(out / "estimates").iterdir(), *(out / "cache").iterdir())}
     rc, err, stdout = _batch(args, capsys)
     assert rc == 1 and "0 processed, 4 up to date, 1 failed" in stdout
+    tasks, total, outside, start, _, _, _, stop = _client_time(err)
+    assert tasks == start == stop == 0 and outside == pytest.approx(total, abs=0.06)  # no cluster: all the process's
     assert sum("up to date" in line for line in err) == 4
     assert {p: p.stat().st_mtime_ns for p in written} == written  # not written again
     assert set((out / "estimates").iterdir()) | set((out / "cache").iterdir()) == set(written)

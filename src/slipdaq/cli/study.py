@@ -102,6 +102,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     except FleetError as e:
         print(f"slipdaq: batch: {e}", file=sys.stderr)
         return EXIT_FAIL
+    print(f"batch: {res.client.line()}", file=sys.stderr)
     report = f"; report {res.report}" if res.report else "; no report (no log succeeded)"
     print(f"batch: {len(res.done)} processed, {len(res.skipped)} up to date, {len(res.failed)} failed -> "
           f"{res.estimates}{report}")

@@ -36,10 +36,23 @@ def wheel_speed_mps(times_s: np.ndarray, sample_times_s: np.ndarray, revolutions
     for k, (a, m, b) in enumerate(zip(lo.tolist(), mid.tolist(), hi.tolist())):
         if m - a < 5 or b - m < 5:
             continue
-        dt = sample_times_s[a:b] - times_s[k]
-        slope = np.polynomial.polynomial.polyfit(dt, revolutions[a:b], 2)[1]
-        out[k] = radius_m * TWO_PI * slope
+        out[k] = radius_m * TWO_PI * _parabola_slope(sample_times_s[a:b] - times_s[k], revolutions[a:b])
     return out
+
+
+def _parabola_slope(x: np.ndarray, y: np.ndarray) -> float:
+    """The linear coefficient of the least-squares parabola through (x, y): numpy.polynomial.polynomial.polyfit(x, y,
+    2)[1], computed as polyfit computes it (the same Vandermonde rows, column scaling, lstsq and rcond, so the same
+    bits) without its checks and its general degree."""
+    x = x + 0.0
+    v = np.empty((3, len(x)))
+    v[0] = x * 0 + 1
+    v[1] = x
+    v[2] = v[1] * x
+    scl = np.sqrt(np.square(v).sum(1))
+    scl[scl == 0] = 1
+    c = np.linalg.lstsq(v.T / scl, y + 0.0, len(x) * np.finfo(x.dtype).eps)[0]
+    return float(c[1] / scl[1])
 
 
 def reference_speed_mps(fix_times_s: np.ndarray, gps_speed_mps: np.ndarray, wheel_speed: np.ndarray | None,

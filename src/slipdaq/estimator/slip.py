@@ -69,9 +69,13 @@ class SlipEstimator:
     samples past the window's end (or GPS is a further window past it, for a silent wheel).
     """
 
-    def __init__(self, params: EstimatorParams, stored: Calibration | None = None, frozen: bool = False) -> None:
+    def __init__(self, params: EstimatorParams, stored: Calibration | None = None, frozen: bool = False,
+                 fast_rows: bool = True) -> None:
         """stored: a calibration to start from (used until the run measures better, dropped where the run contradicts
-        it); frozen: use the stored latency and radii throughout and learn none (the second pass of a replay)."""
+        it); frozen: use the stored latency and radii throughout and learn none (the second pass of a replay);
+        fast_rows=False: no high-rate slip rows (the first pass of a replay, which keeps none): the latency in use is
+        still brought up to date at each fix, as making them does, so that the estimates and what the run learns
+        stay the same."""
         self.p = params
         self._track = GpsTrack()
         self._grade = AltitudeGrade()
@@ -96,7 +100,9 @@ class SlipEstimator:
         self._imu = ImuInput((stored.imu.gain, stored.imu.offset_mps2)
                              if stored is not None and stored.imu is not None else None)
         """The IMU's samples, their source, a raw IMU's stored gain and offset and its gain fit (imu_gain.py)."""
-        self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) if params.fast_rate_hz > 0 else None
+        self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) \
+            if params.fast_rate_hz > 0 and fast_rows else None
+        self._fast_skipped = params.fast_rate_hz > 0 and not fast_rows
         self.fast_rows: list[FastSlip] = []
         """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
 
@@ -203,6 +209,8 @@ class SlipEstimator:
         out = self._drain()
         if self._fast is not None:
             self._fast_fix(a, utc_s, fix.speed_mps, fix.speed_accuracy_mps)
+        elif self._fast_skipped:
+            self.latency  # noqa: B018  (evaluated where _fast_fix evaluates it: the stored latency's check)
         return out
 
     def _fast_fix(self, arrival_s: float, utc_s: float, speed_mps: float, accuracy_mps: float | None) -> None:

@@ -9,7 +9,8 @@ this machine) the task itself, into DIR; on a cluster of --scheduler this proces
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
 worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: each
-log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last.
+log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
+on a thread while the cluster stops. Where the time went is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -25,10 +26,11 @@ import os
 import pickle
 import sys
 import tempfile
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
 from slipdaq.fleet.storage import FleetError, UrlStore, expand_logs, is_url
 from slipdaq.fleet.task import (
@@ -52,7 +54,55 @@ from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
 
-__all__ = ["BatchResult", "FleetError", "Job", "LogResult", "failure", "process_log", "run_batch"]
+T = TypeVar("T")
+
+__all__ = ["BatchResult", "ClientTime", "FleetError", "Job", "LogResult", "failure", "process_log", "run_batch"]
+
+
+@dataclass
+class ClientTime:
+    """Where run_batch's wall time went, in seconds: what this process did itself (the serial part of a batch) and
+    how long it waited on the tasks."""
+
+    planning_s: float = 0.0
+    """The logs listed, their keys made, the up-to-date ones read from the cache."""
+    cluster_start_s: float = 0.0
+    """The cluster started (or reached) and its workers warm."""
+    waiting_s: float = 0.0
+    """Blocked on the tasks (none ended yet)."""
+    collecting_s: float = 0.0
+    """Each result taken: saved where the task could not, its plots placed in the report, its line printed."""
+    report_s: float = 0.0
+    """The report's tables and page after the last result (on a thread, while the cluster stops)."""
+    cluster_stop_s: float = 0.0
+    """The local cluster stopped (or the scheduler left)."""
+    first_result_s: float | None = None
+    """From run_batch's start to the first task's result."""
+    tasks_s: float = 0.0
+    """The tasks' own times (LogResult.seconds), summed."""
+    total_s: float = 0.0
+    """run_batch from start to end."""
+
+    @property
+    def outside_tasks_s(self) -> float:
+        """run_batch's time not spent waiting on the tasks."""
+        return self.total_s - self.waiting_s
+
+    @contextlib.contextmanager
+    def timing(self, phase: str) -> Iterator[None]:
+        """Adds the block's wall time to the field `phase`."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            setattr(self, phase, getattr(self, phase) + time.perf_counter() - t0)
+
+    def line(self) -> str:
+        """One line for the progress stream."""
+        return (f"{self.tasks_s:.1f} s in the tasks (summed), {self.total_s:.1f} s in all; outside the tasks "
+                f"{self.outside_tasks_s:.2f} s: cluster start {self.cluster_start_s:.2f} s, planning "
+                f"{self.planning_s:.2f} s, results {self.collecting_s:.2f} s, report {self.report_s:.2f} s, "
+                f"cluster stop {self.cluster_stop_s:.2f} s")
 
 
 @dataclass
@@ -66,6 +116,7 @@ class BatchResult:
     failed: list[LogResult]
     report: Path | str | None
     """index.html (its URL when DIR is one); None when no log succeeded."""
+    client: ClientTime = dataclasses.field(default_factory=ClientTime)
 
     @property
     def estimates(self) -> str:
@@ -213,6 +264,8 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
     writes its own outputs there."""
     from slipdaq.report.summary import group_of
 
+    clock = ClientTime()
+    t0 = time.perf_counter()
     logs = expand_logs(logs)
     out: Out
     inputs: list[str] = []
@@ -248,29 +301,51 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
             else:
                 succeeded(cached, cached=True)
         skipped = set(results)
+        clock.planning_s = time.perf_counter() - t0
+
+        def finish() -> Path | str | None:  # the report's tables and page over every log that succeeded
+            with clock.timing("report_s"):
+                summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
+                             for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
+                return report.finish(summaries)
+
         if todo:
-            failed += _run_tasks(todo, out, inputs, scheduler, workers, stream, lambda r: succeeded(r, cached=False),
-                                 lambda r: progress.line(f"FAILED {failure(r)}"))
+            def ok(r: LogResult) -> None:
+                if clock.first_result_s is None:
+                    clock.first_result_s = time.perf_counter() - t0
+                clock.tasks_s += r.seconds
+                succeeded(r, cached=False)
+
+            lost, index = _run_tasks(todo, out, inputs, scheduler, workers, stream, ok,
+                                     lambda r: progress.line(f"FAILED {failure(r)}"), clock, finish)
+            failed += lost
+        else:
+            index = finish()
         order = [j.name for j in jobs if j.name in results]
-        summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
-                     for n in order if (s := results[n].summary) is not None]
-        index = report.finish(summaries)
     rank = {str(log): i for i, log in enumerate(logs)}
     failed.sort(key=lambda r: rank.get(r.path, 0))
+    clock.total_s = time.perf_counter() - t0
     return BatchResult(out_dir if isinstance(out, UrlStore) else out, [results[n] for n in order if n not in skipped],
                        [results[n] for n in order if n in skipped],
-                       failed, index)
+                       failed, index, clock)
 
 
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str | None, workers: int | None,
-               stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None]) -> list[LogResult]:
+               stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None],
+               clock: ClientTime, then: Callable[[], T]) -> tuple[list[LogResult], T]:
     """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
     holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
-    first where the task could not write DIR) or `bad` as it comes; returns the failures."""
+    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report) on a thread
+    while the cluster stops. Returns the failures and what `then` returned. Each step's time goes to the clock."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from slipdaq.fleet.cluster import connect
 
     failed: list[LogResult] = []
+    after = ThreadPoolExecutor(1, thread_name_prefix="slipdaq-batch-report")
+    t = time.perf_counter()
     with connect(scheduler, workers) as client:
+        clock.cluster_start_s += time.perf_counter() - t
         from distributed import as_completed
 
         if scheduler and not client.scheduler_info().get("workers"):
@@ -293,23 +368,35 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
                 running.add(fut)
 
         submit()
-        for fut in running:
-            job = futures.pop(fut)
-            try:
-                r = fut.result()
-            except Exception as e:  # its worker died twice (KilledWorker), the task was lost, ...
-                r = LogResult(job.path, job.name, job.key, error=_task_lost(e))
-            fut.release()
-            submit()
-            if r.error is None:
-                if not r.written:  # a cluster of --scheduler: DIR is this machine's
-                    assert isinstance(out, Path)  # a task writes at a URL itself
-                    save(out, r, inputs)
-                ok(r)
-            else:
-                failed.append(r)
-                bad(r)
-    return failed
+        ended = iter(running)
+        while True:
+            with clock.timing("waiting_s"):
+                fut = next(ended, None)
+            if fut is None:
+                break
+            with clock.timing("collecting_s"):
+                job = futures.pop(fut)
+                try:
+                    r = fut.result()
+                except Exception as e:  # its worker died twice (KilledWorker), the task was lost, ...
+                    r = LogResult(job.path, job.name, job.key, error=_task_lost(e))
+                fut.release()
+                submit()
+                if r.error is None:
+                    if not r.written:  # a cluster of --scheduler: DIR is this machine's
+                        assert isinstance(out, Path)  # a task writes at a URL itself
+                        save(out, r, inputs)
+                    ok(r)
+                else:
+                    failed.append(r)
+                    bad(r)
+        last = after.submit(then)
+        t = time.perf_counter()
+    clock.cluster_stop_s += time.perf_counter() - t
+    try:
+        return failed, last.result()
+    finally:
+        after.shutdown()
 
 
 def _task_lost(e: BaseException) -> str:

@@ -132,16 +132,18 @@ def process(
     stream: TextIO | None = None,
     description: str = "",
     maneuvers: bool = True,
+    fast_slip: bool = True,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
     progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
-    whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own).
+    whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own). fast_slip=False:
+    no /slip/fast rows (the first pass).
 
     records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
     pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
-                        maneuvers=maneuvers)
+                        maneuvers=maneuvers, fast_slip=fast_slip)
     compiled.prepare()
     if stream.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -191,7 +193,8 @@ def process_to_log(
 
 
 class _FirstPassSink(Sink):
-    """The GPS fixes and the wheel samples of the first pass."""
+    """The GPS fixes and the wheel samples of the first pass (all it keeps: no raw record, estimate, high-rate slip
+    row or diagnostics)."""
 
     def __init__(self) -> None:
         self.fixes: list[GpsFix] = []
@@ -237,10 +240,11 @@ class FirstPass:
 
 def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
                learned_from: str, *, total: int | None = None, stream: TextIO | None = None) -> FirstPass:
-    """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix."""
+    """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix. What
+    only the second pass keeps is not made: no maneuver summarized, no high-rate slip row, nothing written."""
     seen = _FirstPassSink()
     p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2",
-                maneuvers=False)
+                maneuvers=False, fast_slip=False)
     learned = p.estimator.learned()
     calibration = merged(start, learned, config, learned_from)
     return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))

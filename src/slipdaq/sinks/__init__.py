@@ -26,12 +26,15 @@ class Sink:
 
     Every method does nothing by default; a sink overrides what it takes. The batch methods default to a loop over
     their per-record method, so a sink that keeps records one by one overrides only those, and a sink that can take
-    a whole batch at once (the MCAP log) overrides the batch method too."""
+    a whole batch at once (the MCAP log) overrides the batch method too. A sink that overrides neither pays nothing
+    for the batch (no record is made of it)."""
 
     def on_raw(self, record: RawRecord) -> None:
         """One raw record: a CAN frame outside a batch, an NMEA line or a UBX frame."""
 
     def on_can_batch(self, batch: CanFrameBatch) -> None:
+        if type(self).on_raw is Sink.on_raw:
+            return
         for frame in batch.frames():
             self.on_raw(frame)
 
@@ -39,6 +42,8 @@ class Sink:
         """One decoded wheel sample."""
 
     def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        if type(self).on_wheel is Sink.on_wheel:
+            return
         for sample in samples.samples(WHEELS):
             self.on_wheel(sample)
 
@@ -56,6 +61,8 @@ class Sink:
 
     def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
         """The high-rate slip rows one record released, in time order: on_fast_slip for each."""
+        if type(self).on_fast_slip is Sink.on_fast_slip:
+            return
         for row in rows:
             self.on_fast_slip(row, log_time_s)
 

@@ -1,0 +1,73 @@
+"""The first pass of a two-pass run makes only what it keeps (offline.first_pass): no high-rate slip rows, nothing
+for the maneuver detector, no record for sinks that take none. It must learn exactly what a pass that makes
+everything learns: the same estimates, calibration and events, also where a stored latency is dropped on the way
+(the latency is brought up to date at each fix as making the high-rate rows does)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import pytest
+
+from slipdaq.config import Config, load_config
+from slipdaq.config.calibration import Learned, StoredLatency, merged
+from slipdaq.offline.run import batched, first_pass, read_ahead
+from slipdaq.pipeline import Pipeline
+from slipdaq.records import Estimate, SourceEvent
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sinks import Sink
+from support.paths import CONFIG
+
+
+class _Kept(Sink):
+    """The estimates (as rows), the events and how many high-rate rows came; no raw record or wheel sample."""
+
+    def __init__(self) -> None:
+        self.rows: list[dict[str, Any]] = []
+        self.events: list[SourceEvent] = []
+        self.fast = 0
+
+    def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
+        self.rows.append(estimate.as_row() | {"log_time_s": log_time_s})
+
+    def on_fast_slip_rows(self, rows: Any, log_time_s: float) -> None:
+        self.fast += len(rows)
+
+    def on_source_event(self, event: SourceEvent) -> None:
+        self.events.append(event)
+
+
+def _records(cfg: Config) -> list[Any]:
+    return [ev.record for ev in generate(cfg, "cycle", "paved", SimSettings(seed=5), duration_s=40.0)
+            if ev.record is not None]
+
+
+def _run(cfg: Config, records: list[Any], start: Any, **options: bool) -> tuple[Pipeline, _Kept]:
+    kept = _Kept()
+    p = Pipeline(cfg, [kept], calibration=start, **options)
+    for run in read_ahead(batched(records)):
+        p.process_all(run)
+    p.finish()
+    return p, kept
+
+
+@pytest.mark.parametrize("stored", ["none", "wrong latency"])
+def test_the_first_pass_learns_what_a_full_pass_learns(stored: str) -> None:
+    cfg = load_config(CONFIG)
+    records = _records(cfg)
+    start = None
+    if stored == "wrong latency":  # contradicted by the run's own (UTC) latency: dropped, with an event, mid-run
+        start = merged(None, Learned(latency=(0.3, 0.002, "wheels")), cfg, "an earlier drive", "2026-01-01T00:00:00Z")
+        assert isinstance(start.latency, StoredLatency)
+    full, everything = _run(cfg, records, start)
+    lean, kept = _run(cfg, records, start, maneuvers=False, fast_slip=False)
+    assert everything.fast > 0 and kept.fast == 0  # the rows the first pass does not make
+    assert kept.rows == everything.rows and len(kept.rows) > 100
+    assert kept.events == everything.events
+    if stored == "wrong latency":
+        assert any("GPS latency" in e.detail for e in kept.events)
+    assert lean.estimator.learned() == full.estimator.learned()
+    assert dataclasses.asdict(lean.diagnostics()) == dataclasses.asdict(full.diagnostics())
+    got = first_pass(cfg, records, start, "log")
+    assert got.learned == full.estimator.learned()
