@@ -33,8 +33,13 @@ class VehicleConfig(_Section):
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
     driven_axle: Literal["front", "rear", "all"] = Field("front", description="the axle the engine drives (all: every wheel)")
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
-    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off)")
-    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off)")
+    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off); set "
+                                            "here (or drag_area_m2), the two win over the calibration's [road_loads]")
+    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off); set here (or "
+                                "rolling_resistance_coeff), the two win over the calibration's [road_loads]")
+    rotating_mass_factor: float = Field(1.03, ge=1, lt=1.5, description="the equivalent mass of the wheels and "
+                                        "driveline per unit of M (SAE J2263: 1.03; 1.0 = off): Fx = M*factor*a + road "
+                                        "loads, and the coast-down's deceleration carries M*factor")
     air_density_kgpm3: float = Field(1.2, gt=0, lt=2, description="rho in the drag force")
     wheelbase_m: float = Field(2.6, gt=0.5, lt=10, description="L in the load transfer M*a*h/L")
     cg_height_m: float = Field(0.55, gt=0, lt=5, description="h, the centre of gravity's height above the road")
@@ -240,6 +245,15 @@ class TestConfig(_Section):
 
     target_speeds_kmh: list[float] = Field([], description="the maneuvers' target speeds; empty: speed not judged")
     speed_tolerance_kmh: float = Field(2.0, ge=0, description="how far a brake speed may lie from a target")
+    coast_from_kmh: float = Field(100.0, gt=0, lt=400, description="a coast (no brake, no drive force) starts at this "
+                                  "speed or above to make a `coast` maneuver (the road loads' fit)")
+    coast_to_kmh: float = Field(20.0, gt=0, lt=400, description="... and runs down to this speed (the fit's low end)")
+
+    @model_validator(mode="after")
+    def _coast_span(self) -> TestConfig:
+        if self.coast_to_kmh >= self.coast_from_kmh:
+            raise ValueError("coast_to_kmh must be below coast_from_kmh")
+        return self
 
     @field_validator("target_speeds_kmh")
     @classmethod

@@ -12,6 +12,10 @@ learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, 
     [host_clock] offset_s (host clock minus UTC, when the fixes carried UTC), learned_at, learned_from
     [r0.FL]      radius_m, se_m, learned_at, learned_from         (one table per wheel)
     [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
+    [road_loads] road_load_f0_n, road_load_f1_n_per_mps, road_load_f2_n_per_mps2 (a coast-down's F0 + F1*v + F2*v^2),
+                 runs_paired, learned_at, learned_from
+Fx takes [road_loads] in place of the config's rolling_resistance_coeff and drag_area_m2 unless the config sets one
+of those (estimator.run_calibration.stored_road_loads).
 """
 
 from __future__ import annotations
@@ -78,6 +82,14 @@ class StoredStiffness(Provenance):
     confidence: float = Field(ge=0, le=1)
 
 
+class StoredRoadLoads(Provenance):
+    road_load_f0_n: float = Field(ge=0, lt=1e5)
+    road_load_f1_n_per_mps: float = Field(gt=-1e4, lt=1e4)
+    road_load_f2_n_per_mps2: float = Field(ge=0, lt=100)
+    runs_paired: int = Field(0, ge=0)
+    """Coast runs the loads average, in pairs of opposite directions (0: one run, wind and grade not cancelled)."""
+
+
 class Calibration(_Section):
     format: int = CALIBRATION_FORMAT
     vehicle: VehicleIdentity = VehicleIdentity()
@@ -85,10 +97,12 @@ class Calibration(_Section):
     host_clock: StoredClock | None = None
     r0: dict[Wheel, StoredRadius] = {}
     cx: dict[Wheel, StoredStiffness] = {}
+    road_loads: StoredRoadLoads | None = None
 
     @property
     def empty(self) -> bool:
-        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx
+        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx \
+            and self.road_loads is None
 
 
 @dataclass(frozen=True)
@@ -102,6 +116,8 @@ class Learned:
     """wheel -> (radius_m, se_m)."""
     cx: dict[str, tuple[float, float]] = field(default_factory=dict)
     """wheel -> (cx_n, confidence)."""
+    road_loads: tuple[float, float, float, int] | None = None
+    """A coast-down's (F0 [N], F1 [N/(m/s)], F2 [N/(m/s)^2], runs paired)."""
 
 
 def vehicle_identity(config: Config) -> VehicleIdentity:
@@ -185,9 +201,15 @@ def merged(stored: Calibration | None, learned: Learned, config: Config, learned
     r0 |= {w: StoredRadius(radius_m=r, se_m=se, **prov) for w, (r, se) in learned.r0.items()}
     cx: dict[str, StoredStiffness] = {str(w): v for w, v in base.cx.items()}
     cx |= {w: StoredStiffness(cx_n=c, confidence=conf, **prov) for w, (c, conf) in learned.cx.items()}
+    loads = base.road_loads
+    if learned.road_loads is not None:
+        f0, f1, f2, runs = learned.road_loads
+        loads = StoredRoadLoads(road_load_f0_n=f0, road_load_f1_n_per_mps=f1, road_load_f2_n_per_mps2=f2,
+                                runs_paired=runs, **prov)
     return Calibration.model_validate({
         "vehicle": vehicle_identity(config), "latency": latency, "host_clock": clock,
-        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}})
+        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx},
+        "road_loads": loads})
 
 
 def reset(cal: Calibration, wheels: list[str] | None) -> Calibration:
@@ -207,7 +229,14 @@ def summary(cal: Calibration) -> str:
         parts.append("r0 " + ", ".join(f"{w} {r.radius_m * 1000:.2f} mm" for w, r in cal.r0.items()))
     if cal.cx:
         parts.append("Cx " + ", ".join(f"{w} {c.cx_n / 1000:.1f} kN" for w, c in cal.cx.items()))
+    if cal.road_loads is not None:
+        parts.append(f"road loads {road_loads_text(cal.road_loads)}")
     return "; ".join(parts) or "nothing learned yet"
+
+
+def road_loads_text(loads: StoredRoadLoads) -> str:
+    return (f"F0 {loads.road_load_f0_n:.1f} N, F1 {loads.road_load_f1_n_per_mps:.2f} N/(m/s), "
+            f"F2 {loads.road_load_f2_n_per_mps2:.4f} N/(m/s)^2")
 
 
 def show(cal: Calibration, path: str) -> str:
@@ -230,6 +259,9 @@ def show(cal: Calibration, path: str) -> str:
     for w in WHEELS:
         if (c := cal.cx.get(w)) is not None:  # type: ignore[call-overload]  # w is one of the Literal keys
             lines.append(f"  Cx {w}        {c.cx_n / 1000:8.1f} kN (confidence {c.confidence:.2f}), {when(c)}")
+    if cal.road_loads is not None:
+        lines.append(f"  road loads   {road_loads_text(cal.road_loads)} ({cal.road_loads.runs_paired} runs paired), "
+                     f"{when(cal.road_loads)}")
     if cal.empty:
         lines.append("  nothing learned yet")
     return "\n".join(lines)

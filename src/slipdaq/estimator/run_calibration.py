@@ -8,6 +8,7 @@ import math
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
+from slipdaq.estimator.force import RoadLoads
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
@@ -164,3 +165,12 @@ class RunCalibration:
         cx = {w: (f.cx_n, f.confidence) for w, f in self.stiffness.items()
               if f.cx_n is not None and f.confidence >= CX_CONFIDENT}
         return Learned(latency, clock, r0, cx)
+
+
+def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> RoadLoads | None:
+    """The calibration's [road_loads] for Fx, unless the config sets rolling_resistance_coeff or drag_area_m2 (a
+    manual override: then those); None: none stored (Fx takes the config's coefficients, 0 unless set)."""
+    if stored is None or stored.road_loads is None or params.road_loads_configured:
+        return None
+    loads = stored.road_loads
+    return RoadLoads(loads.road_load_f0_n, loads.road_load_f1_n_per_mps, loads.road_load_f2_n_per_mps2)

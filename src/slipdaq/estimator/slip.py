@@ -24,13 +24,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.fast_slip import FastSlipRows
-from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
+from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
@@ -47,7 +48,7 @@ from slipdaq.estimator.readiness import (
     scan_samples,
 )
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.run_calibration import RunCalibration
+from slipdaq.estimator.run_calibration import RunCalibration, stored_road_loads
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
 from slipdaq.estimator.window_measure import measure_window
@@ -82,6 +83,10 @@ class SlipEstimator:
         self._reference = tuple(w for w in WHEELS if w not in self._driven)
         self._lag_rows = WheelLatencyRows(self._lag, not self._reference, params.max_latency_s, params.window_s)
         self._cal = RunCalibration(params, stored, frozen, self._reference)
+        self.road_loads = stored_road_loads(stored, params)
+        """The calibration's road loads Fx uses (None: the config's coefficients)."""
+        self.measured_road_loads: tuple[RoadLoads, int] | None = None
+        """A coast-down's road loads measured in this run and the runs they average (road_loads_measured)."""
         self.frozen = self._cal.frozen
         self._wheel_clock = WheelClockEstimates(params.window_s, self._reference, self._driven,
                                                 params.min_speed_mps * params.window_s)
@@ -248,7 +253,8 @@ class SlipEstimator:
         p, track, cal = self.p, self._track, self._cal
         smooth = track.smooth_arrivals(self._utc_offset_s)
         i = int(track.speed.times.searchsorted(arrival_s))
-        win = measure_window(p, track, self._grade, self._windows, self._imu, smooth - lat.latency_s, i, lat)
+        win = measure_window(p, track, self._grade, self._windows, self._imu, smooth - lat.latency_s, i, lat,
+                             self.road_loads)
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
@@ -269,7 +275,16 @@ class SlipEstimator:
         if self.frozen:
             return Learned()
         lat = self.latency
-        return self._cal.learned(lat, self._utc_offset_s)
+        learned = self._cal.learned(lat, self._utc_offset_s)
+        if self.measured_road_loads is None:
+            return learned
+        loads, runs = self.measured_road_loads
+        return replace(learned, road_loads=(loads.f0_n, loads.f1_n_per_mps, loads.f2_n_per_mps2, runs))
+
+    def road_loads_measured(self, loads: RoadLoads, runs: int) -> None:
+        """A coast-down's road loads (the maneuver's, over `runs` runs): the run's to save in its calibration (this
+        run's Fx keeps the loads it started with)."""
+        self.measured_road_loads = (loads, runs)
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
     def _gps_lost(self) -> list[Estimate]:
