@@ -9,9 +9,10 @@ speed blocks (BLOCK_DROP_MPS of speed each) has MIN_BLOCK_ROWS rows or more and 
 MAX_DECEL_MPS2 (else: braking) and lasts less than MAX_BLOCK_S (longer: the driver held the speed); else it makes no
 record.
 
-Fit, per run: each block's deceleration a_k (the least-squares slope of V(t)) at its mean speed v_k gives the road load
-    F_k = -M*k*a_k = F0 + F1*v_k + F2*v_k^2     (M*k: the equivalent mass, [vehicle] rotating_mass_factor k)
-by least squares, with the coefficients' covariance s^2*(X'X)^-1. A wind w along the road adds +-2*F2*w to F1 and
+Fit, per run: M*k*dV/dt = -(F0 + F1*V + F2*V^2) (M*k: the equivalent mass, [vehicle] rotating_mass_factor k),
+integrated from the span's start (the integral method: every row, no differentiated speed):
+    V(t_i) = V0 - (F0*t_i + F1*int(V dt) + F2*int(V^2 dt))/(M*k)      (integrals by the trapezoid rule)
+linear in (V0, F0, F1, F2): least squares, with the coefficients' covariance s^2*(X'X)^-1. A wind w along the road adds +-2*F2*w to F1 and
 F2*w^2 to F0, a grade +-M*g*sin to F0: runs in opposite directions (GPS course 180 +- COURSE_TOLERANCE_DEG apart) are
 paired, and the road loads are the mean of the paired runs' coefficients (each pair's wind and grade terms cancel;
 F2*w^2 stays in F0), with 95 % intervals from their covariances. A run paired with none gives its own fit (invalid:
@@ -73,37 +74,43 @@ class CoastRun:
     reasons: tuple[str, ...]
 
 
-def fit_road_loads(times_s: np.ndarray, speeds_mps: np.ndarray, equivalent_mass_kg: float
-                   ) -> tuple[Triple, np.ndarray] | str:
-    """(F0, F1, F2) and their covariance from one coast's V(t) (module docstring), or why not."""
-    v_k, f_k = [], []
-    start = 0
-    n = len(speeds_mps)
+def coast_check(times_s: np.ndarray, speeds_mps: np.ndarray) -> str | None:
+    """Why V(t) is not a coast (a block of BLOCK_DROP_MPS lost too fast: braking; too slowly: driven), or None."""
+    start, n = 0, len(speeds_mps)
     while start < n:
         end = start
         while end < n and speeds_mps[start] - speeds_mps[end] < BLOCK_DROP_MPS:
             end += 1
         t, v = times_s[start:end + 1], speeds_mps[start:end + 1]
+        near = f"near {float(np.mean(v)) * 3.6:.0f} km/h"
         if len(t) < MIN_BLOCK_ROWS and end < n:
-            return f"{BLOCK_DROP_MPS:.0f} m/s of speed lost in {len(t)} rows near {float(np.mean(v)) * 3.6:.0f} km/h " \
-                   "(braking)"
-        if len(t) >= MIN_BLOCK_ROWS:
-            if t[-1] - t[0] > MAX_BLOCK_S:
-                return f"the speed held {t[-1] - t[0]:.0f} s near {float(np.mean(v)) * 3.6:.0f} km/h (driven)"
-            slope = float(np.polyfit(t - t.mean(), v, 1)[0])
-            if slope < -MAX_DECEL_MPS2:
-                return f"decelerating {-slope:.1f} m/s^2 near {float(np.mean(v)) * 3.6:.0f} km/h (braking)"
-            v_k.append(float(np.mean(v)))
-            f_k.append(-equivalent_mass_kg * slope)
+            return f"{BLOCK_DROP_MPS:.0f} m/s of speed lost in {len(t)} rows {near} (braking)"
+        if t[-1] - t[0] > MAX_BLOCK_S:
+            return f"the speed held {t[-1] - t[0]:.0f} s {near} (driven)"
+        if len(t) >= MIN_BLOCK_ROWS and float(np.polyfit(t - t.mean(), v, 1)[0]) < -MAX_DECEL_MPS2:
+            return f"decelerating faster than {MAX_DECEL_MPS2} m/s^2 {near} (braking)"
         start = end + 1
-    if len(v_k) < 4:
-        return "too few speed blocks to fit"
-    x = np.column_stack([np.ones(len(v_k)), v_k, np.square(v_k)])
-    coef, *_ = np.linalg.lstsq(x, np.array(f_k), rcond=None)
-    resid = np.array(f_k) - x @ coef
-    s2 = float(resid @ resid) / (len(v_k) - 3)
-    cov = s2 * np.linalg.inv(x.T @ x)
-    return _triple(coef), cov
+    return None
+
+
+def fit_road_loads(times_s: np.ndarray, speeds_mps: np.ndarray, equivalent_mass_kg: float
+                   ) -> tuple[Triple, np.ndarray] | str:
+    """(F0, F1, F2) and their covariance from one coast's V(t) (module docstring), or why it is not a coast."""
+    why = coast_check(times_s, speeds_mps)
+    if why is not None:
+        return why
+    if len(times_s) < 20:
+        return "too few rows to fit"
+    dt = np.diff(times_s)
+    mid = 0.5 * (speeds_mps[1:] + speeds_mps[:-1])
+    mid2 = 0.5 * (speeds_mps[1:] ** 2 + speeds_mps[:-1] ** 2)
+    integrals = [np.concatenate(([0.0], np.cumsum(dt * k))) for k in (np.ones_like(mid), mid, mid2)]
+    x = np.column_stack([np.ones_like(times_s)] + [-i / equivalent_mass_kg for i in integrals])
+    coef, *_ = np.linalg.lstsq(x, speeds_mps, rcond=None)
+    resid = speeds_mps - x @ coef
+    s2 = float(resid @ resid) / (len(times_s) - 4)
+    cov = s2 * np.linalg.inv(x.T @ x)[1:, 1:]
+    return _triple(coef[1:]), cov
 
 
 def mean_course_deg(courses: list[float]) -> float | None:
