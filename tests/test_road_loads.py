@@ -157,9 +157,14 @@ def test_config_coefficients_win_over_the_calibration(config: Config) -> None:
     cal = _stored(config)
     assert stored_road_loads(cal, EstimatorParams.from_config(config)) == RoadLoads(152.0, -0.3, 0.41)
     assert stored_road_loads(None, EstimatorParams.from_config(config)) is None
-    for key, value in (("drag_area_m2", 0.65), ("rolling_resistance_coeff", 0.0)):  # set, even to 0: they win
+    for key, value in (("drag_area_m2", 0.65), ("rolling_resistance_coeff", 0.011)):  # either above 0: they win
         text = f"[vehicle]\n{key} = {value}\n"
         assert stored_road_loads(cal, EstimatorParams.from_config(parse_config(text, "x.toml"))) is None
+    # 0 (the default, which a log's stored config spells out): the calibration's
+    zero = parse_config("[vehicle]\nrolling_resistance_coeff = 0.0\ndrag_area_m2 = 0.0\n", "x.toml")
+    assert stored_road_loads(cal, EstimatorParams.from_config(zero)) == RoadLoads(152.0, -0.3, 0.41)
+    logged = parse_config(config.to_toml(), "log.toml")  # every key written out, as a log stores it
+    assert stored_road_loads(cal, EstimatorParams.from_config(logged)) == RoadLoads(152.0, -0.3, 0.41)
 
 
 def test_fx_uses_the_calibrations_road_loads() -> None:
@@ -177,3 +182,46 @@ def test_fx_uses_the_calibrations_road_loads() -> None:
     assert all(e.force_n == 0.0 for e in _run(overridden, lambda t: np.full_like(t, 20.0), slips, stored=cal)
                if 1.0 < e.time_s < 5.0)
     assert math.isclose(cal.road_loads.road_load_f0_n, 152.0)  # type: ignore[union-attr]
+
+
+HEAVY = RoadLoadTruth(f0_n=400.0, f2_n_per_mps2=1.0, rotating_mass_factor=1.04, wind_mps=3.0)
+"""A car that coasts from 110 to 18 km/h in about 50 s (the whole scenario in 141 s)."""
+
+
+@pytest.fixture(scope="module")
+def coast_down_log() -> tuple[Config, list]:
+    from slipdaq.config import load_config, packaged_config_path
+    from slipdaq.sim.emit import SimSettings, generate
+
+    cfg = load_config(packaged_config_path()).with_overrides(vehicle={"rotating_mass_factor": 1.04})
+    events = generate(cfg, "coast-down", "paved", SimSettings(seed=2, gps_latency_s=0.08, gps_noise_mps=0.03,
+                                                                    wpt_rate_hz=50.0), 141.0, road_loads=HEAVY)
+    return cfg, [e.record for e in events if e.record is not None]
+
+
+def test_coast_down_through_the_pipeline_live_and_replay_alike(coast_down_log: tuple[Config, list]) -> None:
+    """The simulated coast-down scenario through the pipeline: two coast records, the second paired, F0 and F2 within
+    5 % (F0 with F2*w^2 = 9 N of wind); the records the same with the summaries on a thread (live) and at once
+    (replay); the estimator's learned road loads are the paired ones."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from slipdaq.pipeline import Pipeline
+    from slipdaq.sinks import CollectingSink
+
+    cfg, records = coast_down_log
+    sync = CollectingSink()
+    pipeline = Pipeline(cfg, [sync])
+    pipeline.run(records)
+    coasts = [m for m in sync.maneuvers if m.kind == "coast"]
+    assert [m.coast_runs_paired for m in coasts] == [0, 2]
+    assert [m.valid for m in coasts] == [False, True]
+    paired = coasts[1]
+    assert paired.road_load_f0_n == pytest.approx(409.0, rel=0.05)
+    assert paired.road_load_f2_n_per_mps2 == pytest.approx(1.0, rel=0.05)
+    assert paired.road_load_f0_n_lo < paired.road_load_f0_n < paired.road_load_f0_n_hi  # type: ignore[operator]
+    learned = pipeline.estimator.learned().road_loads
+    assert learned == (paired.road_load_f0_n, paired.road_load_f1_n_per_mps, paired.road_load_f2_n_per_mps2, 2)
+    threaded = CollectingSink()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        Pipeline(cfg, [threaded], maneuver_executor=pool).run(records)
+    assert [m.as_row() for m in threaded.maneuvers] == [m.as_row() for m in sync.maneuvers]

@@ -33,9 +33,9 @@ class VehicleConfig(_Section):
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
     driven_axle: Literal["front", "rear", "all"] = Field("front", description="the axle the engine drives (all: every wheel)")
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
-    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off); set "
-                                            "here (or drag_area_m2), the two win over the calibration's [road_loads]")
-    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off); set here (or "
+    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off); "
+                                            "above 0 (or drag_area_m2), the two win over the calibration's [road_loads]")
+    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off); above 0 (or "
                                 "rolling_resistance_coeff), the two win over the calibration's [road_loads]")
     rotating_mass_factor: float = Field(1.03, ge=1, lt=1.5, description="the equivalent mass of the wheels and "
                                         "driveline per unit of M (SAE J2263: 1.03; 1.0 = off): Fx = M*factor*a + road "

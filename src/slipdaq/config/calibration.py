@@ -14,8 +14,8 @@ learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, 
     [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
     [road_loads] road_load_f0_n, road_load_f1_n_per_mps, road_load_f2_n_per_mps2 (a coast-down's F0 + F1*v + F2*v^2),
                  runs_paired, learned_at, learned_from
-Fx takes [road_loads] in place of the config's rolling_resistance_coeff and drag_area_m2 unless the config sets one
-of those (estimator.run_calibration.stored_road_loads).
+Fx takes [road_loads] in place of the config's rolling_resistance_coeff and drag_area_m2 unless the config gives one
+of those above 0 (estimator.run_calibration.stored_road_loads).
 """
 
 from __future__ import annotations

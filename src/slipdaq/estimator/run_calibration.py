@@ -168,8 +168,8 @@ class RunCalibration:
 
 
 def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> RoadLoads | None:
-    """The calibration's [road_loads] for Fx, unless the config sets rolling_resistance_coeff or drag_area_m2 (a
-    manual override: then those); None: none stored (Fx takes the config's coefficients, 0 unless set)."""
+    """The calibration's [road_loads] for Fx, unless the config gives rolling_resistance_coeff or drag_area_m2 above 0
+    (a manual override: then those); None: none stored (Fx takes the config's coefficients, 0 unless set)."""
     if stored is None or stored.road_loads is None or params.road_loads_configured:
         return None
     loads = stored.road_loads
