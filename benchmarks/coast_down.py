@@ -8,7 +8,7 @@ loads). Per seed, through the CLI a user runs:
   1. the `coast-down` scenario (two coasts from 110 to 18 km/h, opposite GPS courses): `slipdaq import
      --calibration cal.toml`; F0 and F2 from its last coast record (`export --maneuvers-csv`) and from cal.toml;
   2. the `highway` scenario (runs to 110, 60 and 110 km/h from a stop, each held 15 s and braked to a stop; no coast)
-     of the same car: `slipdaq import --calibration cal.toml`, then `replay --two-pass`; the driven (front) wheels'
+     of the same car on a day without wind: `slipdaq import --calibration cal.toml`, then `replay --two-pass`; the driven (front) wheels'
      r0 error at the end, the front Cx error against the linear-fit truth (sim/truth.py), the slip RMS; and the same
      with cal.toml's [road_loads] removed (the force without road loads, as before the coast-down).
 
@@ -22,30 +22,34 @@ import csv
 import sys
 import tempfile
 import time
+from dataclasses import replace
+import tomllib
 from pathlib import Path
 
 import tomli_w
-import tomllib
 
-from accuracy import ROOT, MIN_SPEED_MPS, Scenario, config_file, export_rows, import_log, quiet, replay_log, sim_settings
+from accuracy import MIN_SPEED_MPS, ROOT, Scenario, export_rows, import_log, quiet, replay_log, sim_settings
 from slipdaq import WHEELS
 from slipdaq.config import Config, load_config
 from slipdaq.sim.emit import generate
 from slipdaq.sim.logs import write_drive_logs
-from slipdaq.sim.road_loads import COAST_DOWN_CAR
+from slipdaq.sim.road_loads import COAST_DOWN_CAR, RoadLoadTruth
 from slipdaq.sim.truth import linear_stiffness_truth, slip_error, truth_series
 
+CALM = replace(COAST_DOWN_CAR, wind_mps=0.0)
+"""The highway drive's car: the same, on a day without wind (a wind w moves its road loads by 2*F2*w*v)."""
 COAST_S = 310.0
 HIGHWAY_S = 130.0
 DRIVEN = ("FL", "FR")
 MARK = "<!-- coast-down table -->"
 
 
-def write_logs(cfg: Config, scenario: str, seed: int, duration_s: float, folder: Path) -> tuple[Path, Path, list]:
+def write_logs(cfg: Config, scenario: str, seed: int, duration_s: float, folder: Path,
+               car: RoadLoadTruth = COAST_DOWN_CAR) -> tuple[Path, Path, list]:
     folder.mkdir(parents=True, exist_ok=True)
     settings = sim_settings(Scenario("coast"), seed)
     can_path, nmea_path = folder / "drive.log", folder / "drive.nmea"
-    events = generate(cfg, scenario, "paved", settings, duration_s, r0_offset_m=-0.008, road_loads=COAST_DOWN_CAR)  # type: ignore[arg-type]
+    events = generate(cfg, scenario, "paved", settings, duration_s, r0_offset_m=-0.008, road_loads=car)  # type: ignore[arg-type]
     return can_path, nmea_path, write_drive_logs(events, can_path, nmea_path)
 
 
@@ -69,8 +73,16 @@ def highway_figures(rows: list[dict], truth: list, start_utc_s: float) -> dict[s
     return {"r0_mm": r0_mm, "cx_pct": max(cx) if cx else float("nan"), "slip": slip_error(rows, ts).rms_points}
 
 
+def shipped_config(base: Config, folder: Path) -> Path:
+    """The config as shipped (rotating_mass_factor 1.03, no road loads) with the DBC beside it."""
+    path = folder / "slipdaq.toml"
+    path.write_text(base.source_text)
+    (folder / "wpt.dbc").write_text((ROOT / "config" / "wpt.dbc").read_text())
+    return path
+
+
 def run_seed(base: Config, seed: int, folder: Path) -> dict[str, float]:
-    cfg_path = config_file(base, folder, "slipdaq")
+    cfg_path = shipped_config(base, folder)
     window_s = base.estimator.window_s
     cal = folder / "cal.toml"
     can, nmea, _ = write_logs(base, "coast-down", seed, COAST_S, folder / "coast")
@@ -86,7 +98,7 @@ def run_seed(base: Config, seed: int, folder: Path) -> dict[str, float]:
         "f0_cal": loads["road_load_f0_n"], "f2_cal": loads["road_load_f2_n_per_mps2"],
     }
     settings = sim_settings(Scenario("highway"), seed + 100)
-    can, nmea, truth = write_logs(base, "highway", seed + 100, HIGHWAY_S, folder / "highway")
+    can, nmea, truth = write_logs(base, "highway", seed + 100, HIGHWAY_S, folder / "highway", CALM)
     for name, start in (("with", cal), ("without", without)):
         raw = folder / name / "raw.mcap"
         import_log(can, nmea, cfg_path, raw, "--calibration", str(start))

@@ -7,9 +7,8 @@ import math
 
 import numpy as np
 import pytest
-from estimator_params import params
-from test_estimator import _run
 
+from estimator_params import params
 from slipdaq.calibration import Calibration, Learned, merged, parse_calibration, show, summary, to_toml
 from slipdaq.config import Config, parse_config
 from slipdaq.estimator import EstimatorParams
@@ -18,6 +17,7 @@ from slipdaq.estimator.run_calibration import stored_road_loads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.record import MANEUVER_COLUMNS, coast_record
 from slipdaq.sim.road_loads import RoadLoadTruth
+from test_estimator import _run
 
 MASS_KG, FACTOR = 1300.0, 1.04
 CAR = RoadLoadTruth(f0_n=150.0, f2_n_per_mps2=0.40, rotating_mass_factor=FACTOR, wind_mps=3.0)

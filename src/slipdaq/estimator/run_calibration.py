@@ -99,9 +99,10 @@ class RunCalibration:
         return events
 
     def add_free_rolling(self, arcs: dict[str, float | None], d_gps: float | None, accel: float | None, speed: float,
-                         weight: float, latency_known: bool) -> None:
+                         weight: float, latency_known: bool, road_n: float = 0.0) -> None:
         """A window into the radius fit of each wheel that rolled freely over it (not frozen, r0 calibrated, above
-        r0_min_speed). While accelerating, the GPS latency must be known; at steady speed it does not matter."""
+        r0_min_speed). While accelerating, the GPS latency must be known; at steady speed it does not matter. road_n:
+        the road loads per driven tire (their slip corrects those wheels' radius, with the tire's Cx: radius.py)."""
         p = self.p
         if not p.calibrate_r0 or self.frozen or accel is None or d_gps is None or speed < p.r0_min_speed_mps:
             return
@@ -109,7 +110,18 @@ class RunCalibration:
         for w in WHEELS:
             arc = arcs[w]
             if arc is not None and self._free_rolling(w, accel) and (steady or latency_known):
-                self.radius[w].add(d_gps, arc, weight)
+                carried = road_n if road_n and w not in self.reference else 0.0
+                if carried:
+                    self.radius[w].cx_n = self._cx_n(w)
+                self.radius[w].add(d_gps, arc, weight, carried)
+
+    def _cx_n(self, w: str) -> float | None:
+        """The tire's Cx for the road loads' slip: the run's fit once confident, else the stored one."""
+        fit = self.stiffness[w]
+        if fit.cx_n is not None and fit.confidence >= CX_CONFIDENT:
+            return fit.cx_n
+        stored = self.stored_cx.get(w)
+        return stored[0] if stored is not None else self.radius[w].cx_n
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""

@@ -31,7 +31,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.fast_slip import FastSlipRows
-from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, tire_forces
+from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, longitudinal_force_n, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
@@ -258,7 +258,8 @@ class SlipEstimator:
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
-        cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none")
+        cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none",
+                             self._road_per_driven_tire(win.speed_mps))
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
@@ -280,6 +281,18 @@ class SlipEstimator:
             return learned
         loads, runs = self.measured_road_loads
         return replace(learned, road_loads=(loads.f0_n, loads.f1_n_per_mps, loads.f2_n_per_mps2, runs))
+
+    def _road_per_driven_tire(self, speed_mps: float) -> float:
+        """F_road(v) per driven tire (0 without road loads): the calibration's, else the config's coefficients."""
+        p = self.p
+        if self.road_loads is not None:
+            road_n = self.road_loads.force_n(speed_mps)
+        elif p.rolling_resistance_coeff or p.drag_area_m2:
+            road_n = longitudinal_force_n(p.mass_kg, 0.0, speed_mps, 0.0, p.rolling_resistance_coeff, p.drag_area_m2,
+                                          p.air_density_kgpm3)
+        else:
+            return 0.0
+        return road_n / len(self._driven)
 
     def road_loads_measured(self, loads: RoadLoads, runs: int) -> None:
         """A coast-down's road loads (the maneuver's, over `runs` runs): the run's to save in its calibration (this

@@ -12,11 +12,11 @@ record.
 Fit, per run: M*k*dV/dt = -(F0 + F1*V + F2*V^2) (M*k: the equivalent mass, [vehicle] rotating_mass_factor k),
 integrated from the span's start (the integral method: every row, no differentiated speed):
     V(t_i) = V0 - (F0*t_i + F1*int(V dt) + F2*int(V^2 dt))/(M*k)      (integrals by the trapezoid rule)
-linear in (V0, F0, F1, F2): least squares, with the coefficients' covariance s^2*(X'X)^-1. A wind w along the road adds +-2*F2*w to F1 and
-F2*w^2 to F0, a grade +-M*g*sin to F0: runs in opposite directions (GPS course 180 +- COURSE_TOLERANCE_DEG apart) are
-paired, and the road loads are the mean of the paired runs' coefficients (each pair's wind and grade terms cancel;
-F2*w^2 stays in F0), with 95 % intervals from their covariances. A run paired with none gives its own fit (invalid:
-wind and grade not cancelled).
+linear in (V0, F0, F1, F2): least squares, with the coefficients' covariance s^2*(X'X)^-1. A wind w along the road
+adds -+2*F2*w to F1 and F2*w^2 to F0, a grade +-M*g*sin to F0: runs in opposite directions (GPS course 180 +-
+COURSE_TOLERANCE_DEG apart) are paired, and the road loads are the mean of the paired runs' coefficients (each pair's
+wind and grade terms cancel; F2*w^2 stays in F0), with 95 % intervals from their covariances. A run paired with none
+gives its own fit (invalid: wind and grade not cancelled).
 """
 
 from __future__ import annotations
