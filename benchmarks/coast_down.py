@@ -9,8 +9,9 @@ loads). Per seed, through the CLI a user runs:
      --calibration cal.toml`; F0 and F2 from its last coast record (`export --maneuvers-csv`) and from cal.toml;
   2. the `highway` scenario (runs to 110, 60 and 110 km/h from a stop, each held 15 s and braked to a stop; no coast)
      of the same car on a day without wind: `slipdaq import --calibration cal.toml`, then `replay --two-pass`; the
-     driven (front) wheels' r0 error at the end, the front Cx error against the linear-fit truth (sim/truth.py), the slip RMS; and the same
-     with cal.toml's [road_loads] removed (the force without road loads, as before the coast-down).
+     driven (front) wheels' r0 error at the end, the front Cx error against the linear-fit truth (sim/truth.py), the
+     slip RMS; and the same with cal.toml's [road_loads] removed (the force without road loads, as before the
+     coast-down).
 
     python benchmarks/coast_down.py [--seeds 3] [--write]
 """
