@@ -13,7 +13,7 @@ loads). Per seed, through the CLI a user runs:
      slip RMS; and the same with cal.toml's [road_loads] removed (the force without road loads, as before the
      coast-down).
 
-    python benchmarks/coast_down.py [--seeds 3] [--write]
+    python -m benchmarks.coast_down [--seeds 3] [--write]
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import tomli_w
 
-from accuracy import MIN_SPEED_MPS, ROOT, Scenario, export_rows, import_log, quiet, replay_log, sim_settings
+from benchmarks.accuracy import MIN_SPEED_MPS, ROOT, Scenario, export_rows, import_log, quiet, replay_log, sim_settings
 from slipdaq import WHEELS
 from slipdaq.config import Config, load_config
 from slipdaq.sim.emit import generate

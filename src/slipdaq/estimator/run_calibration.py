@@ -8,7 +8,7 @@ import math
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
-from slipdaq.estimator.force import RoadLoads
+from slipdaq.estimator.force import RoadLoads, longitudinal_force_n
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
@@ -59,6 +59,8 @@ class RunCalibration:
         self.stiffness = {w: StiffnessFit() for w in WHEELS}
         self.events: list[SourceEvent] = []
         """Stored values the run replaced, for /diagnostics/events."""
+        self.road_loads_learned: tuple[float, float, float, int] | None = None
+        """A paired coast-down's (F0, F1, F2, runs) measured in this run (SlipEstimator.road_loads_measured)."""
 
     def latency(self, utc: UtcLatency, lag: WheelLatency, time_s: float) -> LatencyEstimate:
         """The GPS latency to use: fixed, else the run's own (wheels or UTC) or the stored one, whichever is surer;
@@ -176,7 +178,7 @@ class RunCalibration:
                 r0[w] = (radius, se)
         cx = {w: (f.cx_n, f.confidence) for w, f in self.stiffness.items()
               if f.cx_n is not None and f.confidence >= CX_CONFIDENT}
-        return Learned(latency, clock, r0, cx)
+        return Learned(latency, clock, r0, cx, self.road_loads_learned)
 
 
 def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> RoadLoads | None:
@@ -186,3 +188,15 @@ def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> Ro
         return None
     loads = stored.road_loads
     return RoadLoads(loads.road_load_f0_n, loads.road_load_f1_n_per_mps, loads.road_load_f2_n_per_mps2)
+
+
+def road_load_per_tire_n(params: EstimatorParams, road_loads: RoadLoads | None, speed_mps: float, driven: int
+                         ) -> float:
+    """F_road(v) per driven tire (0 without road loads): the calibration's, else the config's coefficients."""
+    p = params
+    if road_loads is not None:
+        return road_loads.force_n(speed_mps) / driven
+    if p.rolling_resistance_coeff or p.drag_area_m2:
+        return longitudinal_force_n(p.mass_kg, 0.0, speed_mps, 0.0, p.rolling_resistance_coeff, p.drag_area_m2,
+                                    p.air_density_kgpm3) / driven
+    return 0.0

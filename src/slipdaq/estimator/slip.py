@@ -24,14 +24,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import replace
 
 import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.fast_slip import FastSlipRows
-from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, longitudinal_force_n, tire_forces
+from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency, WheelLatencyRows
@@ -48,7 +47,7 @@ from slipdaq.estimator.readiness import (
     scan_samples,
 )
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.run_calibration import RunCalibration, stored_road_loads
+from slipdaq.estimator.run_calibration import RunCalibration, road_load_per_tire_n, stored_road_loads
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
 from slipdaq.estimator.window_measure import measure_window
@@ -85,8 +84,6 @@ class SlipEstimator:
         self._cal = RunCalibration(params, stored, frozen, self._reference)
         self.road_loads = stored_road_loads(stored, params)
         """The calibration's road loads Fx uses (None: the config's coefficients)."""
-        self.measured_road_loads: tuple[RoadLoads, int] | None = None
-        """A coast-down's road loads measured in this run and the runs they average (road_loads_measured)."""
         self.frozen = self._cal.frozen
         self._wheel_clock = WheelClockEstimates(params.window_s, self._reference, self._driven,
                                                 params.min_speed_mps * params.window_s)
@@ -259,7 +256,7 @@ class SlipEstimator:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
         cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none",
-                             self._road_per_driven_tire(win.speed_mps))
+                             road_load_per_tire_n(p, self.road_loads, win.speed_mps, len(self._driven)))
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
@@ -276,28 +273,12 @@ class SlipEstimator:
         if self.frozen:
             return Learned()
         lat = self.latency
-        learned = self._cal.learned(lat, self._utc_offset_s)
-        if self.measured_road_loads is None:
-            return learned
-        loads, runs = self.measured_road_loads
-        return replace(learned, road_loads=(loads.f0_n, loads.f1_n_per_mps, loads.f2_n_per_mps2, runs))
-
-    def _road_per_driven_tire(self, speed_mps: float) -> float:
-        """F_road(v) per driven tire (0 without road loads): the calibration's, else the config's coefficients."""
-        p = self.p
-        if self.road_loads is not None:
-            road_n = self.road_loads.force_n(speed_mps)
-        elif p.rolling_resistance_coeff or p.drag_area_m2:
-            road_n = longitudinal_force_n(p.mass_kg, 0.0, speed_mps, 0.0, p.rolling_resistance_coeff, p.drag_area_m2,
-                                          p.air_density_kgpm3)
-        else:
-            return 0.0
-        return road_n / len(self._driven)
+        return self._cal.learned(lat, self._utc_offset_s)
 
     def road_loads_measured(self, loads: RoadLoads, runs: int) -> None:
         """A coast-down's road loads (the maneuver's, over `runs` runs): the run's to save in its calibration (this
         run's Fx keeps the loads it started with)."""
-        self.measured_road_loads = (loads, runs)
+        self._cal.road_loads_learned = (loads.f0_n, loads.f1_n_per_mps, loads.f2_n_per_mps2, runs)
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
     def _gps_lost(self) -> list[Estimate]:

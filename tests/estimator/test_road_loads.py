@@ -7,17 +7,17 @@ import math
 
 import numpy as np
 import pytest
+from test_estimator import _run
 
-from estimator_params import params
-from slipdaq.calibration import Calibration, Learned, merged, parse_calibration, show, summary, to_toml
 from slipdaq.config import Config, parse_config
+from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, show, summary, to_toml
 from slipdaq.estimator import EstimatorParams
 from slipdaq.estimator.force import RoadLoads, longitudinal_force_n
 from slipdaq.estimator.run_calibration import stored_road_loads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.record import MANEUVER_COLUMNS, coast_record
 from slipdaq.sim.road_loads import RoadLoadTruth
-from test_estimator import _run
+from support.estimator_params import params
 
 MASS_KG, FACTOR = 1300.0, 1.04
 CAR = RoadLoadTruth(f0_n=150.0, f2_n_per_mps2=0.40, rotating_mass_factor=FACTOR, wind_mps=3.0)
@@ -199,6 +199,7 @@ def coast_down_log() -> tuple[Config, list]:
     return cfg, [e.record for e in events if e.record is not None]
 
 
+@pytest.mark.slow
 def test_coast_down_through_the_pipeline_live_and_replay_alike(coast_down_log: tuple[Config, list]) -> None:
     """The simulated coast-down scenario through the pipeline: two coast records, the second paired, F0 and F2 within
     5 % (F0 with F2*w^2 = 9 N of wind); the records the same with the summaries on a thread (live) and at once
