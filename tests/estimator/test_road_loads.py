@@ -17,6 +17,7 @@ from slipdaq.estimator.run_calibration import stored_road_loads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.record import MANEUVER_COLUMNS, coast_record
 from slipdaq.sim.road_loads import RoadLoadTruth
+from slipdaq.sinks.maneuver_text import maneuver_line
 from support.estimator_params import params
 
 MASS_KG, FACTOR = 1300.0, 1.04
@@ -92,6 +93,8 @@ def test_coast_down_paired_directions_cancel_wind_and_grade(config: Config) -> N
     record = coast_record(paired, 7, 0.0, ("FL", "FR", "RL", "RR")).as_row()
     assert record["kind"] == "coast" and record["valid"] is True and record["coast_runs_paired"] == 2
     assert record["road_load_f2_n_per_mps2"] == paired.loads[2]
+    line = maneuver_line(coast_record(paired, 7, 0.0, ("FL", "FR", "RL", "RR")))
+    assert line.startswith("maneuver #7 coast") and "runs paired" in line and "F0 15" in line and line.endswith("valid")
     names = {c.name for g in MANEUVER_COLUMNS for c in g.columns}
     assert {"road_load_f0_n_lo", "road_load_f1_n_per_mps_hi", "road_load_f2_n_per_mps2", "coast_runs_paired"} <= names
 
