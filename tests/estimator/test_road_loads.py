@@ -229,3 +229,20 @@ def test_coast_down_through_the_pipeline_live_and_replay_alike(coast_down_log: t
     with ThreadPoolExecutor(max_workers=1) as pool:
         Pipeline(cfg, [threaded], maneuver_executor=pool).run(records)
     assert [m.as_row() for m in threaded.maneuvers] == [m.as_row() for m in sync.maneuvers]
+
+
+def test_driven_wheel_radius_corrected_for_the_force_it_carries() -> None:
+    """Cruise windows of a driven wheel carrying 500 N at Cx = 100 kN (slip 0.5 %): 2*pi*N = d*(1 + s)/r0. The plain
+    ratio gives r0/(1 + s), 1.5 mm small; with the force and Cx, r0."""
+    from slipdaq.estimator.radius import RadiusCalibration
+
+    r0, force, cx = 0.3, 500.0, 100_000.0
+    plain, corrected = RadiusCalibration(), RadiusCalibration(cx_n=cx)
+    for k in range(60):
+        d = 12.0 + 0.1 * k
+        arc = d * (1.0 + force / cx) / r0
+        plain.add(d, arc)
+        corrected.add(d, arc, road_n=force)
+    assert plain.radius_m == pytest.approx(r0 / 1.005, rel=1e-12)
+    assert corrected.radius_m == pytest.approx(r0, rel=1e-12)
+    assert corrected.standard_error_m == plain.standard_error_m

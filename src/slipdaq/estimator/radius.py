@@ -6,8 +6,8 @@ error from the spread of the per-window Re (overlapping windows counted as one p
   off by more than that (the loaded radius is several mm below the free one);
 - converged ('calibrated') below `converged_se_m` (0.3 mm).
 After convergence old windows fade with distance (`track_distance_m`), so r0 tracks wear, pressure and load slowly.
-A driven wheel carries the road loads F_road in those windows, a slip s = F_road/Cx: with road loads known (and the
-tire's Cx), r0 = (sum(d_gps) + sum(d_gps*F_road)/Cx) / sum(2*pi*N), since omega*r0 = V*(1 + s).
+A driven wheel carries a force F in those windows (in cruise the road loads), a slip s = F/Cx: with road loads known
+(and the tire's Cx), r0 = (sum(d_gps) + sum(d_gps*F)/Cx) / sum(2*pi*N), since omega*r0 = V*(1 + s).
 """
 
 from __future__ import annotations

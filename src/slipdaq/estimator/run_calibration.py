@@ -8,7 +8,7 @@ import math
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
-from slipdaq.estimator.force import RoadLoads, longitudinal_force_n
+from slipdaq.estimator.force import RoadLoads
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
@@ -104,7 +104,8 @@ class RunCalibration:
                          weight: float, latency_known: bool, road_n: float = 0.0) -> None:
         """A window into the radius fit of each wheel that rolled freely over it (not frozen, r0 calibrated, above
         r0_min_speed). While accelerating, the GPS latency must be known; at steady speed it does not matter. road_n:
-        the road loads per driven tire (their slip corrects those wheels' radius, with the tire's Cx: radius.py)."""
+        the force each driven tire carries (driven_tire_force_n: its slip corrects those wheels' radius, with the
+        tire's Cx: radius.py)."""
         p = self.p
         if not p.calibrate_r0 or self.frozen or accel is None or d_gps is None or speed < p.r0_min_speed_mps:
             return
@@ -190,13 +191,12 @@ def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> Ro
     return RoadLoads(loads.road_load_f0_n, loads.road_load_f1_n_per_mps, loads.road_load_f2_n_per_mps2)
 
 
-def road_load_per_tire_n(params: EstimatorParams, road_loads: RoadLoads | None, speed_mps: float, driven: int
-                         ) -> float:
-    """F_road(v) per driven tire (0 without road loads): the calibration's, else the config's coefficients."""
-    p = params
-    if road_loads is not None:
-        return road_loads.force_n(speed_mps) / driven
-    if p.rolling_resistance_coeff or p.drag_area_m2:
-        return longitudinal_force_n(p.mass_kg, 0.0, speed_mps, 0.0, p.rolling_resistance_coeff, p.drag_area_m2,
-                                    p.air_density_kgpm3) / driven
-    return 0.0
+def driven_tire_force_n(params: EstimatorParams, road_loads: RoadLoads | None, force_n: float | None, driven: int
+                        ) -> float:
+    """What each driven tire carries in a window whose force is force_n (Fx = M*k*a + F_road + grade: in cruise the
+    road loads, in a coast about 0), when road loads are known (the calibration's or the config's coefficients);
+    0 without them (the radius as before) or while Fx < 0 (the brakes')."""
+    known = road_loads is not None or params.rolling_resistance_coeff or params.drag_area_m2
+    if not known or force_n is None or force_n <= 0.0:
+        return 0.0
+    return force_n / driven

@@ -47,7 +47,7 @@ from slipdaq.estimator.readiness import (
     scan_samples,
 )
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.run_calibration import RunCalibration, road_load_per_tire_n, stored_road_loads
+from slipdaq.estimator.run_calibration import RunCalibration, driven_tire_force_n, stored_road_loads
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
 from slipdaq.estimator.window_measure import measure_window
@@ -256,7 +256,7 @@ class SlipEstimator:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
         cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none",
-                             road_load_per_tire_n(p, self.road_loads, win.speed_mps, len(self._driven)))
+                             driven_tire_force_n(p, self.road_loads, win.force_n, len(self._driven)))
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
