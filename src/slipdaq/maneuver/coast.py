@@ -147,7 +147,7 @@ class CoastDetector:
         self.equivalent_mass_kg = config.vehicle.mass_kg * config.vehicle.rotating_mass_factor
         self._times: list[float] = []
         self._speeds: list[float] = []
-        self._lowest = math.inf
+        self._lowest, self._highest = math.inf, -math.inf
         self._last_pressed_s = -math.inf
         self._courses: list[tuple[float, float]] = []
         self.runs: list[CoastFit] = []
@@ -164,7 +164,7 @@ class CoastDetector:
 
     def _restart(self) -> None:
         self._times, self._speeds, self._courses = [], [], []
-        self._lowest = math.inf
+        self._lowest, self._highest = math.inf, -math.inf
 
     def add_estimate(self, row: dict[str, Any]) -> CoastRun | None:
         """One estimate row; the coast it decides, if any."""
@@ -178,9 +178,10 @@ class CoastDetector:
         self._times.append(t)
         self._speeds.append(v)
         self._lowest = min(self._lowest, v)
+        self._highest = max(self._highest, v)
         if v >= self.to_mps:
             return None
-        run = self._decide()
+        run = self._decide() if self._highest >= self.from_mps else None
         self._restart()
         return run
 
