@@ -246,3 +246,14 @@ def test_driven_wheel_radius_corrected_for_the_force_it_carries() -> None:
     assert plain.radius_m == pytest.approx(r0 / 1.005, rel=1e-12)
     assert corrected.radius_m == pytest.approx(r0, rel=1e-12)
     assert corrected.standard_error_m == plain.standard_error_m
+
+
+def test_a_log_from_before_the_rotating_masses_replays_without_them() -> None:
+    """A log stores its config with every key: one without rotating_mass_factor ran with M*a (factor 1.0); a log of
+    this version keeps what it ran with."""
+    from slipdaq.config import parse_logged_config
+
+    assert parse_logged_config("[vehicle]\nmass_kg = 1500.0\n").vehicle.rotating_mass_factor == 1.0
+    now = Config().with_overrides(vehicle={"rotating_mass_factor": 1.05})
+    assert parse_logged_config(now.to_toml()).vehicle.rotating_mass_factor == 1.05
+    assert parse_logged_config(Config().to_toml()).vehicle.rotating_mass_factor == 1.03

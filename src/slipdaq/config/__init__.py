@@ -426,6 +426,15 @@ def parse_config(text: str, source_path: Path | None = None, dbc_text: str | Non
     return cfg.model_copy(update={"source_path": source_path, "source_text": text, "dbc_text": dbc_text})
 
 
+def parse_logged_config(text: str, source_path: Path | None = None, dbc_text: str | None = None) -> Config:
+    """The config a log stored (every key written out): parse_config, but a log written before
+    `vehicle.rotating_mass_factor` existed ran without rotating masses, so 1.0 (its replay gives its estimates)."""
+    cfg = parse_config(text, source_path, dbc_text)
+    if text and "rotating_mass_factor" not in tomllib.loads(text).get("vehicle", {}):
+        cfg = cfg.with_overrides(vehicle={"rotating_mass_factor": 1.0})
+    return cfg
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Read and validate a config file (default: ./slipdaq.toml, else the packaged example)."""
     p = Path(path) if path is not None else default_config_path()
