@@ -173,9 +173,16 @@ def quiet(*argv: str) -> None:
         assert slipdaq(list(argv)) == 0, argv
 
 
+NO_ROTATING_MASSES = ("# rotating_mass_factor = 1.03", "rotating_mass_factor = 1.0")
+"""The simulated car has no rotating masses (the simulator's default): its config says so (as shipped it assumes
+SAE J2263's 1.03, which would put 3 % more force on this car's tires than they carry)."""
+
+
 def config_file(base: Config, folder: Path, method: str) -> Path:
-    """The method's config (slipdaq: as shipped; uncompensated: latency 0, tire-size radius) with the DBC beside it."""
-    text = base.source_text
+    """The method's config (slipdaq: as shipped but for NO_ROTATING_MASSES; uncompensated: latency 0, tire-size
+    radius) with the DBC beside it."""
+    assert NO_ROTATING_MASSES[0] in base.source_text
+    text = base.source_text.replace(*NO_ROTATING_MASSES)
     if method == "uncompensated":
         text = text.replace('latency_s = "auto"', "latency_s = 0.0").replace("# calibrate_r0 = true", "calibrate_r0 = false")
     path = folder / f"{method}.toml"

@@ -27,9 +27,11 @@ from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.decode.timemark import TimeMark
 from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
+from slipdaq.estimator.force import RoadLoads
+from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
-from slipdaq.maneuver.record import MANEUVER_KINDS, maneuver_record
+from slipdaq.maneuver.record import MANEUVER_KINDS, coast_record, maneuver_record
 from slipdaq.maneuver.test_set import TestSets
 from slipdaq.records import (
     FLAG_ERROR,
@@ -137,11 +139,15 @@ class Pipeline:
         self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
         self._detect = maneuvers
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""
+        self.coasts = CoastDetector(config)
+        """Decides each coast-down as it ends: the estimator gets its road loads (for the calibration), the sinks its
+        /maneuver record (unless maneuvers=False)."""
+        self._coast_records = maneuvers
         self.maneuver_count = 0
         self.test_sets = TestSets(config.test)
         """The test's procedures' sets, fed each /maneuver record; sinks get a set's /test_set record after each."""
         self._executor = maneuver_executor
-        self._summaries: deque[Future[ManeuverSummary]] = deque()
+        self._summaries: deque[Future[ManeuverSummary | CoastRun]] = deque()
         """Maneuvers being summarized on the executor, in the order they were decided."""
         self._gps_speeds = gps_speeds
         self.fixes = 0
@@ -202,6 +208,7 @@ class Pipeline:
         self.valid_fixes += bool(fix.valid)
         if fix.valid and fix.course_deg is not None and fix.speed_mps >= COURSE_MIN_SPEED_MPS:
             self.xbus.course_deg = fix.course_deg  # the heading of an MTi's FreeAcceleration without orientation
+        self.coasts.add_course(fix.timestamp_s, fix.course_deg)
         for e in self.estimator.add_gps(fix):
             self._estimate(e, log_time_s)
         if self.estimator.events:
@@ -220,6 +227,7 @@ class Pipeline:
         if sample.kind == "brake":
             if self._detect:
                 self.maneuvers.add_brake(sample.time_s, sample.value)
+            self.coasts.add_brake(sample.time_s, sample.value)
         elif sample.kind == BRAKE_MARK:
             if self._detect:
                 self.maneuvers.add_brake_mark(sample.time_s)
@@ -373,10 +381,26 @@ class Pipeline:
     def _estimate(self, e: Estimate, log_time_s: float) -> None:
         self.estimates += 1
         self._out.on_estimate(e, log_time_s)
+        row = e.as_row()
         if self._detect:
-            self.maneuvers.add_estimate(e.as_row())
+            self.maneuvers.add_estimate(row)
             if self.maneuvers.decided:
                 self._maneuvers(log_time_s)
+        coast = self.coasts.add_estimate(row)
+        if coast is not None:
+            self._coast(coast, log_time_s)
+
+    def _coast(self, run: CoastRun, log_time_s: float) -> None:
+        """A coast decided: its road loads to the estimator (for the calibration, when paired) and its record to the
+        sinks, in order with the maneuvers decided before it."""
+        if run.runs_paired:
+            self.estimator.road_loads_measured(RoadLoads(*run.loads), run.runs_paired)
+        if not self._coast_records:
+            return
+        if self._executor is not None:
+            self._summaries.append(self._executor.submit(lambda: run))
+            return
+        self._deliver_maneuver(run, log_time_s)
 
     def _maneuvers(self, log_time_s: float, final: bool = False) -> None:
         """The maneuvers decided now, as /maneuver records, to every sink at this log time (with an executor: their
@@ -395,9 +419,12 @@ class Pipeline:
         while self._summaries and self._summaries[0].done():
             self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
 
-    def _deliver_maneuver(self, m: ManeuverSummary, log_time_s: float) -> None:
+    def _deliver_maneuver(self, m: ManeuverSummary | CoastRun, log_time_s: float) -> None:
         self.maneuver_count += 1
-        record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
+        if isinstance(m, CoastRun):
+            record = coast_record(m, self.maneuver_count, self.maneuvers.t0_s or 0.0, WHEELS)
+        else:
+            record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
         self._out.on_maneuver(record, log_time_s)
         test_set = self.test_sets.add(record)
         if test_set is not None:

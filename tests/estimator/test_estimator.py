@@ -66,9 +66,10 @@ def test_ring_keeps_order_when_dropping_and_growing() -> None:
 
 
 def _run(est_params: EstimatorParams, speed_of_t, slip_of_w, duration_s=6.0, wheel_hz=200.0, gps_hz=10.0,
-         start_count=0, gps_delay_s=None):
-    """Feed a synthetic constant-slip stream; wheel counts are exact floors of the true angle."""
-    est = SlipEstimator(est_params)
+         start_count=0, gps_delay_s=None, stored=None):
+    """Feed a synthetic constant-slip stream; wheel counts are exact floors of the true angle (stored: the
+    calibration the estimator starts from)."""
+    est = SlipEstimator(est_params, stored)
     out = []
     events = []
     dt = 1.0 / wheel_hz
@@ -111,18 +112,20 @@ def test_constant_speed_and_slip_recovered_exactly() -> None:
 
 
 def test_accel_force_and_cx_hand_values() -> None:
-    # v = 10 + 2 t: a = 2 m/s^2, Fx = 1300 * 2 = 2600 N; front-driven -> 1300 N per front tire.
+    # v = 10 + 2 t: a = 2 m/s^2, Fx = 1300 * 1.03 * 2 = 2678 N (the rotating masses' default factor 1.03);
+    # front-driven -> 1339 N per front tire.
     p = params(window_s=0.5, mass_kg=1300.0, r_ref_m=0.3, driven_axle="front")
+    assert p.rotating_mass_factor == 1.03
     slips = {"FL": 0.02, "FR": 0.04, "RL": 0.0, "RR": 0.0}
     est = _run(p, lambda t: 10.0 + 2.0 * t, slips)
     mid = [e for e in est if 1.0 < e.time_s < 5.0]
     assert mid
     for e in mid:
         assert e.accel_mps2 == pytest.approx(2.0, abs=1e-9)
-        assert e.force_n == pytest.approx(2600.0, abs=1e-6)
-        assert e.wheels["FL"].force_n == pytest.approx(1300.0)
-        assert e.wheels["FL"].cx_n == pytest.approx(1300.0 / 0.02, rel=0.02)  # Cx = Fx_tire / s
-        assert e.wheels["FR"].cx_n == pytest.approx(1300.0 / 0.04, rel=0.02)
+        assert e.force_n == pytest.approx(2678.0, abs=1e-6)
+        assert e.wheels["FL"].force_n == pytest.approx(1339.0)
+        assert e.wheels["FL"].cx_n == pytest.approx(1339.0 / 0.02, rel=0.02)  # Cx = Fx_tire / s
+        assert e.wheels["FR"].cx_n == pytest.approx(1339.0 / 0.04, rel=0.02)
         assert e.wheels["RL"].cx_n is None  # no force on a non-driven wheel: no stiffness
         assert e.speed_mps == pytest.approx(10.0 + 2.0 * (e.time_s - 2e-5), abs=1e-9)
 

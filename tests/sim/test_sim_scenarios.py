@@ -81,10 +81,10 @@ def axle(sample: TruthSample, prefix: str, field: str) -> float:
 
 
 def test_scenario_names_and_models(cfg: Config) -> None:
-    assert SCENARIOS == ("accelerate", "brake", "cycle", "test-day", "brake-abs", "brake-abs-all", "brake-lock",
-                         "launch-spin")
-    assert all(isinstance(vehicle_model(cfg, s, "paved"), VehicleSim) for s in SCENARIOS[:4])  # type: ignore[arg-type]
-    assert all(isinstance(vehicle_model(cfg, s, "sand"), DynamicVehicleSim) for s in SCENARIOS[4:])  # type: ignore[arg-type]
+    assert SCENARIOS == ("accelerate", "brake", "cycle", "test-day", "highway", "brake-abs", "brake-abs-all",
+                         "brake-lock", "launch-spin", "coast-down")
+    assert all(isinstance(vehicle_model(cfg, s, "paved"), VehicleSim) for s in SCENARIOS[:5])  # type: ignore[arg-type]
+    assert all(isinstance(vehicle_model(cfg, s, "sand"), DynamicVehicleSim) for s in SCENARIOS[5:])  # type: ignore[arg-type]
     with pytest.raises(ValueError):
         vehicle_model(cfg, "drift", "paved")  # type: ignore[arg-type]
 

@@ -33,8 +33,13 @@ class VehicleConfig(_Section):
     mass_kg: float = Field(1300.0, gt=0, description="total vehicle mass M in Fx = M*a")
     driven_axle: Literal["front", "rear", "all"] = Field("front", description="the axle the engine drives (all: every wheel)")
     brake_front_share: float = Field(0.7, ge=0, le=1, description="share of braking force on the front axle")
-    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off)")
-    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off)")
+    rolling_resistance_coeff: float = Field(0.0, ge=0, lt=0.1, description="f_rr: F_rr = f_rr*M*g (0 = off); "
+                                            "above 0 (or drag_area_m2), the two win over the calibration's [road_loads]")
+    drag_area_m2: float = Field(0.0, ge=0, lt=20, description="Cd*A: F_drag = rho/2*CdA*v^2 (0 = off); above 0 (or "
+                                "rolling_resistance_coeff), the two win over the calibration's [road_loads]")
+    rotating_mass_factor: float = Field(1.03, ge=1, lt=1.5, description="the equivalent mass of the wheels and "
+                                        "driveline per unit of M (SAE J2263: 1.03; 1.0 = off): Fx = M*factor*a + road "
+                                        "loads, and the coast-down's deceleration carries M*factor")
     air_density_kgpm3: float = Field(1.2, gt=0, lt=2, description="rho in the drag force")
     wheelbase_m: float = Field(2.6, gt=0.5, lt=10, description="L in the load transfer M*a*h/L")
     cg_height_m: float = Field(0.55, gt=0, lt=5, description="h, the centre of gravity's height above the road")
@@ -278,6 +283,10 @@ class TestConfig(_Section):
 
     target_speeds_kmh: list[float] = Field([], description="the maneuvers' target speeds; empty: speed not judged")
     speed_tolerance_kmh: float = Field(2.0, ge=0, description="how far a brake speed may lie from a target")
+    coast_from_kmh: float = Field(100.0, gt=0, lt=400, description="a coast (no brake, no drive force) starts at this "
+                                  "speed or above to make a `coast` maneuver (the road loads' fit)")
+    coast_to_kmh: float = Field(20.0, gt=0, lt=400, description="... and runs down to this speed (the fit's low end)")
+
     procedure: list[ProcedureConfig] = Field(
         [], description="[[test.procedure]]: the test's sets of runs; each decided maneuver of a procedure's kind "
                         "belongs to the one whose target speed is nearest")
@@ -294,6 +303,12 @@ class TestConfig(_Section):
         """The procedure's speed tolerance, else the test's."""
         t = procedure.speed_tolerance_kmh
         return self.speed_tolerance_kmh if t is None else t
+
+    @model_validator(mode="after")
+    def _coast_span(self) -> TestConfig:
+        if self.coast_to_kmh >= self.coast_from_kmh:
+            raise ValueError("coast_to_kmh must be below coast_from_kmh")
+        return self
 
     @field_validator("target_speeds_kmh")
     @classmethod
@@ -471,6 +486,15 @@ def parse_config(text: str, source_path: Path | None = None, dbc_text: str | Non
     """Parse TOML text into a Config; raises ConfigError with one line naming the file and key."""
     cfg = parse_toml(Config, text, str(source_path) if source_path is not None else "<config>")
     return cfg.model_copy(update={"source_path": source_path, "source_text": text, "dbc_text": dbc_text})
+
+
+def parse_logged_config(text: str, source_path: Path | None = None, dbc_text: str | None = None) -> Config:
+    """The config a log stored (every key written out): parse_config, but a log written before
+    `vehicle.rotating_mass_factor` existed ran without rotating masses, so 1.0 (its replay gives its estimates)."""
+    cfg = parse_config(text, source_path, dbc_text)
+    if text and "rotating_mass_factor" not in tomllib.loads(text).get("vehicle", {}):
+        cfg = cfg.with_overrides(vehicle={"rotating_mass_factor": 1.0})
+    return cfg
 
 
 def load_config(path: str | Path | None = None) -> Config:

@@ -14,6 +14,10 @@ learned. The file names the vehicle and tire set it belongs to (`vehicle.name`, 
     [cx.FL]      cx_n, confidence, learned_at, learned_from        (one table per tire)
     [imu]        gain, offset_mps2, windows, reference ("can:MSG.SIGNAL" or "serial": the IMU it belongs to),
                  learned_at, learned_from                          (an IMU without orientation: a = (a_imu - offset)/gain)
+    [road_loads] road_load_f0_n, road_load_f1_n_per_mps, road_load_f2_n_per_mps2 (a coast-down's F0 + F1*v + F2*v^2),
+                 runs_paired, learned_at, learned_from
+Fx takes [road_loads] in place of the config's rolling_resistance_coeff and drag_area_m2 unless the config gives one
+of those above 0 (estimator.run_calibration.stored_road_loads).
 """
 
 from __future__ import annotations
@@ -94,6 +98,12 @@ class StoredImuGain(Provenance):
 def imu_of(config: Config) -> str:
     """The IMU's identity: "serial" (an MTi), or "can:MESSAGE.SIGNAL"."""
     return "serial" if config.imu.source == "serial" else f"can:{config.imu.message}.{config.imu.signal}"
+class StoredRoadLoads(Provenance):
+    road_load_f0_n: float = Field(ge=0, lt=1e5)
+    road_load_f1_n_per_mps: float = Field(gt=-1e4, lt=1e4)
+    road_load_f2_n_per_mps2: float = Field(ge=0, lt=100)
+    runs_paired: int = Field(0, ge=0)
+    """Coast runs the loads average, in pairs of opposite directions (0: one run, wind and grade not cancelled)."""
 
 
 class Calibration(_Section):
@@ -104,10 +114,12 @@ class Calibration(_Section):
     r0: dict[Wheel, StoredRadius] = {}
     cx: dict[Wheel, StoredStiffness] = {}
     imu: StoredImuGain | None = None
+    road_loads: StoredRoadLoads | None = None
 
     @property
     def empty(self) -> bool:
-        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx and self.imu is None
+        return self.latency is None and self.host_clock is None and not self.r0 and not self.cx and self.imu is None \
+            and self.road_loads is None
 
 
 @dataclass(frozen=True)
@@ -123,6 +135,8 @@ class Learned:
     """wheel -> (cx_n, confidence)."""
     imu_gain: tuple[float, float, int] | None = None
     """(gain, offset_mps2, windows) of an IMU without orientation."""
+    road_loads: tuple[float, float, float, int] | None = None
+    """A coast-down's (F0 [N], F1 [N/(m/s)], F2 [N/(m/s)^2], runs paired)."""
 
 
 def vehicle_identity(config: Config) -> VehicleIdentity:
@@ -211,9 +225,15 @@ def merged(stored: Calibration | None, learned: Learned, config: Config, learned
         gain, offset, windows = learned.imu_gain
         imu = StoredImuGain.model_validate({"gain": gain, "offset_mps2": offset, "windows": windows,
                                             "reference": imu_of(config)} | prov)
+    loads = base.road_loads
+    if learned.road_loads is not None:
+        f0, f1, f2, runs = learned.road_loads
+        loads = StoredRoadLoads(road_load_f0_n=f0, road_load_f1_n_per_mps=f1, road_load_f2_n_per_mps2=f2,
+                                runs_paired=runs, **prov)
     return Calibration.model_validate({
         "vehicle": vehicle_identity(config), "latency": latency, "host_clock": clock,
-        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}, "imu": imu})
+        "r0": {w: r0[w] for w in WHEELS if w in r0}, "cx": {w: cx[w] for w in WHEELS if w in cx}, "imu": imu,
+        "road_loads": loads})
 
 
 def reset(cal: Calibration, wheels: list[str] | None) -> Calibration:
@@ -235,7 +255,14 @@ def summary(cal: Calibration) -> str:
         parts.append("Cx " + ", ".join(f"{w} {c.cx_n / 1000:.1f} kN" for w, c in cal.cx.items()))
     if cal.imu is not None:
         parts.append(f"IMU gain {cal.imu.gain:.4f}, offset {cal.imu.offset_mps2:+.3f} m/s^2")
+    if cal.road_loads is not None:
+        parts.append(f"road loads {road_loads_text(cal.road_loads)}")
     return "; ".join(parts) or "nothing learned yet"
+
+
+def road_loads_text(loads: StoredRoadLoads) -> str:
+    return (f"F0 {loads.road_load_f0_n:.1f} N, F1 {loads.road_load_f1_n_per_mps:.2f} N/(m/s), "
+            f"F2 {loads.road_load_f2_n_per_mps2:.4f} N/(m/s)^2")
 
 
 def show(cal: Calibration, path: str) -> str:
@@ -262,6 +289,9 @@ def show(cal: Calibration, path: str) -> str:
         i = cal.imu
         lines.append(f"  IMU {i.reference}  gain {i.gain:.4f}, offset {i.offset_mps2:+.3f} m/s^2 ({i.windows} "
                      f"windows), {when(i)}")
+    if cal.road_loads is not None:
+        lines.append(f"  road loads   {road_loads_text(cal.road_loads)} ({cal.road_loads.runs_paired} runs paired), "
+                     f"{when(cal.road_loads)}")
     if cal.empty:
         lines.append("  nothing learned yet")
     return "\n".join(lines)

@@ -1,5 +1,7 @@
 """Longitudinal force from the car's acceleration (docs/method.md):
-  Fx = M*a + f_rr*M*g*cos(grade) + rho/2*CdA*v^2 + M*g*sin(grade)   (each road-load term off unless configured)
+  Fx = M*k*a + F_road(v) + M*g*sin(grade),   k = rotating_mass_factor (the wheels' and driveline's inertia)
+  F_road = f_rr*M*g*cos(grade) + rho/2*CdA*v^2       (the config's coefficients, each off unless set), or
+  F_road = F0 + F1*v + F2*v^2                         (the calibration's coast-down road loads, RoadLoads)
 split per tire: evenly over the driven wheels when Fx >= 0, by the brake's front share when Fx < 0. The grade comes
 from GPS altitude over the last 2 s (backward, so no wait for future fixes).
 """
@@ -7,6 +9,7 @@ from GPS altitude over the last 2 s (backward, so no wait for future fixes).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -34,12 +37,28 @@ def tire_forces(fx_n: float, driven_axle: str, brake_front_share: float) -> dict
     return {"FL": front, "FR": front, "RL": rear, "RR": rear}
 
 
+class RoadLoads(NamedTuple):
+    """A coast-down's road loads F_road(v) = F0 + F1*v + F2*v^2 [N]."""
+
+    f0_n: float
+    f1_n_per_mps: float
+    f2_n_per_mps2: float
+
+    def force_n(self, speed_mps: float) -> float:
+        return self.f0_n + self.f1_n_per_mps * speed_mps + self.f2_n_per_mps2 * speed_mps * speed_mps
+
+
 def longitudinal_force_n(mass_kg: float, accel_mps2: float, speed_mps: float, sin_grade: float,
-                         rolling_resistance_coeff: float, drag_area_m2: float, air_density_kgpm3: float) -> float:
-    """Fx = M*a + f_rr*M*g*cos + rho/2*CdA*v^2 + M*g*sin."""
+                         rolling_resistance_coeff: float, drag_area_m2: float, air_density_kgpm3: float,
+                         rotating_mass_factor: float = 1.0, road_loads: RoadLoads | None = None) -> float:
+    """Fx = M*k*a + f_rr*M*g*cos + rho/2*CdA*v^2 + M*g*sin; with road_loads, F0 + F1*v + F2*v^2 in place of the
+    f_rr and CdA terms."""
+    inertia = mass_kg * rotating_mass_factor * accel_mps2
+    if road_loads is not None:
+        return inertia + road_loads.force_n(speed_mps) + mass_kg * G_MPS2 * sin_grade
     cos_grade = math.sqrt(1.0 - sin_grade * sin_grade)
     return (
-        mass_kg * accel_mps2
+        inertia
         + rolling_resistance_coeff * mass_kg * G_MPS2 * cos_grade
         + 0.5 * air_density_kgpm3 * drag_area_m2 * speed_mps * speed_mps
         + mass_kg * G_MPS2 * sin_grade

@@ -37,6 +37,10 @@ class EstimatorParams:
     rolling_resistance_coeff: float
     drag_area_m2: float
     air_density_kgpm3: float
+    road_loads_configured: bool
+    """The config gives rolling_resistance_coeff or drag_area_m2 (above 0): they win over a calibration's road loads
+    (by value, not by key: a log stores its config with every key)."""
+    rotating_mass_factor: float
     grade_from_altitude: bool
     fast_rate_hz: float
     """The high-rate slip's grid (0: none)."""
@@ -57,6 +61,8 @@ class EstimatorParams:
             max_latency_s=e.max_latency_s, calibrate_r0=e.calibrate_r0, r0_min_speed_mps=e.r0_min_speed_mps,
             fit_min_speed_mps=e.fit_min_speed_mps, rolling_resistance_coeff=v.rolling_resistance_coeff,
             drag_area_m2=v.drag_area_m2, air_density_kgpm3=v.air_density_kgpm3,
+            road_loads_configured=v.rolling_resistance_coeff > 0.0 or v.drag_area_m2 > 0.0,
+            rotating_mass_factor=v.rotating_mass_factor,
             grade_from_altitude=e.grade_from_altitude, fast_rate_hz=e.fast_rate_hz,
             epoch_interval_s=CAN_EPOCH_INTERVAL_S if cfg.gps.source == "can" else 0.0,
         ), **overrides)

@@ -6,6 +6,8 @@ error from the spread of the per-window Re (overlapping windows counted as one p
   off by more than that (the loaded radius is several mm below the free one);
 - converged ('calibrated') below `converged_se_m` (0.3 mm).
 After convergence old windows fade with distance (`track_distance_m`), so r0 tracks wear, pressure and load slowly.
+A driven wheel carries a force F in those windows (in cruise the road loads), a slip s = F/Cx: with road loads known
+(and the tire's Cx), r0 = (sum(d_gps) + sum(d_gps*F)/Cx) / sum(2*pi*N), since omega*r0 = V*(1 + s).
 """
 
 from __future__ import annotations
@@ -29,14 +31,21 @@ class RadiusCalibration:
     sum_w_re2: float = 0.0
     windows: float = 0.0
     converged: bool = False
+    road_nm: float = 0.0
+    """sum(weight*d_gps*F_road) [N*m]: the road loads this wheel carried over the windows (0 without road loads)."""
+    cx_n: float | None = None
+    """The tire's Cx for the road loads' slip (None: no correction)."""
 
-    def add(self, gps_distance_m: float, arc_m: float, weight: float = 1.0) -> None:
-        """One free-rolling window: GPS distance and 2*pi*revolutions; weight from the GPS's stated accuracy."""
+    def add(self, gps_distance_m: float, arc_m: float, weight: float = 1.0, road_n: float = 0.0) -> None:
+        """One free-rolling window: GPS distance and 2*pi*revolutions; weight from the GPS's stated accuracy; road_n:
+        the road loads this tire carried (a driven one)."""
         if arc_m <= 0 or gps_distance_m <= 0:
             return
         lam = math.exp(-gps_distance_m / self.track_distance_m) if self.converged else 1.0
         re = gps_distance_m / arc_m
         w = weight * gps_distance_m
+        if road_n or self.road_nm:
+            self.road_nm = lam * self.road_nm + w * road_n
         self.gps_m = lam * self.gps_m + w
         self.arc_m = lam * self.arc_m + weight * arc_m
         self.sum_w_re = lam * self.sum_w_re + w * re
@@ -58,7 +67,11 @@ class RadiusCalibration:
 
     @property
     def radius_m(self) -> float | None:
-        return self.gps_m / self.arc_m if self.arc_m > 0 else None
+        if self.arc_m <= 0:
+            return None
+        if self.road_nm and self.cx_n:
+            return (self.gps_m + self.road_nm / self.cx_n) / self.arc_m
+        return self.gps_m / self.arc_m
 
     @property
     def standard_error_m(self) -> float | None:

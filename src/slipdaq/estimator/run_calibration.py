@@ -8,6 +8,7 @@ import math
 
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
+from slipdaq.estimator.force import RoadLoads
 from slipdaq.estimator.latency import LatencyEstimate, UtcLatency, WheelLatency
 from slipdaq.estimator.params import EstimatorParams
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
@@ -58,6 +59,8 @@ class RunCalibration:
         self.stiffness = {w: StiffnessFit() for w in WHEELS}
         self.events: list[SourceEvent] = []
         """Stored values the run replaced, for /diagnostics/events."""
+        self.road_loads_learned: tuple[float, float, float, int] | None = None
+        """A paired coast-down's (F0, F1, F2, runs) measured in this run (SlipEstimator.road_loads_measured)."""
 
     def latency(self, utc: UtcLatency, lag: WheelLatency, time_s: float) -> LatencyEstimate:
         """The GPS latency to use: fixed, else the run's own (wheels or UTC) or the stored one, whichever is surer;
@@ -98,9 +101,11 @@ class RunCalibration:
         return events
 
     def add_free_rolling(self, arcs: dict[str, float | None], d_gps: float | None, accel: float | None, speed: float,
-                         weight: float, latency_known: bool) -> None:
+                         weight: float, latency_known: bool, road_n: float = 0.0) -> None:
         """A window into the radius fit of each wheel that rolled freely over it (not frozen, r0 calibrated, above
-        r0_min_speed). While accelerating, the GPS latency must be known; at steady speed it does not matter."""
+        r0_min_speed). While accelerating, the GPS latency must be known; at steady speed it does not matter. road_n:
+        the force each driven tire carries (driven_tire_force_n: its slip corrects those wheels' radius, with the
+        tire's Cx: radius.py)."""
         p = self.p
         if not p.calibrate_r0 or self.frozen or accel is None or d_gps is None or speed < p.r0_min_speed_mps:
             return
@@ -108,7 +113,18 @@ class RunCalibration:
         for w in WHEELS:
             arc = arcs[w]
             if arc is not None and self._free_rolling(w, accel) and (steady or latency_known):
-                self.radius[w].add(d_gps, arc, weight)
+                carried = road_n if road_n and w not in self.reference else 0.0
+                if carried:
+                    self.radius[w].cx_n = self._cx_n(w)
+                self.radius[w].add(d_gps, arc, weight, carried)
+
+    def _cx_n(self, w: str) -> float | None:
+        """The tire's Cx for the road loads' slip: the run's fit once confident, else the stored one."""
+        fit = self.stiffness[w]
+        if fit.cx_n is not None and fit.confidence >= CX_CONFIDENT:
+            return fit.cx_n
+        stored = self.stored_cx.get(w)
+        return stored[0] if stored is not None else self.radius[w].cx_n
 
     def _free_rolling(self, w: str, accel: float) -> bool:
         """The tire carries little force: a non-driven wheel when not braking, any wheel when coasting."""
@@ -163,4 +179,24 @@ class RunCalibration:
                 r0[w] = (radius, se)
         cx = {w: (f.cx_n, f.confidence) for w, f in self.stiffness.items()
               if f.cx_n is not None and f.confidence >= CX_CONFIDENT}
-        return Learned(latency, clock, r0, cx)
+        return Learned(latency, clock, r0, cx, road_loads=self.road_loads_learned)
+
+
+def stored_road_loads(stored: Calibration | None, params: EstimatorParams) -> RoadLoads | None:
+    """The calibration's [road_loads] for Fx, unless the config gives rolling_resistance_coeff or drag_area_m2 above 0
+    (a manual override: then those); None: none stored (Fx takes the config's coefficients, 0 unless set)."""
+    if stored is None or stored.road_loads is None or params.road_loads_configured:
+        return None
+    loads = stored.road_loads
+    return RoadLoads(loads.road_load_f0_n, loads.road_load_f1_n_per_mps, loads.road_load_f2_n_per_mps2)
+
+
+def driven_tire_force_n(params: EstimatorParams, road_loads: RoadLoads | None, force_n: float | None, driven: int
+                        ) -> float:
+    """What each driven tire carries in a window whose force is force_n (Fx = M*k*a + F_road + grade: in cruise the
+    road loads, in a coast about 0), when road loads are known (the calibration's or the config's coefficients);
+    0 without them (the radius as before) or while Fx < 0 (the brakes')."""
+    known = road_loads is not None or params.rolling_resistance_coeff or params.drag_area_m2
+    if not known or force_n is None or force_n <= 0.0:
+        return 0.0
+    return force_n / driven

@@ -31,7 +31,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config.calibration import Calibration, Learned
 from slipdaq.estimator.fast_slip import FastSlipRows
-from slipdaq.estimator.force import AltitudeGrade, driven_wheels, tire_forces
+from slipdaq.estimator.force import AltitudeGrade, RoadLoads, driven_wheels, tire_forces
 from slipdaq.estimator.gps_lost import WheelClockEstimates
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, TIME_TOL_S, GpsTrack, integrate_speed_m, smooth_arrival
 from slipdaq.estimator.imu_gain import SOURCE_RAW, ImuInput
@@ -48,7 +48,7 @@ from slipdaq.estimator.readiness import (
     head_ready,
     scan_samples,
 )
-from slipdaq.estimator.run_calibration import RunCalibration
+from slipdaq.estimator.run_calibration import RunCalibration, driven_tire_force_n, stored_road_loads
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
 from slipdaq.estimator.window_measure import measure_window
@@ -87,6 +87,8 @@ class SlipEstimator:
         self._reference = tuple(w for w in WHEELS if w not in self._driven)
         self._lag_rows = WheelLatencyRows(self._lag, not self._reference, params.max_latency_s, params.window_s)
         self._cal = RunCalibration(params, stored, frozen, self._reference)
+        self.road_loads = stored_road_loads(stored, params)
+        """The calibration's road loads Fx uses (None: the config's coefficients)."""
         self.frozen = self._cal.frozen
         self._wheel_clock = WheelClockEstimates(params.window_s, self._reference, self._driven,
                                                 params.min_speed_mps * params.window_s)
@@ -269,14 +271,15 @@ class SlipEstimator:
         fix_arr = smooth - lat.latency_s
         imu = self._imu
         win = measure_window(p, track, self._grade, self._windows, imu.ring, fix_arr, i, lat, imu.source,
-                             imu.correction)
+                             imu.correction, self.road_loads)
         if not self.frozen:
             imu.observe(win.imu_raw_mps2, fix_arr, track.speed.values, win.t0, win.t1, win.speed_mps,
                         lat.source != "none" and not win.disturbed)
         if p.gps_latency_s is None:
             self._lag_rows.observe(float(smooth[i]), float(track.speed.values[i]),
                                    [self._windows.by_wheel[w] for w in self._reference or WHEELS])
-        cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none")
+        cal.add_free_rolling(win.arcs, win.d_gps_m, win.accel_mps2, win.speed_mps, win.weight, lat.source != "none",
+                             driven_tire_force_n(p, self.road_loads, win.force_n, len(self._driven)))
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
@@ -294,6 +297,11 @@ class SlipEstimator:
             return Learned()
         lat = self.latency
         return replace(self._cal.learned(lat, self._utc_offset_s), imu_gain=self._imu.fit.result())
+
+    def road_loads_measured(self, loads: RoadLoads, runs: int) -> None:
+        """A coast-down's road loads (the maneuver's, over `runs` runs): the run's to save in its calibration (this
+        run's Fx keeps the loads it started with)."""
+        self._cal.road_loads_learned = (loads.f0_n, loads.f1_n_per_mps, loads.f2_n_per_mps2, runs)
 
     # ---- GPS lost: estimates on the wheels' clock -----------------------------------------------------
     def _gps_lost(self) -> list[Estimate]:

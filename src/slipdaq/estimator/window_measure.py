@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slipdaq.estimator.force import AltitudeGrade, longitudinal_force_n, tire_forces
+from slipdaq.estimator.force import AltitudeGrade, RoadLoads, longitudinal_force_n, tire_forces
 from slipdaq.estimator.gps_track import GpsTrack, integrate_speed_m
 from slipdaq.estimator.imu_gain import SOURCE_CALIBRATED, SOURCE_RAW, ImuCorrection
 from slipdaq.estimator.latency import LatencyEstimate
@@ -68,9 +68,10 @@ class Window:
 
 def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, windows: WheelWindows,
                    imu: SeriesRing, fix_arr: np.ndarray, i: int, lat: LatencyEstimate, imu_source: str = SOURCE_RAW,
-                   correction: ImuCorrection | None = None) -> Window:
+                   correction: ImuCorrection | None = None, road_loads: RoadLoads | None = None) -> Window:
     """The window centred on fix i (fix_arr: the fixes' times, arrival less latency); imu_source: where the IMU's
-    samples come from (accel_source); correction: applied to a raw IMU's mean (accel_source imu-calibrated)."""
+    samples come from (accel_source); correction: applied to a raw IMU's mean (accel_source imu-calibrated);
+    road_loads: the calibration's coast-down road loads, in place of the config's coefficients."""
     fix_times, speeds = fix_arr.tolist(), track.speed.values.tolist()
     t_c = fix_times[i]
     t0, t1 = t_c - 0.5 * p.window_s, t_c + 0.5 * p.window_s
@@ -92,7 +93,7 @@ def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, wi
     if accel is not None:
         sin_grade = grade.sin_grade(track, fix_times, fix_arr, t_c, lat.latency_s) if p.grade_from_altitude else 0.0
         force = longitudinal_force_n(p.mass_kg, accel, speed, sin_grade, p.rolling_resistance_coeff,
-                                     p.drag_area_m2, p.air_density_kgpm3)
+                                     p.drag_area_m2, p.air_density_kgpm3, p.rotating_mass_factor, road_loads)
     per_tire = tire_forces(force, p.driven_axle, p.brake_front_share) if force is not None else {}
     arcs, gapped = windows.window(t0, t1)
     weight = track.weight(fix_times, t0, t1)

@@ -19,7 +19,7 @@ from typing import Any
 from mcap.reader import make_reader
 
 from slipdaq import WHEELS
-from slipdaq.config import Config, parse_config
+from slipdaq.config import Config, parse_logged_config
 from slipdaq.logformat import cdr
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.json_codec import (
@@ -103,10 +103,10 @@ def can_channels(metadata: dict[str, str], source: str | Path = "<metadata>") ->
 
 
 def config_from_log(path: str | Path) -> Config:
-    """The config stored in the log (with its DBC text), so that replay needs no other input."""
+    """The config stored in the log (with its DBC text), so that replay needs no other input (parse_logged_config)."""
     meta = read_metadata(path)
     source = meta.get("config_path") or None
-    return parse_config(meta.get("config_toml", ""), Path(source) if source else None, dbc_text=meta.get("dbc"))
+    return parse_logged_config(meta.get("config_toml", ""), Path(source) if source else None, dbc_text=meta.get("dbc"))
 
 
 def _indexed_metadata(path: str | Path) -> list[tuple[str, dict[str, str]]] | None:

@@ -1,4 +1,4 @@
-"""The `/maneuver` record: one per accelerate or brake maneuver as it ends, with its validity against the test day's
+"""The `/maneuver` record: one per accelerate, brake or coast maneuver as it ends, with its validity against the test day's
 targets ([test]). Declared once (MANEUVER_COLUMNS): its JSON, JSON Schema and CSV columns are derived from it.
 
 Validity (`judge`), each failed check a short reason in `invalid_reasons`:
@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slipdaq.config import TestConfig
+from slipdaq.maneuver.coast import CoastRun
 from slipdaq.maneuver.figures import ManeuverSummary, WheelSummary
 from slipdaq.maneuver.test_set import procedure_for, run_speed_kmh
 from slipdaq.records.columns import Column, ColumnGroup, record_row
 
-MANEUVER_KINDS = ("accelerate", "brake")
+MANEUVER_KINDS = ("accelerate", "brake", "coast")
 MIN_JUDGE_S = 1.0
 MIN_JUDGE_SPEED_KMH = 5.0
 
@@ -73,6 +74,16 @@ class Maneuver:
     mfdd_mps2_lo: float | None = None
     mfdd_mps2_hi: float | None = None
     procedure: str | None = None
+    road_load_f0_n: float | None = None
+    road_load_f0_n_lo: float | None = None
+    road_load_f0_n_hi: float | None = None
+    road_load_f1_n_per_mps: float | None = None
+    road_load_f1_n_per_mps_lo: float | None = None
+    road_load_f1_n_per_mps_hi: float | None = None
+    road_load_f2_n_per_mps2: float | None = None
+    road_load_f2_n_per_mps2_lo: float | None = None
+    road_load_f2_n_per_mps2_hi: float | None = None
+    coast_runs_paired: int | None = None
 
     def as_row(self) -> dict[str, object]:
         """Flat mapping in the /maneuver JSON's and the maneuvers CSV's column names (MANEUVER_COLUMNS)."""
@@ -84,7 +95,7 @@ class Maneuver:
 MANEUVER_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((
         Column("index", "index", "integer", description="the maneuver's number in the log: 1, 2, ..."),
-        Column("kind", "kind", "enum", MANEUVER_KINDS, "accelerate or brake"),
+        Column("kind", "kind", "enum", MANEUVER_KINDS, "accelerate, brake or coast"),
         Column("t_start_s", "t_start_s", "number", description="its first window, seconds from the log's first "
                                                                  "estimate"),
         Column("t_end_s", "t_end_s", "number", description="its last window, seconds from the log's first estimate"),
@@ -138,6 +149,21 @@ MANEUVER_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup((
         Column("procedure", "procedure", "text?", description="the [[test.procedure]] it belongs to (its kind, the "
                "nearest target speed); undefined: none of its kind"),
+        Column("road_load_f0_n", "road_load_f0_n", "number?",
+               description="coast: the road loads' F0 in F(v) = F0 + F1*v + F2*v^2 (the paired runs' mean)"),
+        Column("road_load_f0_n_lo", "road_load_f0_n_lo", "number?", description="95 % interval of F0, low end"),
+        Column("road_load_f0_n_hi", "road_load_f0_n_hi", "number?", description="... high end"),
+        Column("road_load_f1_n_per_mps", "road_load_f1_n_per_mps", "number?", description="coast: F1"),
+        Column("road_load_f1_n_per_mps_lo", "road_load_f1_n_per_mps_lo", "number?",
+               description="95 % interval of F1, low end"),
+        Column("road_load_f1_n_per_mps_hi", "road_load_f1_n_per_mps_hi", "number?", description="... high end"),
+        Column("road_load_f2_n_per_mps2", "road_load_f2_n_per_mps2", "number?", description="coast: F2"),
+        Column("road_load_f2_n_per_mps2_lo", "road_load_f2_n_per_mps2_lo", "number?",
+               description="95 % interval of F2, low end"),
+        Column("road_load_f2_n_per_mps2_hi", "road_load_f2_n_per_mps2_hi", "number?", description="... high end"),
+        Column("coast_runs_paired", "coast_runs_paired", "integer?",
+               description="coast: the runs the road loads average, in pairs of opposite GPS courses (wind and grade "
+                           "cancel); 0: this run's own fit"),
     ), per_wheel=False, csv="contract"),
 )
 """The /maneuver record's fields, in the order of its JSON and of `export --maneuvers-csv`."""
@@ -227,6 +253,25 @@ def _wheel(ws: WheelSummary) -> ManeuverWheel:
         slip_at_mu_peak_lo=mu.slip_at_mu_peak_lo if mu else None,
         slip_at_mu_peak_hi=mu.slip_at_mu_peak_hi if mu else None,
         mu_slip_method=mu.method if mu else None, mu_flag=mu.flag if mu else None,
+    )
+
+
+def coast_record(run: CoastRun, index: int, t0_s: float, wheels: Sequence[str]) -> Maneuver:
+    """The /maneuver record of a coast (maneuver/coast.py): its span and the road loads; invalid while no run in the
+    opposite direction pairs with it."""
+    none = ManeuverWheel(None, None, None, None, None)
+    f0, f1, f2 = run.loads
+    lo, hi = run.loads_lo, run.loads_hi
+    return Maneuver(
+        index=index, kind="coast", t_start_s=run.t_start_s - t0_s, t_end_s=run.t_end_s - t0_s,
+        speed_from_kmh=run.speed_from_kmh, speed_to_kmh=run.speed_to_kmh, target_speed_kmh=None,
+        valid=not run.reasons, invalid_reasons=run.reasons, brake_speed_kmh=None, stopping_distance_m=None,
+        stopping_distance_corrected_m=None, mfdd_mps2=None, abs_cycles=None, abs_frequency_hz=None,
+        time_to_speed_s=None, wheels=dict.fromkeys(wheels, none),
+        road_load_f0_n=f0, road_load_f0_n_lo=lo[0], road_load_f0_n_hi=hi[0],
+        road_load_f1_n_per_mps=f1, road_load_f1_n_per_mps_lo=lo[1], road_load_f1_n_per_mps_hi=hi[1],
+        road_load_f2_n_per_mps2=f2, road_load_f2_n_per_mps2_lo=lo[2], road_load_f2_n_per_mps2_hi=hi[2],
+        coast_runs_paired=run.runs_paired,
     )
 
 

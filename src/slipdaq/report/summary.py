@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from slipdaq import WHEELS
-from slipdaq.config import Config, ConfigError, TestConfig, parse_config
+from slipdaq.config import Config, ConfigError, TestConfig, parse_logged_config
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_test import BrakeFigures
 from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
@@ -71,7 +71,7 @@ def log_config(metadata: dict[str, str]) -> Config | None:
     if not text:
         return None
     try:
-        return parse_config(text)
+        return parse_logged_config(text)
     except ConfigError:
         return None
 

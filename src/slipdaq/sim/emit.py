@@ -37,6 +37,7 @@ from slipdaq.decode.can_wheels import load_dbc
 from slipdaq.records import CanFrame, NmeaLine, UbxFrame, XbusBytes
 from slipdaq.sim import Scenario
 from slipdaq.sim.pitch import BodyPitch
+from slipdaq.sim.road_loads import RoadLoadTruth
 from slipdaq.sim.scenarios import vehicle_model
 from slipdaq.sim.sensors import SensorEncoder
 from slipdaq.sim.vehicle import Road, TruthSample
@@ -193,13 +194,19 @@ def position_deg(distance_m: float, settings: SimSettings) -> tuple[float, float
     return lat, lon
 
 
+def course_deg(truth: TruthSample, settings: SimSettings) -> float:
+    """The course over ground: the settings' heading, turned by 180 degrees on a return run (truth.outbound False;
+    the position keeps running along the heading)."""
+    return (settings.heading_deg + (0.0 if truth.outbound else 180.0)) % 360.0
+
+
 def gps_epoch_lines(truth: TruthSample, speed_mps: float, settings: SimSettings) -> list[str]:
     """RMC, GGA, VTG sentences (talker GP) for a fix at truth.time_s with the given speed over ground."""
     hms, ddmmyy = _nmea_time_date(settings.start_utc_s + truth.time_s)
     lat, lon = position_deg(truth.distance_m, settings)
     lat_s, ns = _nmea_angle(lat, 2, "N", "S")
     lon_s, ew = _nmea_angle(lon, 3, "E", "W")
-    knots, kmh, course = speed_mps / KNOT_MPS, speed_mps * 3.6, settings.heading_deg % 360.0
+    knots, kmh, course = speed_mps / KNOT_MPS, speed_mps * 3.6, course_deg(truth, settings)
     return [
         nmea_sentence(f"GPRMC,{hms},A,{lat_s},{ns},{lon_s},{ew},{knots:.3f},{course:.1f},{ddmmyy},,,A"),
         nmea_sentence(f"GPGGA,{hms},{lat_s},{ns},{lon_s},{ew},1,12,0.8,100.0,M,0.0,M,,"),
@@ -220,7 +227,7 @@ def nav_pvt_frame(truth: TruthSample, speed_mps: float, settings: SimSettings) -
         hour=t.hour, min=t.minute, second=t.second, validDate=1, validTime=1, fullyResolved=1,
         nano=int(round((utc_s - seconds) * 1e9)), fixType=3, gnssFixOk=1, numSV=12, lat=lat, lon=lon,
         hMSL=100000, gSpeed=int(round(speed_mps * 1000)), sAcc=max(int(round(settings.gps_noise_mps * 1000)), 1),
-        headMot=settings.heading_deg % 360.0,
+        headMot=course_deg(truth, settings),
     )
     return bytes(msg.serialize())
 
@@ -322,11 +329,13 @@ def generate(
     settings: SimSettings = SimSettings(),
     duration_s: float | None = None,
     r0_offset_m: float | Mapping[str, float] = 0.0,
+    road_loads: RoadLoadTruth | None = None,
 ) -> Iterator[SimEvent]:
-    """Events in nondecreasing time_s over [0, duration_s) (forever when duration_s is None)."""
+    """Events in nondecreasing time_s over [0, duration_s) (forever when duration_s is None); road_loads: the car's
+    road loads and rotating masses (sim/road_loads.py; none unless given, but coast-down's own car)."""
     sim = vehicle_model(config, scenario, road, r0_offset_m, max_step_s=settings.step_s,
                         brake_speed_mps=None if settings.brake_speed_kmh is None else settings.brake_speed_kmh / 3.6,
-                        brake_onset_s=settings.brake_onset_s)
+                        brake_onset_s=settings.brake_onset_s, road_loads=road_loads)
     # the brake's press: a truth sample then; with brake_timemark_edge, its TIM-TM2 after the next epoch
     t_press = sim.brake_onset_s if sim.brake_onset_s is not None else math.inf
     marked: float | None = None

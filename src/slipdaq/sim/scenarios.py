@@ -9,6 +9,7 @@ brake-abs-all  the same cruise and ABS braking, every wheel's slip cycled by ABS
 brake-lock  the same cruise, then every wheel's slip ramps through the peak to -1 (locked) until standstill.
 launch-spin from standstill the driven wheels spin far past the peak, then traction control holds a few percent of
             slip up to LAUNCH_SPEED_MPS, then cruise.
+coast-down  two coast-downs (coast.py) in opposite directions, with road loads (COAST_DOWN_CAR unless given).
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from typing import Literal, get_args
 from slipdaq import WHEELS
 from slipdaq.config import Config, VehicleConfig
 from slipdaq.sim import ProfileScenario, Scenario, SlipScenario
+from slipdaq.sim.coast import CoastDown
 from slipdaq.sim.dynamics import DynamicVehicleSim, SlipCommand, SlipController
+from slipdaq.sim.road_loads import COAST_DOWN_CAR, RoadLoadTruth
 from slipdaq.sim.vehicle import CRUISE_BEFORE_BRAKE_S, ROADS, STANDSTILL_S, Road, SteppedModel, TireModel, VehicleSim
 
 BRAKE_TEST_SPEED_MPS = 80.0 / 3.6
@@ -208,9 +211,10 @@ class LaunchSpin:
 
 
 def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleConfig,
-                    brake_speed_mps: float | None = None, brake_onset_s: float | None = None) -> SlipController:
+                    brake_speed_mps: float | None = None, brake_onset_s: float | None = None,
+                    road_loads: RoadLoadTruth | None = None) -> SlipController:
     """The controller of a slip-driven scenario; the brake scenarios' cruise speed and onset time (None: their
-    defaults, BRAKE_TEST_SPEED_MPS and CRUISE_BEFORE_BRAKE_S)."""
+    defaults, BRAKE_TEST_SPEED_MPS and CRUISE_BEFORE_BRAKE_S); coast-down: its driver knows the car's road loads."""
     if scenario == "brake-abs":
         return AbsBraking(tire, vehicle, brake_speed_mps, brake_onset_s)
     if scenario == "brake-abs-all":
@@ -219,21 +223,28 @@ def slip_controller(scenario: SlipScenario, tire: TireModel, vehicle: VehicleCon
         return LockedBraking(brake_speed_mps, brake_onset_s)
     if scenario == "launch-spin":
         return LaunchSpin(vehicle)
+    if scenario == "coast-down":
+        return CoastDown(tire, vehicle, road_loads or COAST_DOWN_CAR)
     raise ValueError(f"unknown slip scenario {scenario!r}: expected one of {', '.join(get_args(SlipScenario))}")
 
 
 def vehicle_model(
     config: Config, scenario: Scenario, road: Road, r0_offset_m: float | Mapping[str, float] = 0.0,
     max_step_s: float = 0.001, brake_speed_mps: float | None = None, brake_onset_s: float | None = None,
+    road_loads: RoadLoadTruth | None = None,
 ) -> SteppedModel:
     """The kinematic model for a profile scenario (accelerate, brake, cycle), the slip-driven one otherwise (the brake
-    scenarios' cruise speed and onset: slip_controller)."""
+    scenarios' cruise speed and onset: slip_controller); road_loads: the car's road loads and rotating masses (none
+    unless given; coast-down: COAST_DOWN_CAR unless given)."""
     if scenario in get_args(ProfileScenario):
-        return VehicleSim(config, scenario, road, r0_offset_m, max_step_s=max_step_s)  # type: ignore[arg-type]  # checked just above
+        return VehicleSim(config, scenario, road, r0_offset_m, max_step_s=max_step_s,  # type: ignore[arg-type]  # checked just above
+                          road_loads=road_loads)
     if scenario not in get_args(SlipScenario):
         raise ValueError(f"unknown scenario {scenario!r}")
     if road not in ROADS:
         raise ValueError(f"unknown road {road!r}: expected paved or sand")
+    if scenario == "coast-down" and road_loads is None:
+        road_loads = COAST_DOWN_CAR
     controller = slip_controller(scenario, ROADS[road], config.vehicle,  # type: ignore[arg-type]  # checked above
-                                 brake_speed_mps, brake_onset_s)
-    return DynamicVehicleSim(config, controller, road, r0_offset_m, max_step_s)
+                                 brake_speed_mps, brake_onset_s, road_loads)
+    return DynamicVehicleSim(config, controller, road, r0_offset_m, max_step_s, road_loads)

@@ -20,6 +20,7 @@ from typing import Literal
 from slipdaq import WHEELS
 from slipdaq.config import Config
 from slipdaq.sim import ProfileScenario
+from slipdaq.sim.road_loads import RoadLoadTruth
 
 Scenario = ProfileScenario
 """The scenarios of this (kinematic) model."""
@@ -38,6 +39,11 @@ TEST_DAY_SPEEDS_MPS = (60.0 / 3.6, 33.0 / 3.6)
 """test-day: 0–60, 60–0, 0–33, 33–0 km/h, each run to its speed, held 3 s, braked to a stop ..."""
 TEST_DAY_STANDSTILL_S = 4.0
 """... and a stop this long after each."""
+HIGHWAY_SPEEDS_MPS = (110.0 / 3.6, 60.0 / 3.6, 110.0 / 3.6)
+"""highway: runs to 110, 60 and 110 km/h from a stop, each held HIGHWAY_CRUISE_S, braked to a stop ..."""
+HIGHWAY_CRUISE_S = 15.0
+HIGHWAY_ACCEL_MPS2 = 2.0
+HIGHWAY_DECEL_MPS2 = 3.0
 
 
 @dataclass(frozen=True)
@@ -195,7 +201,13 @@ def speed_profile(scenario: Scenario, road: Road) -> SpeedProfile:
             profile.change_speed(target_mps, accel).hold(CRUISE_BEFORE_BRAKE_S).change_speed(0.0, decel).hold(
                 TEST_DAY_STANDSTILL_S)
         return profile.forever()
-    raise ValueError(f"unknown scenario {scenario!r}: expected accelerate, brake, cycle or test-day")
+    if scenario == "highway":
+        profile = SpeedProfile(0.0).hold(STANDSTILL_S)
+        for target_mps in HIGHWAY_SPEEDS_MPS:
+            profile.change_speed(target_mps, HIGHWAY_ACCEL_MPS2).hold(HIGHWAY_CRUISE_S).change_speed(
+                0.0, HIGHWAY_DECEL_MPS2).hold(TEST_DAY_STANDSTILL_S)
+        return profile.forever()
+    raise ValueError(f"unknown scenario {scenario!r}: expected accelerate, brake, cycle, test-day or highway")
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,6 +237,8 @@ class TruthSample:
     wheels: dict[str, TruthWheel]
     brake_pressed: bool = False
     """The driver's brake is applied."""
+    outbound: bool = True
+    """On the outbound course (the settings' heading); False: the return course, opposite (coast-down)."""
 
 
 def static_loads_n(mass_kg: float) -> dict[str, float]:
@@ -340,8 +354,11 @@ class VehicleSim(SteppedModel):
         road: Road = "paved",
         r0_offset_m: float | Mapping[str, float] = 0.0,
         max_step_s: float = 0.001,
+        road_loads: RoadLoadTruth | None = None,
     ) -> None:
+        """road_loads: the tires carry Fx = M*k*a + F_road(v) (road_loads.py); None: Fx = M*a."""
         self._setup(config, road, r0_offset_m, max_step_s)
+        self.road_loads = road_loads
         self.scenario = scenario
         self.profile = speed_profile(scenario, road)
         self.fz_n = static_loads_n(self.mass_kg)
@@ -354,7 +371,13 @@ class VehicleSim(SteppedModel):
         self._brake_cases = self._load_cases(self._brake, self._fz)
         self._zero_slips = [0.0] * len(WHEELS)
         self._x_m, self._v_mps, self._a_mps2 = self.profile.at(0.0)
-        self._slips = self._slips_for(self.mass_kg * self._a_mps2)
+        self._slips = self._slips_for(self._tire_force_n(self._a_mps2, self._v_mps))
+
+    def _tire_force_n(self, accel_mps2: float, speed_mps: float) -> float:
+        """The tires' total force: M*a, or with road loads M*k*a + F_road(v)."""
+        if self.road_loads is None:
+            return self.mass_kg * accel_mps2
+        return self.road_loads.tire_force_n(self.mass_kg, accel_mps2, speed_mps)
 
     @staticmethod
     def _load_cases(shares: list[float], fz_n: list[float]) -> tuple[list[tuple[float, float]], list[int]]:
@@ -374,7 +397,7 @@ class VehicleSim(SteppedModel):
     def _substep(self, t1_s: float) -> None:
         """Advance to t1_s: exact x, V, a from the profile; trapezoid for integral(V*s dt)."""
         x, v, a = self.profile.at(t1_s)
-        slips = self._slips_for(self.mass_kg * a)
+        slips = self._slips_for(self._tire_force_n(a, v))
         half_h, v0 = 0.5 * (t1_s - self._time_s), self._v_mps
         self._slip_distance_m = [
             d + half_h * (v0 * s0 + v * s1) for d, s0, s1 in zip(self._slip_distance_m, self._slips, slips)
@@ -383,7 +406,7 @@ class VehicleSim(SteppedModel):
 
 
     def _build_state(self) -> TruthSample:
-        fx = self.mass_kg * self._a_mps2
+        fx = self._tire_force_n(self._a_mps2, self._v_mps)
         shares = self._drive if fx >= 0 else self._brake
         v = self._v_mps
         wheels = self._truth_wheels([fx * k for k in shares], self._fz)

@@ -28,7 +28,11 @@ def axle_slip_pct(m: Maneuver) -> dict[str, float | None]:
 
 
 def figures_text(m: Maneuver) -> str:
-    """Braking: brake speed, stopping distance (corrected), MFDD, ABS; accelerating: time to speed."""
+    """Braking: brake speed, stopping distance (corrected), MFDD, ABS; accelerating: time to speed; coasting: the road
+    loads."""
+    if m.kind == "coast":
+        return (f"road loads F0 {_num(m.road_load_f0_n, '.1f')} N, F1 {_num(m.road_load_f1_n_per_mps, '+.2f')} N/(m/s), "
+                f"F2 {_num(m.road_load_f2_n_per_mps2, '.3f')} N/(m/s)² ({m.coast_runs_paired or 0} runs paired)")
     if m.kind == "brake":
         abs_ = f", ABS {m.abs_cycles} cycles at {m.abs_frequency_hz:.1f} Hz" if m.abs_cycles and m.abs_frequency_hz \
             else ""
