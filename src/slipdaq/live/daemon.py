@@ -63,7 +63,9 @@ class RunResult:
     learned: Learned = field(default_factory=Learned)
     """What the estimator measured in this run (for the calibration file)."""
     maneuvers: list[Maneuver] = field(default_factory=list)
-    """The run's maneuvers (/maneuver), in order."""
+    """The run's latest maneuvers (/maneuver; status.MANEUVERS_KEPT at most), in order."""
+    maneuver_count: int = 0
+    """How many maneuvers the run decided (every one is in the log)."""
 
 
 def _lower_priority() -> None:
@@ -261,4 +263,5 @@ async def run_daemon(
         log_path, d.can_frames, d.nmea_lines, d.estimates, sum(d.lost_frames.values()), d.bad_sentences,
         loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
         learned=pipeline.estimator.learned(), maneuvers=list(status.maneuvers),
+        maneuver_count=pipeline.maneuver_count,
     )
