@@ -139,7 +139,8 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  NMEA:       {result.nmea_lines} lines, {result.bad_sentences} bad\n"
         f"  estimates:  {result.estimates}\n"
         f"  maneuvers:  {result.maneuver_count}"
-        + (f" (the last {len(result.maneuvers)})" if result.maneuver_count > len(result.maneuvers) else "") + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
+        + (f" (the last {len(result.maneuvers)})" if result.maneuver_count > len(result.maneuvers) else "")
+        + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
         + "\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"
