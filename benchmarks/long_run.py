@@ -15,7 +15,7 @@ Import target (--import-target): the same drive written as a candump -L and an N
 --base REV, that revision's import too, side by side): wall time and peak resident memory (the child's ru_maxrss);
 the long one may take at most 16.8 x the time (16 x the data) and 5 MB more memory.
 
-    python benchmarks/long_run.py --import-target [--wpt-rate-hz 1000] [--base REV]
+    python benchmarks/long_run.py --import-target [--wpt-rate-hz 1000] [--base REV] [--rounds 1] [--work DIR]
 """
 
 from __future__ import annotations
@@ -150,7 +150,8 @@ def run_measured(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
 
 
 def import_target(a: argparse.Namespace) -> int:
-    tmp = Path(tempfile.mkdtemp(prefix="slipdaq-longrun-", dir=a.tmp_dir))
+    tmp = a.work or Path(tempfile.mkdtemp(prefix="slipdaq-longrun-", dir=a.tmp_dir))
+    tmp.mkdir(parents=True, exist_ok=True)
     try:
         common = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         common["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
@@ -159,6 +160,8 @@ def import_target(a: argparse.Namespace) -> int:
             shutil.copy(ROOT / "config" / f, tmp / f)
         lengths = {"short": a.short_min, "long": a.long_min}
         for key, minutes in lengths.items():
+            if a.work and (tmp / f"{key}.nmea").exists():  # written by an earlier run with the same options
+                continue
             t = time.perf_counter()
             subprocess.run([sys.executable, "-c", MAKE_LOGS, str(tmp / f"{key}.log"), str(tmp / f"{key}.nmea"),
                             str(a.wpt_rate_hz), str(minutes * 60)], env=env, check=True)
@@ -168,9 +171,9 @@ def import_target(a: argparse.Namespace) -> int:
         if a.base:
             trees[a.base] = dict(common, PYTHONPATH=str(unpack(a.base, tmp / f"base-{a.base}")))
         results: dict[tuple[str, str], list[tuple[float, float]]] = {}
-        for r in range(a.rounds + 1):  # the first round warms the page cache and numba's kernel cache, untimed
+        for r in range(a.rounds + 1):  # round 0, the short log only: .pyc files, numba's kernel cache, untimed
             for name, tree_env in trees.items():
-                for key in lengths:
+                for key in lengths if r else ["short"]:
                     cmd = [sys.executable, "-m", "slipdaq", "import", "--can", str(tmp / f"{key}.log"), "--nmea",
                            str(tmp / f"{key}.nmea"), "--config", str(tmp / "slipdaq.toml"), "-o",
                            str(tmp / f"out-{key}.mcap"), "--no-calibration"]
@@ -191,7 +194,8 @@ def import_target(a: argparse.Namespace) -> int:
         print(f"\ntarget (time × <= {TIME_RATIO_MAX}, memory <= +{RSS_MORE_MAX_MB:g} MB): {'met' if ok else 'MISSED'}")
         return 0 if ok else 1
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if not a.work:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _median(xs: list[tuple[float, float]]) -> tuple[float, float]:
@@ -212,6 +216,8 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=1, help="timed rounds of the import target (default 1)")
     ap.add_argument("--base", default=None, metavar="REV", help="the import target of this revision too")
     ap.add_argument("--tmp-dir", default=None)
+    ap.add_argument("--work", type=Path, default=None,
+                    help="the import target's directory: its logs are kept there and reused (default: a temporary one)")
     a = ap.parse_args()
     if a.import_target:
         return import_target(a)
