@@ -4,6 +4,7 @@ repeating drive as after a short one, but for containers bounded by construction
 
 from __future__ import annotations
 
+import io
 from collections import deque
 from dataclasses import replace
 from pathlib import Path
@@ -14,12 +15,13 @@ import numpy as np
 from conftest import CONFIG
 from slipdaq.config import load_config
 from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.record import Maneuver
 from slipdaq.offline import batched, read_ahead
 from slipdaq.pipeline import Pipeline
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.vehicle import speed_profile
 from slipdaq.sinks.mcap_log import McapLogSink
-from slipdaq.sinks.status import StatusSink
+from slipdaq.sinks.status import MANEUVERS_KEPT, StatusSink, print_maneuvers
 
 LOG_INDEX = ".sinks[].log._writer._chunk_indexes"
 """The one that grows by design: the MCAP summary's chunk index, a 207-byte record per chunk (1 MB of messages) that
@@ -125,3 +127,20 @@ def test_the_pipeline_keeps_the_same_after_a_long_drive_as_after_a_short_one(tmp
     assert p.maneuver_count >= 2 * 24  # an acceleration and a stop a cycle, decided as each ends
     assert set(grown(*sizes)) <= {LOG_INDEX, LOG_BUFFER}
     assert sizes[-1][LOG_BUFFER][0] <= 8 << 20
+
+
+
+def test_the_live_view_keeps_the_latest_maneuvers_and_prints_each_once() -> None:
+    """A day's maneuvers: the view keeps the latest MANEUVERS_KEPT and counts them all; the status stream prints
+    each maneuver not printed yet once."""
+    view = StatusSink()
+    n = 3 * MANEUVERS_KEPT
+    for i in range(1, n + 1):
+        view.on_maneuver(Maneuver(i, "accelerate", 0.0, 5.0, 0.0, 60.0, None, True, (), None, None, None, None, None,
+                                  None, 5.0), float(i))
+    assert len(view.maneuvers) == MANEUVERS_KEPT and view.maneuvers[-1].index == n and view.maneuvers_seen == n
+    view.maneuvers_printed = n - 5  # the stream has printed all but the last 5
+    out = io.StringIO()
+    print_maneuvers(view, out)
+    print_maneuvers(view, out)
+    assert [int(line.split()[1][1:]) for line in out.getvalue().splitlines()] == list(range(n - 4, n + 1))
