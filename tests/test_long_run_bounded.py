@@ -27,7 +27,7 @@ LOG_INDEX = ".sinks[].log._writer._chunk_indexes"
 """The one that grows by design: the MCAP summary's chunk index, a 207-byte record per chunk (1 MB of messages) that
 the file's summary needs at its end; a log rotated by size or duration (RotationPolicy) starts a new one."""
 LOG_BUFFER = ".sinks[].log._writer._stream._pending"
-"""Bytes written and not committed yet: bounded by the commit (every second live, every 8 MB offline)."""
+"""Bytes written and not committed yet: bounded by the commit (every second live, every 1 MB offline)."""
 _ATOMS = (str, bytes, int, float, bool, type(None), type, np.generic)
 
 
@@ -126,7 +126,7 @@ def test_the_pipeline_keeps_the_same_after_a_long_drive_as_after_a_short_one(tmp
     log.close()
     assert p.maneuver_count >= 2 * 24  # an acceleration and a stop a cycle, decided as each ends
     assert set(grown(*sizes)) <= {LOG_INDEX, LOG_BUFFER}
-    assert sizes[-1][LOG_BUFFER][0] <= 8 << 20
+    assert sizes[-1][LOG_BUFFER][0] <= 2 << 20
 
 
 
