@@ -8,14 +8,14 @@ read_ahead, Pipeline.process_all) into an MCAP log; per hour of log (--hour-s of
 the pipeline and the log took for it (the simulator's own time left out), the peak and end resident memory, the
 maneuvers decided and the log's chunks. Memory and seconds per hour must not grow from one hour to the next.
 
-    python benchmarks/long_run.py [--hours 10] [--hour-s 3600] [--wpt-rate-hz 1000] [--gps-rate-hz 10]
+    python -m benchmarks.long_run [--hours 10] [--hour-s 3600] [--wpt-rate-hz 1000] [--gps-rate-hz 10]
 
 Import target (--import-target): the same drive written as a candump -L and an NMEA log of --short-min and
 --long-min minutes (default 4.4 and 70), each imported by `python -m slipdaq import` in its own process (with
 --base REV, that revision's import too, side by side): wall time and peak resident memory (the child's ru_maxrss);
 the long one may take at most 16.8 x the time (16 x the data) and 5 MB more memory.
 
-    python benchmarks/long_run.py --import-target [--wpt-rate-hz 1000] [--base REV] [--rounds 1] [--work DIR]
+    python -m benchmarks.long_run --import-target [--wpt-rate-hz 1000] [--base REV] [--rounds 1] [--work DIR]
 """
 
 from __future__ import annotations
@@ -30,9 +30,8 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from base_revision import ROOT, unpack  # noqa: E402
-from doc_block import machine  # noqa: E402
+from benchmarks.base_revision import ROOT, unpack
+from benchmarks.doc_block import machine
 
 MAKE_LOGS = """
 import sys
@@ -68,7 +67,7 @@ def hours(n_hours: int, hour_s: float, wpt_rate_hz: float, gps_rate_hz: float, l
     """The drive through the import path into a log at `log`, hour by hour; also the simulator's own seconds."""
     from slipdaq import compiled
     from slipdaq.config import load_config, packaged_config_path
-    from slipdaq.offline import batched, read_ahead
+    from slipdaq.offline.run import batched, read_ahead
     from slipdaq.pipeline import Pipeline
     from slipdaq.sim.emit import SimSettings, generate
     from slipdaq.sinks.mcap_log import McapLogSink
@@ -225,7 +224,7 @@ def main() -> int:
         t = time.perf_counter()
         rows, sim_s = hours(a.hours, a.hour_s, a.wpt_rate_hz, a.gps_rate_hz, Path(tmp) / "day.mcap")
         log_mb = (Path(tmp) / "day.mcap").stat().st_size / 1e6
-    print(f"\n`python benchmarks/long_run.py {' '.join(sys.argv[1:])}`: {a.hours} x {a.hour_s:g} s of the cycle drive, "
+    print(f"\n`python -m benchmarks.long_run {' '.join(sys.argv[1:])}`: {a.hours} x {a.hour_s:g} s of the cycle drive, "
           f"4 x {a.wpt_rate_hz:g} Hz + {a.gps_rate_hz:g} Hz NMEA, log {log_mb:.0f} MB; {time.perf_counter() - t:.0f} s "
           f"in all ({sim_s:.0f} s of it the simulator's); {machine()}; load {os.getloadavg()[0]:.1f} at the end\n")
     print(hours_table(rows, a.hour_s))
