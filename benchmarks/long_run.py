@@ -79,6 +79,7 @@ def hours(n_hours: int, hour_s: float, wpt_rate_hz: float, gps_rate_hz: float, l
     pipeline = Pipeline(cfg, [sink])
     compiled.prepare()
     sim_s = 0.0
+    t0_s: float | None = None
     source = generate(cfg, "cycle", "paved", settings, duration_s=n_hours * hour_s)
 
     def records():  # type: ignore[no-untyped-def]
@@ -86,12 +87,13 @@ def hours(n_hours: int, hour_s: float, wpt_rate_hz: float, gps_rate_hz: float, l
         t = time.perf_counter()
         for e in source:
             if e.record is not None:
+                nonlocal t0_s
+                t0_s = e.record.timestamp_s if t0_s is None else t0_s  # the log's first record: hours count from it
                 sim_s += time.perf_counter() - t
                 yield e.record
                 t = time.perf_counter()
 
     out: list[Hour] = []
-    t0_s = None
     spent = peak = 0.0
     made = maneuvers = 0
     writer = sink.log._writer  # the MCAP writer: its statistics count the chunks
@@ -108,9 +110,7 @@ def hours(n_hours: int, hour_s: float, wpt_rate_hz: float, gps_rate_hz: float, l
         t = time.perf_counter()
         pipeline.process_all(run)
         spent += time.perf_counter() - t
-        assert pipeline.last_time_s is not None
-        if t0_s is None:
-            t0_s = pipeline.last_time_s
+        assert pipeline.last_time_s is not None and t0_s is not None
         peak = max(peak, rss_mb())
         if pipeline.last_time_s - t0_s >= (len(out) + 1) * hour_s:
             close_hour()
