@@ -3,7 +3,8 @@
 bus only works inside one). Checks what docs/reliability.md promises:
 
 - no frame lost: every frame the simulator sent is in the log (counted per wheel), Seq has no gap, lost_frames = 0;
-- memory: the resident set grows by less than 5 MB after the first minute (the first 20 % of a short run);
+- memory: the resident set grows by less than 5 MB after the first minute (the first 20 % of a short run); its slope
+  after the first 2 minutes (least squares over the samples, MB per hour) is printed: a day's run must not grow;
 - the daemon keeps up: the virtual bus's receive queue (the frames not yet read) stays small;
 - replay: the log replays to the same estimates, every field of every one, bit for bit.
 
@@ -41,6 +42,8 @@ from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sim.realtime import play
 
 RSS_LIMIT_BYTES = 5 * 1024 * 1024
+SLOPE_AFTER_S = 120.0
+"""The RSS slope is fitted to the samples after this (start-up, numba's kernels and the first maneuvers are in)."""
 
 
 def rss_bytes() -> int:
@@ -80,6 +83,9 @@ class SoakResult:
     cpu_s: float
     replay_equal: bool
     replay_s: float
+    rss_slope_mb_per_h: float | None = None
+    """Least-squares slope of the resident set over the samples after slope_after_s, MB per hour (None: fewer than 3)."""
+    slope_after_s: float = SLOPE_AFTER_S
     samples: list[tuple[float, int, int, int]] = field(default_factory=list)
     """(elapsed s, RSS bytes, CAN frames sent so far, frames waiting in the daemon's receive queue)."""
 
@@ -206,8 +212,19 @@ async def _soak(
                   backlog_end, cpu, timing["drive_wall_s"]), cfg
 
 
+def rss_slope_mb_per_h(samples: list[tuple[float, int, int, int]], after_s: float) -> float | None:
+    """Least-squares slope of (elapsed s, RSS bytes) over the samples after after_s, in MB per hour."""
+    pts = [(t, r / 1e6) for t, r, _, _ in samples if t >= after_s]
+    if len(pts) < 3:
+        return None
+    mt = sum(t for t, _ in pts) / len(pts)
+    mr = sum(r for _, r in pts) / len(pts)
+    stt = sum((t - mt) ** 2 for t, _ in pts)
+    return 3600.0 * sum((t - mt) * (r - mr) for t, r in pts) / stt if stt > 0 else None
+
+
 def _check(result, samples, frames_sent, lines_sent, duration_s, wpt_rate_hz, gps_rate_hz, warmup_s, backlog_end,
-           cpu, drive_wall_s) -> SoakResult:  # type: ignore[no-untyped-def]
+           cpu, drive_wall_s, slope_after_s=SLOPE_AFTER_S) -> SoakResult:  # type: ignore[no-untyped-def]
     path = result.log_path
     last_seq: dict[int, int] = {}
     seq_gaps = frames = lines = 0
@@ -236,18 +253,26 @@ def _check(result, samples, frames_sent, lines_sent, duration_s, wpt_rate_hz, gp
         rss_start_bytes=samples[0][1], rss_after_warmup_bytes=rss_warm, rss_end_bytes=samples[-1][1],
         rss_growth_after_warmup_bytes=max(s[1] for s in after) - rss_warm, rss_max_bytes=max(s[1] for s in samples),
         warmup_s=warmup_s, backlog_max_frames=max(s[3] for s in samples), backlog_end_frames=backlog_end,
-        drive_wall_s=drive_wall_s, cpu_s=cpu, replay_equal=replayed == live and len(live) > 0, replay_s=replay_s, samples=samples,
+        drive_wall_s=drive_wall_s, cpu_s=cpu, replay_equal=replayed == live and len(live) > 0, replay_s=replay_s,
+        rss_slope_mb_per_h=rss_slope_mb_per_h(samples, slope_after_s), slope_after_s=slope_after_s, samples=samples,
     )
 
 
 def run_soak(
     duration_s: float, log_dir: Path, *, wpt_rate_hz: float = 1000.0, gps_rate_hz: float = 20.0,
     sample_every_s: float = 5.0, warmup_s: float | None = None, out: TextIO | None = None,
+    slope_after_s: float = SLOPE_AFTER_S,
 ) -> SoakResult:
-    """warmup_s: RSS growth is measured after this (default: 60 s, or a fifth of a shorter run)."""
+    """warmup_s: RSS growth is measured after this (default: 60 s, or a fifth of a shorter run); slope_after_s: the
+    RSS slope is fitted after this."""
     warm = warmup_s if warmup_s is not None else min(60.0, duration_s / 5)
     result, _ = asyncio.run(_soak(duration_s, log_dir, wpt_rate_hz, gps_rate_hz, sample_every_s, warm, out))
-    return result
+    return replace(result, rss_slope_mb_per_h=rss_slope_mb_per_h(result.samples, slope_after_s),
+                   slope_after_s=slope_after_s)
+
+
+def _slope_text(slope: float | None) -> str:
+    return "— (too few samples)" if slope is None else f"{slope:+.2f} MB/h"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -257,20 +282,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gps-rate-hz", type=float, default=20.0)
     p.add_argument("--sample-every", type=float, default=10.0, help="RSS sample period, s")
     p.add_argument("--warmup", type=float, default=None, help="RSS growth counts after this, s (default: 60 s or a fifth)")
+    p.add_argument("--slope-after", type=float, default=SLOPE_AFTER_S,
+                   help=f"the RSS slope is fitted to the samples after this, s (default {SLOPE_AFTER_S:g})")
     p.add_argument("--log-dir", help="where the log goes (default: a temporary directory, deleted)")
     p.add_argument("--json", help="write the summary and the samples here")
     a = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(a.log_dir) if a.log_dir else Path(tmp)
         r = run_soak(a.duration, log_dir, wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz,
-                     sample_every_s=a.sample_every, warmup_s=a.warmup, out=sys.stdout)
+                     sample_every_s=a.sample_every, warmup_s=a.warmup, out=sys.stdout, slope_after_s=a.slope_after)
         s = r.summary()
     print(json.dumps(s, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps(s | {"samples": r.samples}, indent=1))
     print(f"soak: {'OK' if r.ok else 'FAILED'}: {r.frames_logged}/{r.frames_sent} frames logged, "
           f"{r.frames_lost} lost, {r.seq_gaps} Seq gaps, RSS +{r.rss_growth_after_warmup_bytes / 1e6:.2f} MB after "
-          f"{r.warmup_s:.0f} s (max {r.rss_max_bytes / 1e6:.1f} MB), backlog max {r.backlog_max_frames} frames, "
+          f"{r.warmup_s:.0f} s (max {r.rss_max_bytes / 1e6:.1f} MB), RSS slope after {r.slope_after_s:.0f} s "
+          f"{_slope_text(r.rss_slope_mb_per_h)}, backlog max {r.backlog_max_frames} frames, "
           f"drive sent in {r.drive_wall_s:.0f} s of wall time (real time: {r.duration_s:.0f} s), CPU {r.cpu_s:.0f} s, "
           f"replay equal: {r.replay_equal}")
     return 0 if r.ok else 1

@@ -284,6 +284,34 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
     assert [m.phase for m in det.finish()] == []  # 3 rows: too few for a maneuver
 
 
+def test_noise_rows_inside_a_short_cruise_do_not_keep_an_acceleration_open() -> None:
+    """Acceleration, 0.7 s of cruise, one brake row and one accelerate row (noise on a: two lone rows of different
+    phases, which debouncing keeps), more cruise: nothing can join the acceleration any more, so it is decided; and
+    so is every maneuver after it (kept open, it held every later row until the end of the run)."""
+    det = ManeuverDetector(None, phases=("accelerate", "brake"))
+    t = 0.0
+
+    def rows(phase: str, n: int) -> None:
+        nonlocal t
+        for _ in range(n):
+            det.add_estimate(_row(t, phase))
+            det.add_fast(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})
+            t += 0.1
+
+    rows("accelerate", 20)
+    rows("cruise", 7)
+    rows("brake", 1)
+    rows("accelerate", 1)
+    rows("cruise", 21)
+    (m,) = det.take()
+    assert m.phase == "accelerate" and len(m.rows) == 20
+    for _ in range(50):
+        rows("brake", 10)
+        rows("cruise", 30)
+    assert [m.phase for m in det.take()] == ["brake"] * 50
+    assert len(det._rows) < 40  # only the open event's rows are kept
+
+
 # ---- on the car: the live daemon on python-can's virtual bus, the status stream and the terminal view ----------
 
 def test_demo_brake_abs_prints_the_stop_as_it_ends(tmp_path: Path) -> None:

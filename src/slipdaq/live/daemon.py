@@ -63,7 +63,9 @@ class RunResult:
     learned: Learned = field(default_factory=Learned)
     """What the estimator measured in this run (for the calibration file)."""
     maneuvers: list[Maneuver] = field(default_factory=list)
-    """The run's maneuvers (/maneuver), in order."""
+    """The run's latest maneuvers (/maneuver; status.MANEUVERS_KEPT at most), in order."""
+    maneuver_count: int = 0
+    """How many maneuvers the run decided (every one is in the log)."""
     test_sets: list[dict[str, Any]] = field(default_factory=list)
     """The last /test_set record of each set the run filled."""
 
@@ -264,4 +266,5 @@ async def run_daemon(
         loop.time() - started, log_segments=list(sink.segments), log_error=sink.error,
         learned=pipeline.estimator.learned(), maneuvers=list(status.maneuvers),
         test_sets=list(status.test_sets.values()),
+        maneuver_count=pipeline.maneuver_count,
     )

@@ -147,7 +147,9 @@ def run_demo(duration_s: float, scenario: str, road: str, log_dir: Path, out: Te
         f"  CAN:        {result.can_frames} frames ({rate:.0f} frames/s), {result.lost_frames} lost\n"
         f"  NMEA:       {result.nmea_lines} lines, {result.bad_sentences} bad\n"
         f"  estimates:  {result.estimates}\n"
-        f"  maneuvers:  {len(result.maneuvers)}" + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
+        f"  maneuvers:  {result.maneuver_count}"
+        + (f" (the last {len(result.maneuvers)})" if result.maneuver_count > len(result.maneuvers) else "")
+        + "".join(f"\n    {maneuver_line(m)}" for m in result.maneuvers)
         + "".join(f"\n  test set:   {test_set_line(r)}" for r in result.test_sets) + "\n"
         f"  slip error against the simulator's truth (speed > 5 m/s, {err.samples} wheel windows): "
         f"RMS {err.rms_points:.3f} points, median {err.median_abs_points:.3f}, max {err.max_abs_points:.3f}\n"

@@ -61,7 +61,7 @@ def describe(e: OSError) -> str:
 class CommitFile:
     """Write-only binary stream: write() buffers, commit() makes it durable and leaves a readable file."""
 
-    def __init__(self, path: str | Path, *, fsync: bool = False, auto_commit_bytes: int = 8 << 20,
+    def __init__(self, path: str | Path, *, fsync: bool = False, auto_commit_bytes: int = 1 << 20,
                  new_file: bool = False) -> None:
         """auto_commit_bytes: commit as soon as this much is buffered (the writer writes whole records only, so
         any write boundary is a valid place to commit), so that long offline runs do not pile up in memory.
@@ -102,22 +102,24 @@ class CommitFile:
         if self.closed or (not final and not self._pending and self.commits):
             return
         self._raise_sync_error()
-        data = bytes(self._pending) if final else bytes(self._pending) + TRAILER
+        n = len(self._pending)
+        if not final:
+            self._pending += TRAILER  # written from the buffer itself: no copy of up to auto_commit_bytes
         try:
-            self._write_at(self._committed, data)
+            self._write_at(self._committed, self._pending)
             if final:
-                os.ftruncate(self._fd, self._committed + len(data))
+                os.ftruncate(self._fd, self._committed + n)
         except OSError as e:
-            self._pending.clear()
+            self._pending = bytearray()  # a new one: the traceback's frames still hold a view of the old
             self._restore()
             raise LogWriteError(e.errno, describe(e), str(self.path)) from None
-        self._committed += len(self._pending)
+        self._committed += n
         self._pending.clear()
         self.commits += 1
         if self._fsync:
             self._start_sync()
 
-    def _write_at(self, offset: int, data: bytes) -> None:
+    def _write_at(self, offset: int, data: bytes | bytearray) -> None:
         view = memoryview(data)
         while view:
             n = os.pwrite(self._fd, view, offset)

@@ -73,7 +73,9 @@ class McapWriter:
         self._pool: ThreadPoolExecutor | None = None
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._chunk_indexes = bytearray()
+        """The summary's ChunkIndex records, serialized as each chunk is written (about 210 bytes a chunk with 13
+        channels, a seventh of a ChunkIndex object's 1.4 kB: a day's log has thousands of chunks)."""
         self._metadata_indexes: list[MetadataIndex] = []
         self._stats = Statistics(attachment_count=0, channel_count=0, channel_message_counts=defaultdict(int),
                                  chunk_count=0, message_count=0, metadata_count=0, message_start_time=0,
@@ -195,7 +197,9 @@ class McapWriter:
         index.message_index_length = length
         if parts:
             self._stream.write(b"".join(parts))
-        self._chunk_indexes.append(index)
+        rb = RecordBuilder()
+        index.write(rb)
+        self._chunk_indexes += rb.end()
 
     def flush(self) -> None:
         """The chunk in progress closed and everything written to the stream, which is then flushed."""
@@ -234,9 +238,11 @@ class McapWriter:
         b = RecordBuilder()
         offsets: list[SummaryOffset] = []
 
-        def group(opcode: Opcode, records: list[Any]) -> None:
+        def group(opcode: Opcode, records: list[Any] | bytearray) -> None:
             first = b.count
-            for r in records:
+            if isinstance(records, bytearray):  # already serialized
+                b.write(records)
+            for r in records if isinstance(records, list) else ():
                 r.write(b)
             offsets.append(SummaryOffset(group_opcode=opcode, group_start=start + first, group_length=b.count - first))
 

@@ -5,9 +5,10 @@ over a log's rows, so both decide the same maneuvers with the same figures.
 An event is closed by the rule of `events.closed_events` over the rows not yet in a closed event; a closed
 accelerate or brake event of at least MIN_MANEUVER_ROWS rows with a defined slip is then summarized
 (`figures.summarize_maneuver`) once a high-rate row past its span's end has come (all of its span is then in), or at
-`finish`. Its anchors (the linearity rule's cruise windows) are the cruise rows known when it closed: those of
-the cruise events before it and those after it so far (the cruise that closed it).
-Rows older than any open event's span are let go, so a long run keeps little.
+`finish`. Its anchors (the linearity rule's cruise windows) are the cruise rows known when it closed: the latest
+ANCHOR_WINDOWS of the cruise events before it, and those after it so far (the cruise that closed it).
+Rows older than any open event's span are let go: what a run keeps, and what deciding a maneuver costs, does not grow
+with the length of the run.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ ANCHOR_KEYS = ("speed_mps",) + tuple(k for w in WHEELS for k in (f"slip_{w}", f"
 BRAKE_MARK = "brake_mark"
 """The sensor kind (/can/sensors) of a time mark of the brake's press: the GPS receiver's UBX-TIM-TM2 of the brake-light
 switch ([brake] source = "gps-timemark"), placed on the host's clock."""
+ANCHOR_WINDOWS = 1000
+"""The cruise windows before a maneuver that anchor its force–slip line (Fx = 0, and the noise of slip and force):
+the latest this many (100 s of cruise at 10 Hz). The line's offset s0 is the radius error, which drifts with the
+tire's temperature and pressure over a day, and a drift of the cruise values inflates their spread taken as noise
+(linearity.anchor_noise): the tire as it is now, not as it was in the morning."""
 KEEP_S = SPAN_BEFORE_S + BRAKE_SIGNAL_BEFORE_S + 15.0
 """High-rate rows and brake samples are kept this long before the oldest open row (a window is at most 10 s)."""
 
@@ -67,7 +73,7 @@ class ManeuverDetector:
         self._times: list[float] = []
         self._await_seal = False
         """An open accelerate or brake event long enough for a maneuver: a cruise after it closes it in time."""
-        self._anchors: list[dict[str, Any]] = []
+        self._anchors: deque[dict[str, Any]] = deque(maxlen=ANCHOR_WINDOWS)
         self._queue: deque[tuple[str, list[dict[str, Any]], list[dict[str, Any]], float, float]] = deque()
         """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
         self._fast: deque[tuple[float, Any]] = deque()
@@ -142,7 +148,7 @@ class ManeuverDetector:
             if p in self.phases and len(ev) >= MIN_MANEUVER_ROWS and _has_slip(ev):
                 t_from, t_to = span_s(str(p), ev)
                 after = [_anchor(rows[i]) for q, later in found[k + 1:] if q == "cruise" for i in later]
-                anchors = self._anchors + after if p != "cruise" else []
+                anchors = [*self._anchors, *after] if p != "cruise" else []
                 self._queue.append((str(p), ev, anchors, t_from, t_to))
         last = found[closed - 1][1][-1] + 1
         del self._rows[:last], self._phase[:last], self._times[:last]

@@ -11,7 +11,8 @@ rows or without any defined slip, make none. Its title gives the speed range in 
 
 Online, an event is closed (`closed_events`) once no later row can change its rows: a run of at least MIN_RUN_ROWS
 rows of another phase follows it, and, when that phase is cruise, MERGE_GAP_S have passed since its last row with
-nothing but cruise (no run of its own phase can join it any more).
+nothing but cruise, or another event follows that cruise (no run of its own phase can join it any more: a noise
+row of the other phase inside a short cruise must not keep it open, and every later one, for the rest of the run).
 """
 
 from __future__ import annotations
@@ -75,18 +76,27 @@ def close_events(phases: Sequence[str | None], times_s: Sequence[float], final: 
     for k in range(len(found) - 1):
         p, rows = found[k]
         sealed = False
-        for q, rq in found[k + 1:]:
+        for j in range(k + 1, len(found)):
+            q, rq = found[j]
             if len(rq) < MIN_RUN_ROWS:
                 continue
             if q != "cruise" or p not in ("accelerate", "brake"):
                 sealed = True
             elif times_s[rq[-1]] - times_s[rows[-1]] >= MERGE_GAP_S:
                 sealed = True
+            else:  # a short cruise: sealed once an event that no row can change follows it (it joined none)
+                sealed = _final(found, j + 1)
             break
         if not sealed:
             break
         closed = k + 1
     return found, closed
+
+
+def _final(found: Sequence[tuple[str | None, list[int]]], k: int) -> bool:
+    """Event k exists and no later row changes its phase: only the last run can still be debounced, and a run of
+    MIN_RUN_ROWS rows never is."""
+    return k < len(found) - 1 or (k == len(found) - 1 and len(found[k][1]) >= MIN_RUN_ROWS)
 
 
 def _round5(v_mps: float) -> int:

@@ -2,14 +2,14 @@
 the one definition for the live `/maneuver` record and the report.
 
 Per wheel and maneuver
-    mean and largest |slip| of the windows; the linear region and its line (linearity.py) against the cruise
-    windows known when it closed (detector); mean Re: mean of `re_W_m`; r0: the reference radius `r0_W_m`; peak Cx: the
-    largest median |`cx_W_n`| (the estimator's windowed Fx/s) over the same 1 % slip bins of at least 5 values, with
-    that bin's median slip (a single window's Fx/s at low slip is too noisy to take its maximum); fitted Cx and its
-    confidence: the online `cx_fit_W_n` / `cx_fit_W_conf` of the maneuver's row with the highest confidence when the
-    rows have them, else Cx_line with confidence max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the relative half width
-    of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present (source: their most
-    common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
+    mean and largest |slip| of the windows; the linear region and its line (linearity.py) against the latest cruise
+    windows known when it closed (detector.ANCHOR_WINDOWS); mean Re: mean of `re_W_m`; r0: the reference radius
+    `r0_W_m`; peak Cx: the largest median |`cx_W_n`| (the estimator's windowed Fx/s) over the same 1 % slip bins of at
+    least 5 values, with that bin's median slip (a single window's Fx/s at low slip is too noisy to take its maximum);
+    fitted Cx and its confidence: the online `cx_fit_W_n` / `cx_fit_W_conf` of the maneuver's row with the highest
+    confidence when the rows have them, else Cx_line with confidence max(0, 1 − 2·SE(Cx_line)/|Cx_line|) (1 − the
+    relative half width of a ~95 % interval). GPS latency: median `gps_latency_s` of the maneuver's rows when present
+    (source: their most common `latency_source`), else the log config's fixed `gps.latency_s` (0 for "auto").
 
 The tire's mu-slip curve (per wheel and maneuver; tire_limit.py), from the high-rate slip (/slip/fast) over the
 maneuver's span (`span_s`: its first window's start - SPAN_BEFORE_S to its last window's end, + SPAN_AFTER_S braking):

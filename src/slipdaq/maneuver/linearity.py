@@ -5,8 +5,8 @@ Linear region and the end of linearity (per wheel and maneuver), the exact rule
        (force and slip of the same sign; a wheel carrying no force has no points).
        S_MIN, S_MAX are the log's `estimator.cx_slip_min`, `cx_slip_max` (defaults 0.005, 0.10).
     2. Line: slip on force, s = s0 + Fx/Cx_line, least squares over the maneuver's windows whose force has the
-       maneuver's sign (any slip) and the cruise windows known when it closed (which anchor Fx = 0; without: step 2's
-       fallback), both with |s| <= S_MAX. The
+       maneuver's sign (any slip) and the cruise windows known when it closed, the latest 1000 before it
+       (detector.ANCHOR_WINDOWS; they anchor Fx = 0; without: step 2's fallback), both with |s| <= S_MAX. The
        slip is the noisy one (GPS), so it is the regressand: its noise adds spread, not bias; Fx = M·a spreads
        widely between cruise and the maneuver and its own noise is small against that spread (docs/method.md,
        fitted stiffness). With 10 cruise windows or more, their spread is each variable's noise and the fit is

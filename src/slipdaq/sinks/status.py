@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TextIO
@@ -65,6 +66,9 @@ class SourceStatus:
 
 
 EVENTS_SHOWN = 3
+MANEUVERS_KEPT = 100
+"""The live view keeps the latest this many maneuvers (its table shows 8): a day's run decides thousands, and every
+one is in the log (/maneuver)."""
 
 
 def imu_name(imu: ImuConfig) -> str:
@@ -94,8 +98,10 @@ class StatusSink(Sink):
     """Error frames by class (bus_off, restarted, controller, rx_overflow, ...)."""
     events: list[SourceEvent] = field(default_factory=list)
     """The latest source and log events (GPS unplugged and back, disk full, ...), newest last."""
-    maneuvers: list[Maneuver] = field(default_factory=list)
-    """The day's maneuvers so far (/maneuver), oldest first."""
+    maneuvers: deque[Maneuver] = field(default_factory=lambda: deque(maxlen=MANEUVERS_KEPT))
+    """The latest MANEUVERS_KEPT maneuvers (/maneuver), oldest first."""
+    maneuvers_seen: int = 0
+    """How many maneuvers the run has decided so far."""
     maneuvers_printed: int = 0
     """How many of them the status stream has printed (one line each)."""
     test_sets: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -148,6 +154,7 @@ class StatusSink(Sink):
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self.maneuvers.append(maneuver)
+        self.maneuvers_seen += 1
 
     def on_test_set(self, record: dict[str, Any], log_time_s: float) -> None:
         self.test_sets[record["procedure"]] = record
@@ -348,10 +355,11 @@ async def show(s: StatusSink, stream: TextIO | None = None, line_every_s: float 
 
 
 def print_maneuvers(s: StatusSink, stream: TextIO) -> None:
-    """One line for each maneuver not printed yet, then one for each test set updated since."""
-    for m in s.maneuvers[s.maneuvers_printed:]:
+    """One line for each maneuver not printed yet (of those kept), then one for each test set updated since."""
+    new = min(s.maneuvers_seen - s.maneuvers_printed, len(s.maneuvers))
+    for m in list(s.maneuvers)[len(s.maneuvers) - new:]:
         print(maneuver_line(m), file=stream, flush=True)
-    s.maneuvers_printed = len(s.maneuvers)
+    s.maneuvers_printed = s.maneuvers_seen
     for name in s.test_sets_unprinted:
         print(f"test set {test_set_line(s.test_sets[name])}", file=stream, flush=True)
     s.test_sets_unprinted.clear()

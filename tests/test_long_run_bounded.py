@@ -1,0 +1,146 @@
+"""A day's run keeps what it keeps at its start: the maneuver detector's and the live pipeline's retained state
+(the length of every container they hold, followed through their attributes) is the same after a long stretch of a
+repeating drive as after a short one, but for containers bounded by construction (a deque with a maxlen)."""
+
+from __future__ import annotations
+
+import io
+from collections import deque
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slipdaq.config import load_config
+from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.record import Maneuver
+from slipdaq.offline.run import batched, read_ahead
+from slipdaq.pipeline import Pipeline
+from slipdaq.sim.emit import SimSettings, generate
+from slipdaq.sim.vehicle import speed_profile
+from slipdaq.sinks.mcap_log import McapLogSink
+from slipdaq.sinks.status import MANEUVERS_KEPT, StatusSink, print_maneuvers
+from support.paths import CONFIG
+
+LOG_INDEX = ".log._writer._chunk_indexes"
+"""The one that grows by design: the MCAP summary's chunk index, a 207-byte record per chunk (1 MB of messages) that
+the file's summary needs at its end; a log rotated by size or duration (RotationPolicy) starts a new one."""
+LOG_BUFFER = ".log._writer._stream._pending"
+"""Bytes written and not committed yet: bounded by the commit (every second live, every 1 MB offline)."""
+_ATOMS = (str, bytes, int, float, bool, type(None), type, np.generic)
+
+
+def container_sizes(root: object, depth: int = 8, items: int = 3) -> dict[str, tuple[int, bool]]:
+    """path -> (largest length of a container found there, bounded by construction: a deque with a maxlen), over
+    root's attributes, and the first `items` items of each container, to `depth` levels."""
+    out: dict[str, tuple[int, bool]] = {}
+    seen: set[int] = set()
+    stack: list[tuple[str, Any, int]] = [("", root, 0)]
+    while stack:
+        path, o, d = stack.pop()
+        if id(o) in seen or d > depth or isinstance(o, _ATOMS) or callable(o) and not hasattr(o, "__dict__"):
+            continue
+        seen.add(id(o))
+        if isinstance(o, np.ndarray | bytearray):
+            n, bounded = len(o), False
+        elif isinstance(o, list | tuple | set | frozenset | deque | dict):
+            n, bounded = len(o), isinstance(o, deque) and o.maxlen is not None
+            for k, v in list(o.items() if isinstance(o, dict) else enumerate(o))[:items]:
+                stack.append((f"{path}[{k!r}]" if isinstance(o, dict) and isinstance(k, str) else f"{path}[]", v,
+                              d + 1))
+        else:
+            attrs = getattr(o, "__dict__", None) or {k: getattr(o, k, None)
+                                                     for c in type(o).__mro__ for k in getattr(c, "__slots__", ())}
+            stack.extend((f"{path}.{k}", v, d + 1) for k, v in attrs.items())
+            continue
+        old = out.get(path, (0, True))
+        out[path] = (max(old[0], n), old[1] and bounded)
+    return out
+
+
+def grown(before: dict[str, tuple[int, bool]], after: dict[str, tuple[int, bool]], slack: int = 40
+          ) -> dict[str, tuple[int, int]]:
+    """The containers that grew by more than a quarter and `slack` entries, and are not bounded by construction."""
+    return {p: (before.get(p, (0, True))[0], n) for p, (n, bounded) in after.items()
+            if not bounded and n > 1.25 * before.get(p, (0, True))[0] + slack}
+
+
+def _drive_rows(n: int) -> list[tuple[dict[str, Any], tuple[float, dict[str, float]]]]:
+    """n estimate rows at 10 Hz of a repeating drive (standstill, accelerate, a short cruise with a lone brake and a
+    lone accelerate row of noise, cruise, brake), each with a high-rate row at its time."""
+    cycle = ["standstill"] * 20 + ["accelerate"] * 60 + ["cruise"] * 7 + ["brake", "accelerate"] + \
+        ["cruise"] * 30 + ["brake"] * 30
+    out = []
+    for i in range(n):
+        t = 0.1 * i
+        phase = cycle[i % len(cycle)]
+        sign = {"accelerate": 1.0, "brake": -1.0}.get(phase, 0.0)
+        slip = 0.0004 * ((i * 7919) % 11 - 5) + 0.02 * sign * ((i % 13) + 1) / 13
+        row = {"time_s": t, "phase": phase, "speed_mps": 0.0 if phase == "standstill" else 15.0, "window_s": 0.5}
+        for w in ("FL", "FR", "RL", "RR"):
+            row[f"slip_{w}"] = None if phase == "standstill" else slip
+            row[f"force_{w}_n"] = 1500.0 * sign * ((i % 13) + 1) / 13 + 20.0 * ((i * 31) % 7 - 3)
+        out.append((row, (t, {"time_s": t, "speed_mps": row["speed_mps"], "accel_mps2": 3.0 * sign})))
+    return out
+
+
+def test_the_detector_keeps_the_same_after_20000_rows_as_after_5000() -> None:
+    rows = _drive_rows(20_000)
+    det = ManeuverDetector(None)
+    sizes = []
+    decided = 0
+    for i, (row, (t, fast)) in enumerate(rows, 1):
+        det.add_estimate(row)
+        det.add_fast(t, fast)
+        decided += len(det.take_jobs())  # what a pipeline does: the summaries go, the detector keeps none of them
+        if i in (5_000, 20_000):
+            sizes.append(container_sizes(det))
+    assert decided > 350  # accelerate, cruise, brake of each cycle: every one decided as it ends
+    assert grown(*sizes) == {}
+
+
+def test_the_pipeline_keeps_the_same_after_a_long_drive_as_after_a_short_one(tmp_path: Path) -> None:
+    """The simulator's cycle drive (2 accelerations and 2 stops a minute) at 50 Hz per wheel into the pipeline with the
+    log and the live view as sinks: every container the same size after 24 cycles (about 340 s) as after 6, but the
+    log's chunk index (LOG_INDEX) and its uncommitted bytes (LOG_BUFFER, bounded by the commit)."""
+    cfg = load_config(CONFIG)
+    settings = replace(SimSettings(), wpt_rate_hz=50.0, gps_rate_hz=10.0, gps_latency_s=0.05, seed=5)
+    log = McapLogSink(tmp_path / "long.mcap", cfg, "import")
+    status = StatusSink()
+    p = Pipeline(cfg, [log, status])
+    sizes = []
+    period_s = speed_profile("cycle", "paved").period_s
+    assert period_s is not None
+    marks = [6 * period_s + 3.0, 24 * period_s + 3.0]  # at the same point of the cycle
+    t0 = None
+    records = (e.record for e in generate(cfg, "cycle", "paved", settings, marks[-1] + 60.0) if e.record is not None)
+    for run in read_ahead(batched(records)):
+        p.process_all(run)
+        assert p.last_time_s is not None
+        t0 = p.last_time_s if t0 is None else t0
+        if marks and p.last_time_s - t0 >= marks[0]:
+            marks.pop(0)
+            sizes.append(container_sizes(p))
+    p.finish()
+    log.close()
+    assert p.maneuver_count >= 2 * 24  # an acceleration and a stop a cycle, decided as each ends
+    assert [p for p in grown(*sizes) if not p.endswith((LOG_INDEX, LOG_BUFFER))] == []
+    assert max(n for p, (n, _) in sizes[-1].items() if p.endswith(LOG_BUFFER)) <= 2 << 20
+
+
+
+def test_the_live_view_keeps_the_latest_maneuvers_and_prints_each_once() -> None:
+    """A day's maneuvers: the view keeps the latest MANEUVERS_KEPT and counts them all; the status stream prints
+    each maneuver not printed yet once."""
+    view = StatusSink()
+    n = 3 * MANEUVERS_KEPT
+    for i in range(1, n + 1):
+        view.on_maneuver(Maneuver(i, "accelerate", 0.0, 5.0, 0.0, 60.0, None, True, (), None, None, None, None, None,
+                                  None, 5.0), float(i))
+    assert len(view.maneuvers) == MANEUVERS_KEPT and view.maneuvers[-1].index == n and view.maneuvers_seen == n
+    view.maneuvers_printed = n - 5  # the stream has printed all but the last 5
+    out = io.StringIO()
+    print_maneuvers(view, out)
+    print_maneuvers(view, out)
+    assert [int(line.split()[1][1:]) for line in out.getvalue().splitlines()] == list(range(n - 4, n + 1))
