@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import subprocess
+import sys
 import tarfile
 from pathlib import Path
 
@@ -38,3 +40,11 @@ def unpack(rev: str, dest: Path) -> Path:
         with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
             tar.extractall(dest, filter="data")
     return dest / "src"
+
+
+def under(src: Path, benchmark_file: str, *args: str) -> tuple[list[str], dict[str, str]]:
+    """The command and environment that run a benchmark module (by its file's name) as a program with the slipdaq of
+    src (a tree's src/ or an unpacked revision's): `python -m benchmarks.NAME ARGS` with src, then this repository,
+    on the path."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
+    return [sys.executable, "-m", f"benchmarks.{Path(benchmark_file).stem}", *args], env

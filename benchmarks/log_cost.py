@@ -85,8 +85,8 @@ def main() -> int:
     work.mkdir(parents=True, exist_ok=True)
     raw = work / f"raw-{a.seconds:g}s-{a.rate_hz:g}hz.mcap"
     if not raw.exists():
-        subprocess.run([sys.executable, str(Path(__file__).parent / "replay_process.py"), "--base", base, "--seconds",
-                        str(a.seconds), "--rate-hz", str(a.rate_hz), "--rounds", "0", "--work", str(work)], check=True)
+        subprocess.run([sys.executable, "-m", "benchmarks.replay_process", "--base", base, "--seconds",
+                        str(a.seconds), "--rate-hz", str(a.rate_hz), "--rounds", "0", "--work", str(work)], check=True, cwd=ROOT)
     sides = {f"base {base}": unpack(base, work / f"base-{base}"), "this tree": ROOT / "src"}
     got: dict[str, list[dict[str, float]]] = {name: [] for name in sides}
     for r in range(a.rounds):

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import pickle
 import statistics
 import subprocess
@@ -34,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import add_base_argument, resolve, unpack
+from benchmarks.base_revision import add_base_argument, resolve, under, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 ROWS = (
@@ -217,8 +216,8 @@ def worker(records_path: Path) -> dict[str, Any]:
 
 
 def run_side(src: Path, *args: str) -> dict[str, Any]:
-    env = dict(os.environ, PYTHONPATH=str(src))
-    out = subprocess.run([sys.executable, __file__, *args], env=env, check=True, capture_output=True, text=True).stdout
+    cmd, env = under(src, __file__, *args)
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 

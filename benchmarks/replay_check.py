@@ -37,7 +37,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import add_base_argument, resolve, unpack
+from benchmarks.base_revision import add_base_argument, resolve, under, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "benchmarks"
@@ -336,8 +336,8 @@ def main() -> int:
     env_new = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     if not list(work.glob("in-*.mcap")):
         print(f"writing the input logs with {a.base} in {work} ...", flush=True)
-        subprocess.run([sys.executable, __file__, "--make-inputs", str(work)] + (["--quick"] if a.quick else []),
-                       env=env_base, check=True)
+        cmd, env = under(base_src, __file__, "--make-inputs", str(work), *(["--quick"] if a.quick else []))
+        subprocess.run(cmd, env=env, check=True)
         for side, env in (("base", env_base), ("new", env_new)):
             (work / "calibration.toml").unlink(missing_ok=True)  # each side starts cold (import saves what it learned)
             code, text = run(side, env, ["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea",
