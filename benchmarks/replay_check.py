@@ -248,6 +248,58 @@ def compare_values(a: Path, b: Path) -> str:
     return "" if len(va) == len(vb) else f"value counts differ: {len(va)} != {len(vb)}"
 
 
+def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(d, dict):
+        return {prefix: d}
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        out |= _flat(v, f"{prefix}.{k}" if prefix else str(k))
+    return out
+
+
+def _metadata_change(ma: dict[str, Any], mb: dict[str, Any]) -> str:
+    """What the new side's metadata changed: the config keys it added, removed or changed (config_toml parsed),
+    and any other key."""
+    import tomllib
+
+    sa, sb = dict(ma.get("slipdaq", {})), dict(mb.get("slipdaq", {}))
+    ca, cb = (_flat(tomllib.loads(s.pop("config_toml", "") or "")) for s in (sa, sb))
+    parts = []
+    if ca.keys() - cb.keys():
+        parts.append("config keys removed: " + ", ".join(sorted(ca.keys() - cb.keys())))
+    if cb.keys() - ca.keys():
+        parts.append("config keys added: " + ", ".join(sorted(cb.keys() - ca.keys())))
+    changed = sorted(k for k in ca.keys() & cb.keys() if ca[k] != cb[k])
+    if changed:
+        parts.append("config values changed: " + ", ".join(changed))
+    other = sorted(k for k in sa.keys() | sb.keys() if sa.get(k) != sb.get(k))
+    if other:
+        parts.append("metadata keys differ: " + ", ".join(other))
+    return "; ".join(parts) or "metadata equal"
+
+
+def by_topic(a: Path, b: Path, metadata: str) -> str:
+    """Each topic's decoded values, base against new: equal, differing (the first difference), only on one side."""
+    va, vb = _values(a), _values(b)
+    topics = sorted({v[0] for v in va} | {v[0] for v in vb})
+    equal, differ, new, gone = [], [], [], []
+    for topic in topics:
+        xa, xb = [v[1:] for v in va if v[0] == topic], [v[1:] for v in vb if v[0] == topic]
+        if not xa:
+            new.append(f"{topic} ({len(xb)})")
+        elif not xb:
+            gone.append(f"{topic} ({len(xa)})")
+        elif xa == xb:
+            equal.append(f"{topic} ({len(xa)})")
+        else:
+            first = next((i for i, (p, q) in enumerate(zip(xa, xb)) if p != q), min(len(xa), len(xb)))
+            p, q = (str(x[first])[:200] if first < len(x) else "none" for x in (xa, xb))
+            differ.append(f"{topic} ({len(xa)} / {len(xb)}; first at {first}: base {p} / new {q})")
+    return "; ".join(f"{name}: {', '.join(items)}" for name, items in (
+        ("metadata", [metadata]), ("values differ", differ), ("new topics", new), ("topics gone", gone),
+        ("values equal", equal)) if items)
+
+
 def compare(a: Path, b: Path, values: bool = False) -> str:
     """'' when identical (but for EXCLUDED_METADATA), "same: ..." when the messages and metadata are identical and
     a JSON Schema differs only in the order of its keys (values: or the messages' bytes differ and their decoded
@@ -263,6 +315,8 @@ def compare(a: Path, b: Path, values: bool = False) -> str:
     for m in (ma, mb):
         for key in EXCLUDED_METADATA:
             m.get("slipdaq", {}).pop(key, None)
+    if ma != mb and values:
+        return by_topic(a, b, _metadata_change(ma, mb))
     if ma != mb:
         return f"metadata differs: {ma} != {mb}"
     xa, xb = _messages(a), _messages(b)
