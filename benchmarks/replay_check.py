@@ -278,6 +278,19 @@ def _metadata_change(ma: dict[str, Any], mb: dict[str, Any]) -> str:
     return "; ".join(parts) or "metadata equal"
 
 
+def _difference(xa: list[Any], xb: list[Any], i: int) -> str:
+    """Message i of two lists of (log time, value): the fields added, removed or changed where both are objects."""
+    if i >= len(xa) or i >= len(xb):
+        return f"{len(xa) - i} base / {len(xb) - i} new messages more"
+    (ta, a), (tb, b) = xa[i], xb[i]
+    if ta != tb or not (isinstance(a, dict) and isinstance(b, dict)):
+        return f"base {str(xa[i])[:200]} / new {str(xb[i])[:200]}"
+    added, removed = sorted(b.keys() - a.keys()), sorted(a.keys() - b.keys())
+    changed = sorted(k for k in a.keys() & b.keys() if a[k] != b[k])
+    return "; ".join(f"{name} {', '.join(keys)}" for name, keys in (
+        ("fields added", added), ("fields removed", removed), ("fields changed", changed)) if keys)
+
+
 def by_topic(a: Path, b: Path, metadata: str) -> str:
     """Each topic's decoded values, base against new: equal, differing (the first difference), only on one side."""
     va, vb = _values(a), _values(b)
@@ -293,8 +306,7 @@ def by_topic(a: Path, b: Path, metadata: str) -> str:
             equal.append(f"{topic} ({len(xa)})")
         else:
             first = next((i for i, (p, q) in enumerate(zip(xa, xb)) if p != q), min(len(xa), len(xb)))
-            p, q = (str(x[first])[:200] if first < len(x) else "none" for x in (xa, xb))
-            differ.append(f"{topic} ({len(xa)} / {len(xb)}; first at {first}: base {p} / new {q})")
+            differ.append(f"{topic} ({len(xa)} / {len(xb)}; first at {first}: {_difference(xa, xb, first)})")
     return "; ".join(f"{name}: {', '.join(items)}" for name, items in (
         ("metadata", [metadata]), ("values differ", differ), ("new topics", new), ("topics gone", gone),
         ("values equal", equal)) if items)
