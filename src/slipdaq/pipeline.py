@@ -422,7 +422,8 @@ class Pipeline:
     def _deliver_maneuver(self, m: ManeuverSummary | CoastRun, log_time_s: float) -> None:
         self.maneuver_count += 1
         if isinstance(m, CoastRun):
-            record = coast_record(m, self.maneuver_count, self.maneuvers.t0_s or 0.0, WHEELS)
+            record = coast_record(m, self.maneuver_count, self.maneuvers.t0_s or 0.0, WHEELS,
+                                  self.config.test)
         else:
             record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
         self._out.on_maneuver(record, log_time_s)

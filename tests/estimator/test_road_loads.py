@@ -4,18 +4,20 @@ the calibration's [road_loads] (round trip, used by Fx, the config's coefficient
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from test_estimator import _run
 
-from slipdaq.config import Config, parse_config
+from slipdaq.config import Config, TestConfig, parse_config
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, show, summary, to_toml
 from slipdaq.estimator import EstimatorParams
 from slipdaq.estimator.force import RoadLoads, longitudinal_force_n
 from slipdaq.estimator.run_calibration import stored_road_loads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.record import MANEUVER_COLUMNS, coast_record
+from slipdaq.maneuver.test_set import TestSets
 from slipdaq.sim.road_loads import RoadLoadTruth
 from slipdaq.sinks.maneuver_text import maneuver_line
 from support.estimator_params import params
@@ -257,3 +259,27 @@ def test_a_log_from_before_the_rotating_masses_replays_without_them() -> None:
     now = Config().with_overrides(vehicle={"rotating_mass_factor": 1.05})
     assert parse_logged_config(now.to_toml()).vehicle.rotating_mass_factor == 1.05
     assert parse_logged_config(Config().to_toml()).vehicle.rotating_mass_factor == 1.03
+
+
+def test_a_coast_procedure_sets_the_paired_road_loads(config: Config) -> None:
+    """A `[[test.procedure]] kind = "coast"`: the unpaired first coast is excluded (invalid), the pair's is its run;
+    the set gives the road loads' statistics, F0 its main figure."""
+    rng = np.random.default_rng(3)
+    det = CoastDetector(config)
+    out_rows, out_courses = coast_rows(True, 0.0, rng)
+    back_rows, back_courses = coast_rows(False, out_rows[-1]["time_s"] + 60.0, rng)
+    (alone,), (paired,) = feed(det, out_rows, out_courses), feed(det, back_rows, back_courses)
+    test = TestConfig.model_validate({"procedure": [
+        {"name": "coast 100-20", "kind": "coast", "target_speed_kmh": 100.0, "runs": 1, "max_cv_percent": 5.0}]})
+    wheels = ("FL", "FR", "RL", "RR")
+    first, second = coast_record(alone, 1, 0.0, wheels, test), coast_record(paired, 2, 0.0, wheels, test)
+    assert first.procedure == second.procedure == "coast 100-20"
+    sets = TestSets(test)
+    sets.add(first)
+    record = sets.add(second)
+    assert record is not None and record["runs"] == [2] and record["complete"] and record["ok"]
+    assert [e["index"] for e in record["excluded"]] == [1] and "invalid" in record["excluded"][0]["reason"]
+    assert record["road_load_f0_n_n"] == 1 and record["road_load_f0_n_mean"] == second.road_load_f0_n
+    assert record["road_load_f2_n_per_mps2_mean"] == second.road_load_f2_n_per_mps2
+    slow = coast_record(replace(paired, speed_from_kmh=90.0), 3, 0.0, wheels, test)
+    assert "start speed 90.0 km/h more than 2 km/h below 100 km/h" in sets.add(slow)["excluded"][-1]["reason"]

@@ -256,9 +256,11 @@ def _wheel(ws: WheelSummary) -> ManeuverWheel:
     )
 
 
-def coast_record(run: CoastRun, index: int, t0_s: float, wheels: Sequence[str]) -> Maneuver:
+def coast_record(run: CoastRun, index: int, t0_s: float, wheels: Sequence[str],
+                 test: TestConfig | None = None) -> Maneuver:
     """The /maneuver record of a coast (maneuver/coast.py): its span and the road loads; invalid while no run in the
-    opposite direction pairs with it."""
+    opposite direction pairs with it; its procedure: the coast procedure nearest its start speed (test_set)."""
+    proc = procedure_for(test, "coast", run.speed_from_kmh) if test is not None else None
     none = ManeuverWheel(None, None, None, None, None)
     f0, f1, f2 = run.loads
     lo, hi = run.loads_lo, run.loads_hi
@@ -271,7 +273,7 @@ def coast_record(run: CoastRun, index: int, t0_s: float, wheels: Sequence[str]) 
         road_load_f0_n=f0, road_load_f0_n_lo=lo[0], road_load_f0_n_hi=hi[0],
         road_load_f1_n_per_mps=f1, road_load_f1_n_per_mps_lo=lo[1], road_load_f1_n_per_mps_hi=hi[1],
         road_load_f2_n_per_mps2=f2, road_load_f2_n_per_mps2_lo=lo[2], road_load_f2_n_per_mps2_hi=hi[2],
-        coast_runs_paired=run.runs_paired,
+        coast_runs_paired=run.runs_paired, procedure=proc.name if proc is not None else None,
     )
 
 

@@ -5,8 +5,9 @@ MAX_EXCLUDED exclusions).
 Membership: a maneuver of a procedure's kind belongs to the procedure whose target speed is nearest to its run speed
 (braking: the speed at the brake onset, else its start; coasting: its start; accelerating: the highest target it
 reached within the tolerance, else the nearest to its top speed). It is a run of the set when it is valid and its
-speed lies within the tolerance (accelerating: its top speed at most the tolerance below the target), and the set
-does not have its runs yet; else it is excluded, with why.
+speed lies within the tolerance (accelerating: its top speed, coasting: its start speed, at most the tolerance below
+the target), and the set does not have its runs yet; else it is excluded, with why. A coast is valid once it is
+paired with one in the opposite direction: each valid coast is a pair's road loads.
 
 Per figure over the runs (stats.mean_interval): n, mean, sd, CV and the mean's 95 % Student-t interval. The set is
 complete with `runs` valid runs, ok when complete and its main figure's CV is within max_cv_percent.
@@ -32,7 +33,7 @@ MAX_EXCLUDED = 100
 KIND_FIGURES: dict[str, tuple[str, ...]] = {
     "brake": ("stopping_distance_corrected_m", "mfdd_mps2", "brake_speed_kmh"),
     "accelerate": ("time_to_speed_s",),
-    "coast": (),
+    "coast": ("road_load_f0_n", "road_load_f1_n_per_mps", "road_load_f2_n_per_mps2"),
 }
 """The maneuver's own figures a set of each kind gives statistics of."""
 WHEEL_FIGURES = ("mean_slip", "cx_line_n", "mu_peak")
@@ -75,10 +76,11 @@ def _fmt(v: float) -> str:
 
 def off_target(kind: str, speed_kmh: float, target_kmh: float, tolerance_kmh: float) -> str | None:
     """Why a run's speed does not count for its procedure; None: it does."""
-    if kind == "accelerate":
+    if kind in ("accelerate", "coast"):
         if speed_kmh >= target_kmh - tolerance_kmh:
             return None
-        return f"top speed {speed_kmh:.1f} km/h more than {_fmt(tolerance_kmh)} km/h below {_fmt(target_kmh)} km/h"
+        what = "top speed" if kind == "accelerate" else "start speed"
+        return f"{what} {speed_kmh:.1f} km/h more than {_fmt(tolerance_kmh)} km/h below {_fmt(target_kmh)} km/h"
     if abs(speed_kmh - target_kmh) <= tolerance_kmh:
         return None
     what = "brake speed" if kind == "brake" else "speed"
