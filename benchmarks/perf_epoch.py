@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Per-GPS-epoch costs, a base revision against this tree, in one run (docs/performance.md, "Per-GPS-epoch costs").
+"""Per-GPS-epoch costs, a base revision against this tree, in one run (docs/performance.md, "Per GPS epoch").
 
 An epoch is what one GPS fix costs whatever the batching of CAN frames: its NMEA lines decoded (NmeaDecoder.decode),
 the fix into the estimator (SlipEstimator.add_gps, with the estimate it makes ready) and the JSON the log writes
