@@ -29,7 +29,7 @@ from slipdaq.decode.ubx import UbxDecoder
 from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.estimator.force import RoadLoads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
-from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
+from slipdaq.maneuver.detector import BRAKE_MARK, Job, ManeuverDetector
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import MANEUVER_KINDS, coast_record, maneuver_record
 from slipdaq.maneuver.test_set import TestSets
@@ -217,10 +217,7 @@ class Pipeline:
             rows = self.estimator.take_fast()
             self._out.on_fast_slip_rows(rows, log_time_s)
             if self._detect:
-                for row in rows:
-                    self.maneuvers.add_fast(row.time_s, row)
-                if self.maneuvers.decided:
-                    self._maneuvers(log_time_s)
+                self._maneuvers(self.maneuvers.add_fast((row.time_s, row) for row in rows), log_time_s)
 
     def _sensor(self, sample: SensorSample) -> None:
         self._out.on_sensor(sample)
@@ -383,9 +380,7 @@ class Pipeline:
         self._out.on_estimate(e, log_time_s)
         row = e.as_row()
         if self._detect:
-            self.maneuvers.add_estimate(row)
-            if self.maneuvers.decided:
-                self._maneuvers(log_time_s)
+            self._maneuvers(self.maneuvers.add_estimate(row), log_time_s)
         coast = self.coasts.add_estimate(row)
         if coast is not None:
             self._coast(coast, log_time_s)
@@ -402,10 +397,11 @@ class Pipeline:
             return
         self._deliver_maneuver(run, log_time_s)
 
-    def _maneuvers(self, log_time_s: float, final: bool = False) -> None:
+    def _maneuvers(self, jobs: list[Job], log_time_s: float, final: bool = False) -> None:
         """The maneuvers decided now, as /maneuver records, to every sink at this log time (with an executor: their
         summaries started there; final: every one, waited for)."""
-        jobs = self.maneuvers.finish_jobs() if final else self.maneuvers.take_jobs()
+        if not jobs and not final:
+            return
         if self._executor is not None and not final:
             self._summaries.extend(self._executor.submit(job) for job in jobs)
             return
@@ -466,7 +462,7 @@ class Pipeline:
         """The maneuver still open decided, and a last diagnostics snapshot, so that the log ends with the final
         counters."""
         if self.last_time_s is not None:
-            self._maneuvers(self.last_time_s, final=True)
+            self._maneuvers(self.maneuvers.finish() if self._detect else [], self.last_time_s, final=True)
             self.emit_diagnostics()
 
     def diagnostics(self) -> Diagnostics:

@@ -258,30 +258,32 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
     for _ in range(20):
         det.add_estimate(_row(t, "accelerate"))
         t += 0.1
+    decided = []
     for _ in range(10):  # 1 s of cruise: a gear change could still join the next run
-        det.add_estimate(_row(t, "cruise"))
-        det.add_fast(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})
+        decided += det.add_estimate(_row(t, "cruise"))
+        decided += det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})])
         t += 0.1
-    assert not det.decided
+    assert not decided
     for _ in range(5):  # accelerate again: one event with the first run
         det.add_estimate(_row(t, "accelerate"))
         t += 0.1
     for _ in range(25):
-        det.add_estimate(_row(t, "cruise"))
-        det.add_fast(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})
+        decided += det.add_estimate(_row(t, "cruise"))
+        decided += det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})])
         t += 0.1
-    (m,) = det.take()
+    (m,) = [job() for job in decided]
     assert m.phase == "accelerate" and len(m.rows) == 25
+    decided = []
     for _ in range(10):
-        det.add_estimate(_row(t, "brake"))
+        decided += det.add_estimate(_row(t, "brake"))
         t += 0.1
     for _ in range(3):
-        det.add_estimate(_row(t, "accelerate"))
-        det.add_fast(t + 5.0, {"time_s": t + 5.0, "speed_mps": 10.0, "accel_mps2": 0.0})
+        decided += det.add_estimate(_row(t, "accelerate"))
+        decided += det.add_fast([(t + 5.0, {"time_s": t + 5.0, "speed_mps": 10.0, "accel_mps2": 0.0})])
         t += 0.1
-    (b,) = det.take()
+    (b,) = [job() for job in decided]
     assert b.phase == "brake" and len(b.rows) == 10
-    assert [m.phase for m in det.finish()] == []  # 3 rows: too few for a maneuver
+    assert [job().phase for job in det.finish()] == []  # 3 rows: too few for a maneuver
 
 
 def test_noise_rows_inside_a_short_cruise_do_not_keep_an_acceleration_open() -> None:
@@ -290,25 +292,31 @@ def test_noise_rows_inside_a_short_cruise_do_not_keep_an_acceleration_open() -> 
     so is every maneuver after it (kept open, it held every later row until the end of the run)."""
     det = ManeuverDetector(None, phases=("accelerate", "brake"))
     t = 0.0
+    decided: list = []
 
     def rows(phase: str, n: int) -> None:
         nonlocal t
         for _ in range(n):
-            det.add_estimate(_row(t, phase))
-            det.add_fast(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})
+            decided.extend(det.add_estimate(_row(t, phase)))
+            decided.extend(det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})]))
             t += 0.1
+
+    def take() -> list:
+        out = [job() for job in decided]
+        decided.clear()
+        return out
 
     rows("accelerate", 20)
     rows("cruise", 7)
     rows("brake", 1)
     rows("accelerate", 1)
     rows("cruise", 21)
-    (m,) = det.take()
+    (m,) = take()
     assert m.phase == "accelerate" and len(m.rows) == 20
     for _ in range(50):
         rows("brake", 10)
         rows("cruise", 30)
-    assert [m.phase for m in det.take()] == ["brake"] * 50
+    assert [m.phase for m in take()] == ["brake"] * 50
     assert len(det._rows) < 40  # only the open event's rows are kept
 
 

@@ -14,7 +14,7 @@ with the length of the run.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from functools import partial
 from typing import Any
 
@@ -37,6 +37,9 @@ tire's temperature and pressure over a day, and a drift of the cruise values inf
 KEEP_S = SPAN_BEFORE_S + BRAKE_SIGNAL_BEFORE_S + 15.0
 """High-rate rows and brake samples are kept this long before the oldest open row (a window is at most 10 s)."""
 
+
+Job = Callable[[], ManeuverSummary]
+"""A decided maneuver: the computation of its summary."""
 
 def _anchor(row: dict[str, Any]) -> dict[str, Any]:
     return {k: row.get(k) for k in ANCHOR_KEYS}
@@ -80,11 +83,13 @@ class ManeuverDetector:
         self._fast_last_s = float("-inf")
         self._brake: deque[tuple[float, float]] = deque()
         self._marks: deque[float] = deque()
-        self.decided: list[Callable[[], ManeuverSummary]] = []
-        """Maneuvers decided and not taken yet: each the summary's computation, on its own data (take(), take_jobs())."""
+        self._decided: list[Job] = []
+        """Maneuvers decided by the input being taken: each the summary's computation, on its own data."""
 
-    def add_estimate(self, row: dict[str, Any], phase: str | None = None) -> None:
-        """One estimate row (Estimate.as_row()); phase: its phase when the row has none of its own."""
+    def add_estimate(self, row: dict[str, Any], phase: str | None = None) -> list[Job]:
+        """One estimate row (Estimate.as_row()); phase: its phase when the row has none of its own. Returns the
+        maneuvers it decided, each as the computation of its summary (pure, on data of its own: it may run on
+        another thread), in order."""
         if self.t0_s is None:
             self.t0_s = row["time_s"]
         p = row.get("phase") if phase is None else phase
@@ -97,13 +102,15 @@ class ManeuverDetector:
             run += 1
         if p != prev or run == MIN_RUN_ROWS or (self._await_seal and p == "cruise"):
             self._close(*close_events(self._phase, self._times))
-        self._decide()
+        return self._decide()
 
-    def add_fast(self, time_s: float, row: Any) -> None:
-        """One high-rate row (a FastSlip, or its row as a dict) at its time."""
-        self._fast.append((time_s, row))
-        self._fast_last_s = time_s
-        self._decide()
+    def add_fast(self, rows: Iterable[tuple[float, Any]]) -> list[Job]:
+        """High-rate rows (FastSlip records, or their rows as dicts), each with its time, in time order. Returns the
+        maneuvers they decided (add_estimate)."""
+        for time_s, row in rows:
+            self._fast.append((time_s, row))
+            self._fast_last_s = time_s
+        return self._decide()
 
     def add_brake(self, time_s: float, value: float) -> None:
         """One sample of the brake signal (nonzero: pressed)."""
@@ -113,26 +120,12 @@ class ManeuverDetector:
         """One time mark of the brake's press (the receiver's, on the host's clock)."""
         self._marks.append(time_s)
 
-    def take(self) -> list[ManeuverSummary]:
-        """The maneuvers decided since the last take, summarized here."""
-        return [job() for job in self.take_jobs()]
-
-    def take_jobs(self) -> list[Callable[[], ManeuverSummary]]:
-        """The maneuvers decided since the last take, each as the computation of its summary (pure, on data of its
-        own: it may run on another thread)."""
-        out, self.decided = self.decided, []
-        return out
-
-    def finish(self) -> list[ManeuverSummary]:
-        """Every event still open closed and summarized with what has come (the end of a log)."""
-        return [job() for job in self.finish_jobs()]
-
-    def finish_jobs(self) -> list[Callable[[], ManeuverSummary]]:
-        """finish, each maneuver as the computation of its summary (take_jobs)."""
+    def finish(self) -> list[Job]:
+        """Every event still open closed and decided with what has come (the end of a log): the maneuvers, as
+        add_estimate returns them."""
         if self._rows:
             self._close(*close_events(self._phase, self._times, final=True))
-        self._decide(final=True)
-        return self.take_jobs()
+        return self._decide(final=True)
 
     # ---- internals ----
     def _close(self, found: list[tuple[str | None, list[int]]], closed: int) -> None:
@@ -153,7 +146,7 @@ class ManeuverDetector:
         last = found[closed - 1][1][-1] + 1
         del self._rows[:last], self._phase[:last], self._times[:last]
 
-    def _decide(self, final: bool = False) -> None:
+    def _decide(self, final: bool = False) -> list[Job]:
         last_s = self._fast_last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
         while self._queue and (final or last_s > self._queue[0][4]):
             p, ev, anchors, t_from, t_to = self._queue.popleft()
@@ -161,12 +154,14 @@ class ManeuverDetector:
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
             marks = [t for t in self._marks if t_from <= t <= t_to]
             assert self.t0_s is not None
-            self.decided.append(partial(
+            self._decided.append(partial(
                 summarize_maneuver, p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
                 anchors=anchors, fast=fast, brake=brake,
                 vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test,
                 marks=marks))
         self._prune()
+        out, self._decided = self._decided, []
+        return out
 
     def _prune(self) -> None:
         """High-rate rows and brake samples that no open or queued event's span can reach any more."""

@@ -97,13 +97,10 @@ def detect_maneuvers(
     stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)),
                          ((r["time_s"], 1, i) for i, r in enumerate(fast)))
     for _t, kind, i in stream:
-        if kind == 0:
-            det.add_estimate(rows[i], None if phases is None else phases[i])
-        else:
-            det.add_fast(fast[i]["time_s"], fast[i])
-        if det.decided:
-            out += det.take()
-    return out + det.finish()
+        jobs = det.add_estimate(rows[i], None if phases is None else phases[i]) if kind == 0 else \
+            det.add_fast([(fast[i]["time_s"], fast[i])])
+        out += [job() for job in jobs]
+    return out + [job() for job in det.finish()]
 
 
 def summarize_log(
