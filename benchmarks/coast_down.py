@@ -13,7 +13,11 @@ loads). Per seed, through the CLI a user runs:
      slip RMS; and the same with cal.toml's [road_loads] removed (the force without road loads, as before the
      coast-down).
 
-    python -m benchmarks.coast_down [--seeds 3] [--write]
+With --pitch-deg-per-g P the car also carries an IMU on CAN (100 Hz, the config reads it) and its body pitches P
+degrees per g, which the config does not know either: the IMU reads a*cos(theta) + g*sin(theta), its gain and offset
+learned against the GNSS speed in the first pass of each run.
+
+    python -m benchmarks.coast_down [--seeds 3] [--pitch-deg-per-g 1.5] [--write]
 """
 
 from __future__ import annotations
@@ -45,10 +49,16 @@ DRIVEN = ("FL", "FR")
 MARK = "<!-- coast-down table -->"
 
 
+PITCH_DEG_PER_G = 0.0
+"""The body's pitch per g (--pitch-deg-per-g); above 0 the car has an IMU on CAN."""
+
+
 def write_logs(cfg: Config, scenario: str, seed: int, duration_s: float, folder: Path,
                car: RoadLoadTruth = COAST_DOWN_CAR) -> tuple[Path, Path, list]:
     folder.mkdir(parents=True, exist_ok=True)
     settings = sim_settings(Scenario("coast"), seed)
+    if PITCH_DEG_PER_G > 0:
+        settings = replace(settings, imu_rate_hz=100.0, imu_noise_mps2=0.05, pitch_deg_per_g=PITCH_DEG_PER_G)
     can_path, nmea_path = folder / "drive.log", folder / "drive.nmea"
     events = generate(cfg, scenario, "paved", settings, duration_s, r0_offset_m=-0.008, road_loads=car)  # type: ignore[arg-type]
     return can_path, nmea_path, write_drive_logs(events, can_path, nmea_path)
@@ -77,8 +87,9 @@ def highway_figures(rows: list[dict], truth: list, start_utc_s: float) -> dict[s
 def shipped_config(base: Config, folder: Path) -> Path:
     """The config as shipped (rotating_mass_factor 1.03, no road loads) with the DBC beside it."""
     path = folder / "slipdaq.toml"
-    path.write_text(base.source_text)
-    (folder / "wpt.dbc").write_text((ROOT / "config" / "wpt.dbc").read_text())
+    path.write_text(base.source_text if PITCH_DEG_PER_G == 0 else base.to_toml())
+    for dbc in ("wpt.dbc", "sensors.dbc"):
+        (folder / dbc).write_text((ROOT / "config" / dbc).read_text())
     return path
 
 
@@ -133,9 +144,16 @@ def table(results: list[tuple[int, dict[str, float]]]) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
-    ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md")
+    ap.add_argument("--pitch-deg-per-g", type=float, default=0.0,
+                    help="the body's pitch per g, with an IMU on CAN the config reads (default 0: no IMU)")
+    ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md (no pitch only)")
     a = ap.parse_args()
+    global PITCH_DEG_PER_G
+    PITCH_DEG_PER_G = a.pitch_deg_per_g
     base = load_config(ROOT / "config" / "slipdaq.toml")
+    if PITCH_DEG_PER_G > 0:
+        base = base.with_overrides(can={"dbc": ["wpt.dbc", "sensors.dbc"]},
+                                   imu={"message": "IMU_ACCEL", "signal": "AccelX"})
     results = []
     for seed in range(1, a.seeds + 1):
         t = time.monotonic()
@@ -145,7 +163,7 @@ def main() -> int:
         print(f"seed {seed}: {r} ({time.monotonic() - t:.0f} s)", file=sys.stderr, flush=True)
     text = table(results)
     print(text)
-    if a.write:
+    if a.write and PITCH_DEG_PER_G == 0:
         doc = ROOT / "docs" / "accuracy.md"
         before, _, rest = doc.read_text().partition(MARK)
         _, _, after = rest.partition(MARK)
