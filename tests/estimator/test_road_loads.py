@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 from test_estimator import _run
 
-from slipdaq.config import Config, TestConfig, parse_config
+from slipdaq.config import Config, parse_config
+from slipdaq.config import TestConfig as Day
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, show, summary, to_toml
 from slipdaq.estimator import EstimatorParams
 from slipdaq.estimator.force import RoadLoads, longitudinal_force_n
 from slipdaq.estimator.run_calibration import stored_road_loads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.record import MANEUVER_COLUMNS, coast_record
-from slipdaq.maneuver.test_set import TestSets
+from slipdaq.maneuver.test_set import TestSets as Sets
 from slipdaq.sim.road_loads import RoadLoadTruth
 from slipdaq.sinks.maneuver_text import maneuver_line
 from support.estimator_params import params
@@ -269,12 +270,12 @@ def test_a_coast_procedure_sets_the_paired_road_loads(config: Config) -> None:
     out_rows, out_courses = coast_rows(True, 0.0, rng)
     back_rows, back_courses = coast_rows(False, out_rows[-1]["time_s"] + 60.0, rng)
     (alone,), (paired,) = feed(det, out_rows, out_courses), feed(det, back_rows, back_courses)
-    test = TestConfig.model_validate({"procedure": [
+    test = Day.model_validate({"procedure": [
         {"name": "coast 100-20", "kind": "coast", "target_speed_kmh": 100.0, "runs": 1, "max_cv_percent": 5.0}]})
     wheels = ("FL", "FR", "RL", "RR")
     first, second = coast_record(alone, 1, 0.0, wheels, test), coast_record(paired, 2, 0.0, wheels, test)
     assert first.procedure == second.procedure == "coast 100-20"
-    sets = TestSets(test)
+    sets = Sets(test)
     sets.add(first)
     record = sets.add(second)
     assert record is not None and record["runs"] == [2] and record["complete"] and record["ok"]
