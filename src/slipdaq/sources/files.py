@@ -142,37 +142,53 @@ def iter_can_logs(paths: Sequence[str | Path]) -> Iterator[CanFrameBatch]:
         last_p = p
 
 
+class _OwnTimes:
+    """GPS records placed at the latest time known: a stamp, or a record's own GNSS time (an RMC's date and time, a
+    NAV-PVT's UTC time); the records before the first time known take that time."""
+
+    def __init__(self, p: Path) -> None:
+        self.p = p
+        self.last_t: float | None = None
+        self.pending: list[NmeaLine | UbxFrame | RtcmFrame] = []
+        self._nmea, self._ubx = NmeaDecoder(), UbxDecoder()
+
+    def read_time(self, record: NmeaLine | UbxFrame | RtcmFrame) -> None:
+        """The record's own GNSS time, where it has one, as the latest time."""
+        fix = self._nmea.decode(record) if isinstance(record, NmeaLine) else \
+            self._ubx.decode(record) if isinstance(record, UbxFrame) else None
+        if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(self.p, "", fix.fix_time_utc_s):
+            self.last_t = fix.fix_time_utc_s
+
+    def place(self, record: NmeaLine | UbxFrame | RtcmFrame) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]:
+        """The record (and those pending before it) at the latest time, once one is known."""
+        if self.last_t is None:
+            self.pending.append(record)
+            return
+        for earlier in self.pending:
+            yield replace(earlier, timestamp_s=self.last_t)
+        self.pending.clear()
+        yield replace(record, timestamp_s=self.last_t)
+
+
 def iter_nmea_log(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFrame]:
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such NMEA log")
-    last_t: float | None = None
-    pending: list[NmeaLine | UbxFrame | RtcmFrame] = []  # records before the first time is known
-    probe, probe_ubx = NmeaDecoder(), UbxDecoder()
+    times = _OwnTimes(p)
     framer = GpsFramer()  # the live reader's framing: the same bytes give the same records
     with open(p, "rb") as f:
         for n, raw in enumerate(chain(guarded(p, f, "line"), [None]), 1):
             m = _STAMPED.match(raw) if raw is not None else None
             if m and raw is not None:
-                last_t = float(m["t"])
-                if (bad := _stamp_error(p, f"line {n}", last_t)) is not None:
+                times.last_t = float(m["t"])
+                if (bad := _stamp_error(p, f"line {n}", times.last_t)) is not None:
                     raise bad
                 raw = raw[m.end() :]
-            for record in framer.feed(raw, last_t or 0.0) if raw is not None else framer.flush():
+            for record in framer.feed(raw, times.last_t or 0.0) if raw is not None else framer.flush():
                 if m is None:
-                    fix = probe.decode(record) if isinstance(record, NmeaLine) else \
-                        probe_ubx.decode(record) if isinstance(record, UbxFrame) else None
-                    if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(p, "", fix.fix_time_utc_s):
-                        last_t = fix.fix_time_utc_s
-                if last_t is None:
-                    pending.append(record)
-                    continue
-                for earlier in pending:
-                    yield replace(earlier, timestamp_s=last_t)
-                pending.clear()
-                yield replace(record, timestamp_s=last_t)
-    for earlier in pending:  # a file with no time at all
-        yield earlier
+                    times.read_time(record)
+                yield from times.place(record)
+    yield from times.pending  # a file with no time at all
 
 
 CAPTURE_READ_BYTES = 1 << 16
@@ -187,26 +203,15 @@ def iter_gps_capture(path: str | Path) -> Iterator[NmeaLine | UbxFrame | RtcmFra
     p = Path(path)
     if not p.is_file():
         raise ImportError_(f"{p}: no such GPS capture")
-    last_t: float | None = None
-    pending: list[NmeaLine | UbxFrame | RtcmFrame] = []
-    probe, probe_ubx = NmeaDecoder(), UbxDecoder()
+    times = _OwnTimes(p)
     framer = GpsFramer()
     with open(p, "rb") as f:
         chunks = iter(lambda: f.read(CAPTURE_READ_BYTES), b"")
         for chunk in chain(guarded(p, chunks, "block"), [None]):
             for record in framer.feed(chunk, 0.0) if chunk is not None else framer.flush():
-                fix = probe.decode(record) if isinstance(record, NmeaLine) else \
-                    probe_ubx.decode(record) if isinstance(record, UbxFrame) else None
-                if fix is not None and fix.fix_time_utc_s is not None and not _stamp_error(p, "", fix.fix_time_utc_s):
-                    last_t = fix.fix_time_utc_s
-                if last_t is None:
-                    pending.append(record)
-                    continue
-                for earlier in pending:
-                    yield replace(earlier, timestamp_s=last_t)
-                pending.clear()
-                yield replace(record, timestamp_s=last_t)
-    if pending:
+                times.read_time(record)
+                yield from times.place(record)
+    if times.pending:
         raise ImportError_(f"{p}: no message with a GNSS time in it (an RMC with date and time, or a UBX NAV-PVT "
                            "with valid UTC): the capture cannot be placed on the CAN log's clock")
 
