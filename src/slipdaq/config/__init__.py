@@ -85,12 +85,10 @@ class WheelSourceConfig(_Section):
                                                                  "wheel-speed signal, integrated over time")
     message: str = Field(min_length=1, description="the DBC message (several wheels may share one)")
     signal: str = Field(min_length=1, description="the signal in that message")
-    seq_signal: str | None = None
-    """count: a rolling counter signal whose gaps are lost frames (optional)."""
-    pulses_per_rev: int | None = Field(None, gt=0)
-    """count: pulses per revolution (default wpt.pulses_per_rev)."""
-    unit: Literal["km/h", "kph", "m/s", "mph", "rpm", "rad/s", "deg/s"] | None = None
-    """speed: the signal's unit (default: the DBC's unit for the signal)."""
+    seq_signal: str | None = Field(None, description='count: a rolling counter signal whose gaps are lost frames (optional).')
+    pulses_per_rev: int | None = Field(None, gt=0, description='count: pulses per revolution (default wpt.pulses_per_rev).')
+    unit: Literal["km/h", "kph", "m/s", "mph", "rpm", "rad/s", "deg/s"] | None = Field(None, description=(
+        "speed: the signal's unit (default: the DBC's unit for the signal)."))
 
     @model_validator(mode="after")
     def _kind_fields(self) -> WheelSourceConfig:
@@ -110,8 +108,8 @@ class CanConfig(_Section):
     interface: str = Field("socketcan", description="any python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
     channel: str = Field("can0", description="the interface's channel")
     bitrate: int = Field(500000, gt=0, description="bit/s (where the interface sets it)")
-    dbc: str | list[str] = "wpt.dbc"
-    """One DBC, or several (the wheels' and the sensors', e.g. ["wpt.dbc", "canmod-gps.dbc"]) read as one."""
+    dbc: str | list[str] = Field("wpt.dbc", description=(
+        'One DBC, or several (the wheels\' and the sensors\', e.g. ["wpt.dbc", "canmod-gps.dbc"]) read as one.'))
     receive_buffer_bytes: int = Field(8 * 1024 * 1024, ge=0, description="SO_RCVBUF asked for on SocketCAN")
     read_interval_s: float = Field(
         0.02, ge=0, le=0.1,
@@ -134,12 +132,12 @@ class GpsConfig(_Section):
                                                                    "estimated online (from the fixes' UTC time when the host "
                                                                    "clock keeps UTC, else by aligning the reference speed with "
                                                                    "the free-rolling wheels)")
-    velocity: Literal["nmea", "ubx"] = "nmea"
-    """Which messages give the GPS velocity: NMEA sentences, or u-blox UBX NAV-PVT (with its speed accuracy)."""
+    velocity: Literal["nmea", "ubx"] = Field("nmea", description=(
+        'Which messages give the GPS velocity: NMEA sentences, or u-blox UBX NAV-PVT (with its speed accuracy).'))
     message: str | None = Field(None, min_length=1, description="source = 'can': the DBC message with the speed")
     signal: str | None = Field(None, min_length=1, description="source = 'can': the speed signal")
-    unit: Literal["km/h", "kph", "m/s", "mph", "kn"] | None = None
-    """source = "can": the speed signal's unit (default: the DBC's)."""
+    unit: Literal["km/h", "kph", "m/s", "mph", "kn"] | None = Field(None, description=(
+        'source = "can": the speed signal\'s unit (default: the DBC\'s).'))
     valid_signal: str | None = Field(None, min_length=1, description="a signal that is 0 when the speed is invalid")
     accuracy_signal: str | None = Field(None, min_length=1, description="the speed's 1-sigma accuracy (as UBX sAcc)")
 
@@ -178,17 +176,14 @@ class ImuConfig(_CanSignalSection):
     section: ClassVar[str] = "imu"
     source: Literal["can", "serial"] = Field("can", description="can: a signal by its DBC names; serial: an Xsens MTi on "
                                                                 "imu.port")
-    unit: Literal["m/s^2", "g"] | None = None
-    """The signal's unit (default: the DBC's)."""
-    sign: Literal[1, -1] = 1
-    """-1 for a sensor mounted backwards."""
+    unit: Literal["m/s^2", "g"] | None = Field(None, description="The signal's unit (default: the DBC's).")
+    sign: Literal[1, -1] = Field(1, description='-1 for a sensor mounted backwards.')
     port: str | None = Field(None, min_length=1, description="serial: the MTi's port, e.g. /dev/ttyUSB1")
     baudrate: int = Field(115200, gt=0, description="serial: the MTi port's baud rate")
-    protocol: Literal["xbus"] = "xbus"
-    """serial: the MTi's MTData2 messages: Acceleration less gravity by the packet's orientation, else
-    FreeAcceleration on the heading, else Acceleration as sent (decode/mti_accel.py)."""
-    axis: Literal["x", "y", "z"] = "x"
-    """serial: the sensor axis that points forward (backwards: sign = -1)."""
+    protocol: Literal["xbus"] = Field("xbus", description=(
+        "serial: the MTi's MTData2 messages: Acceleration less gravity by the packet's orientation, else "
+        'FreeAcceleration on the heading, else Acceleration as sent (decode/mti_accel.py).'))
+    axis: Literal["x", "y", "z"] = Field("x", description='serial: the sensor axis that points forward (backwards: sign = -1).')
 
     @model_validator(mode="after")
     def _serial(self) -> ImuConfig:
@@ -237,9 +232,9 @@ class LogConfig(_Section):
 
 
 class CalibrationConfig(_Section):
-    path: str | None = None
-    """The calibration file a run starts from and saves to (relative to the config file); default calibration.toml
-    in the log directory."""
+    path: str | None = Field(None, description=(
+        'The calibration file a run starts from and saves to (relative to the config file); default '
+        'calibration.toml in the log directory.'))
 
 
 DEFAULT_LIVE_HOST = "127.0.0.1"
@@ -275,8 +270,8 @@ class LiveConfig(_Section):
 
 
 class Config(_Section):
-    wheels: dict[Literal["FL", "FR", "RL", "RR"], WheelSourceConfig] = {}
-    """Per-wheel sources; a wheel not named here reads the WPT default (WPT_<W>.PulseCount, Seq)."""
+    wheels: dict[Literal["FL", "FR", "RL", "RR"], WheelSourceConfig] = Field({}, description=(
+        'Per-wheel sources; a wheel not named here reads the WPT default (WPT_<W>.PulseCount, Seq).'))
     vehicle: VehicleConfig = VehicleConfig()
     tire: TireConfig = TireConfig()
     wpt: WptConfig = WptConfig()
@@ -290,12 +285,12 @@ class Config(_Section):
     live: LiveConfig = LiveConfig()
     test: TestConfig = TestConfig()
 
-    source_path: Path | None = Field(None, exclude=True)
-    """The file this config was read from (None for one made in code)."""
-    source_text: str = Field("", exclude=True)
-    """The TOML text as read, stored in every log so that replay needs no other input."""
-    dbc_text: str | None = Field(None, exclude=True)
-    """DBC text, when the config was read from a log rather than from disk."""
+    source_path: Path | None = Field(None, exclude=True, description=(
+        'The file this config was read from (None for one made in code).'))
+    source_text: str = Field("", exclude=True, description=(
+        'The TOML text as read, stored in every log so that replay needs no other input.'))
+    dbc_text: str | None = Field(None, exclude=True, description=(
+        'DBC text, when the config was read from a log rather than from disk.'))
 
     @model_validator(mode="after")
     def _time_mark_from_the_receiver(self) -> Config:

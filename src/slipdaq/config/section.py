@@ -13,4 +13,4 @@ class _Section(BaseModel):
     """Strict: a TOML value must already have the key's type (no "1000" for 1000, no 1 for true); an integer is
     accepted for a float."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
