@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Accuracy of the CAN sensors, the high-rate slip and the brake-test and mu-slip figures against the simulator's
-truth (issue 16's targets). Each row simulates a drive, runs it through slipdaq's pipeline in process (as `import`
+truth. Each row simulates a drive, runs it through slipdaq's pipeline in process (as `import`
 and `replay` do) and, for the report's figures, through the report's summary (report/summary.py) of the two-pass
 estimates (as `slipdaq report` does by default).
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Is there a slip bias in the first acceleration? Issue 15 saw −0.17 points there (seed 7, two-pass, paved cycle).
+"""Is there a slip bias in the first acceleration? One drive (seed 7, two-pass, paved cycle) shows −0.17 points there.
 
 Runs the accuracy benchmark's paved cycle (benchmarks/accuracy.py: import, replay, export) for several simulator
 seeds and prints, per seed, the mean slip error (estimate minus the window-averaged truth, percentage points) over

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The live /maneuver records against the simulator's truth (issue 24's targets). Each row simulates a drive and runs
+"""The live /maneuver records against the simulator's truth. Each row simulates a drive and runs
 it through slipdaq's pipeline in process, as `run`, `import` and `replay` do: the records are those a live run logs.
 
     python -m benchmarks.maneuvers [--seeds 1,2,3] [--tires 1.17:0.17,...] [--write]
@@ -18,7 +18,7 @@ Rows (per road and seed):
                     --tires (peak mu : slip at the peak [: the curve's shape C], a curve of the simulator's form)
 Targets: MFDD within 1 % (ABS) and 3 % (test day), stopping distance within 0.5 m and brake speed within 1 km/h (ABS),
 exactly 2 + 2 maneuvers with speeds within 3 km/h (test day); mu peak within 5 % and slip at peak within 2 points,
-no unflagged mu above the tire's (ABS, issue 28).
+no unflagged mu above the tire's (ABS).
 --write puts the table into docs/accuracy.md between its maneuver-table markers.
 """
 

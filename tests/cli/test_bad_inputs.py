@@ -1,4 +1,4 @@
-"""Inputs that must destroy nothing and crash nothing (issue 13): an output path that is an input, malformed and
+"""Inputs that must destroy nothing and crash nothing: an output path that is an input, malformed and
 empty inputs, outputs that are in place only when complete, and live logs that never overwrite a file.
 
 Every failing case is checked the same way: the exit status, one line on stderr naming the file, no traceback, and

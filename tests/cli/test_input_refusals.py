@@ -1,5 +1,4 @@
-"""Inputs that give nothing to work with, and outputs that would be inputs, refused before anything is done (the
-remainders of issue 13's notes)."""
+"""Inputs that give nothing to work with, and outputs that would be inputs, refused before anything is done."""
 
 from __future__ import annotations
 

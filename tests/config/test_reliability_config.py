@@ -1,4 +1,4 @@
-"""Config faults (issue 6): each is one line naming the file, the key and what is expected; exit status 2; no
+"""Config faults: each is one line naming the file, the key and what is expected; exit status 2; no
 traceback. (Bad values of each key: tests/test_tire_config.py; here what is around them: unreadable files, a
 directory, the DBC.)"""
 
@@ -82,7 +82,7 @@ def test_wrong_type_and_unknown_key_via_the_cli(tmp_path: Path, capsys, text: st
     _one_line(err, str(cfg), key, words)
 
 
-# Strict types (issue 13): a value of another type is refused, never converted ("1000" is not 1000, 1 is not true).
+# Strict types: a value of another type is refused, never converted ("1000" is not 1000, 1 is not true).
 @pytest.mark.parametrize("text, key, words", [
     ('[wpt]\npulses_per_rev = "1000"\n', "wpt.pulses_per_rev", "integer"),
     ('[vehicle]\nmass_kg = "1300"\n', "vehicle.mass_kg", "number"),

@@ -69,7 +69,7 @@ def test_slip_error_small_once_calibrated_and_large_without(auto, cfg) -> None: 
 
 
 def test_no_slip_bias_in_the_first_acceleration_without_gps_noise(cfg) -> None:  # type: ignore[no-untyped-def]
-    """Issue 15's -0.17 points in the first acceleration was one drive's GPS speed noise (benchmarks/
+    """The -0.17 points of one drive's first acceleration (seed 7) are its GPS speed noise (benchmarks/
     first_acceleration.py: over 12 seeds the mean is -0.015 +- 0.015): without that noise the method has no bias."""
     from dataclasses import replace
 

@@ -1,4 +1,4 @@
-"""`slipdaq run` on SocketCAN (vcan0), fed from other processes, GPS on a pseudo-terminal (issue 3). VM only.
+"""`slipdaq run` on SocketCAN (vcan0), fed from other processes, GPS on a pseudo-terminal. VM only.
 
 Four daemon runs, one after the other, each `slipdaq run` its own process on interface "socketcan", channel "vcan0",
 the traffic from wpt_sender.py (frames on a raw socket, NMEA on a pty, every send recorded) unless stated:

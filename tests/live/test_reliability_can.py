@@ -1,4 +1,4 @@
-"""Reliability of the CAN input (issue 6): error frames and bus-off, unknown IDs, wrong DLC, Seq gaps, a counter
+"""Reliability of the CAN input: error frames and bus-off, unknown IDs, wrong DLC, Seq gaps, a counter
 node reset (a new segment, not a huge negative slip), counts wrapping at 2^32 — through the decoder and the pipeline
 (simulated drives) and on a live bus through the daemon; a python-can reader that raises does not stop the source.
 (The SocketCAN link going down and up is tested in tests/hil.)"""

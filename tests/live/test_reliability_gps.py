@@ -1,4 +1,4 @@
-"""Reliability of the GPS input (issue 6): unplugged and plugged back (at a new pseudo-terminal behind a stable
+"""Reliability of the GPS input: unplugged and plugged back (at a new pseudo-terminal behind a stable
 symlink), the pyserial "readiness to read but returned no data" error, no busy loop, the gap marked in the log and the
 live view, a receiver at the wrong baud rate, arbitrary bytes."""
 

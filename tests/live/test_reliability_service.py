@@ -1,4 +1,4 @@
-"""Running as a service (issue 6): the systemd unit runs `slipdaq run` unprivileged, restarts on failure, is
+"""Running as a service: the systemd unit runs `slipdaq run` unprivileged, restarts on failure, is
 hardened and valid for systemd itself. (That the daemon opens no network port: test_reliability_log.py, on a
 running `slipdaq run`.)"""
 

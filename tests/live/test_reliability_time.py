@@ -1,4 +1,4 @@
-"""The host clock stepping during a run (issue 6): record times come from a clock that never steps (SteadyClock:
+"""The host clock stepping during a run: record times come from a clock that never steps (SteadyClock:
 wall time at the start, then monotonic), so windows are not corrupted; the log records each step."""
 
 from __future__ import annotations

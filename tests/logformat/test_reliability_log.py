@@ -1,4 +1,4 @@
-"""Reliability of the MCAP log (issue 6): a chunk closed at least every second even when records stop; SIGINT and
+"""Reliability of the MCAP log: a chunk closed at least every second even when records stop; SIGINT and
 SIGTERM finish the file; after SIGKILL (or a torn tail after a power loss) the file is read up to its last complete
 chunk by the standard MCAP reader, `slipdaq replay`/`export`, and `slipdaq recover`; disk full gives a clear message
 while estimating goes on; rotation by size or duration loses no message at a boundary."""

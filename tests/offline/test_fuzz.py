@@ -1,4 +1,4 @@
-"""The fuzzing battery (issue 27): every reader of a file someone else wrote, fed real seed files damaged by
+"""The fuzzing battery: every reader of a file someone else wrote, fed real seed files damaged by
 hypothesis (tests/fuzz_support.py: bits flipped, bytes overwritten, zeroed, cut, inserted, deleted, duplicated,
 syntax tokens dropped in), must raise only its documented error, return, exit 0/1/2 (3 from `recover` with losses)
 and leave nothing behind when it fails.

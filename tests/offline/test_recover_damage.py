@@ -1,4 +1,4 @@
-"""Damaged logs (issue 27): `slipdaq recover` keeps every message of every chunk that checks out, past a damaged chunk
+"""Damaged logs: `slipdaq recover` keeps every message of every chunk that checks out, past a damaged chunk
 (skipped: its extent is in its header) or damaged bytes (reading resynchronises on the next record that parses), says
 what each damaged byte range held (log time, messages by topic from the message index) and exits 3 when it wrote
 its output with losses, 0 when nothing was lost, 1 when nothing could be recovered; `export`, `replay`, `report`,

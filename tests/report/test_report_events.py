@@ -1,4 +1,4 @@
-"""The report's maneuvers are events: a log with two accelerations has two accelerate maneuvers (issue 16)."""
+"""The report's maneuvers are events: a log with two accelerations has two accelerate maneuvers."""
 
 from __future__ import annotations
 
