@@ -16,6 +16,7 @@ from slipdaq.records import NmeaLine, UbxFrame
 from slipdaq.sim.emit import SimSettings, generate, nav_pvt_frame
 from slipdaq.sim.truth import slip_error, truth_series
 from slipdaq.sinks import CollectingSink
+from support.live_drive import drive_live
 
 SETTINGS = SimSettings(gps_latency_s=0.085, gps_noise_mps=0.03, seed=5)
 
@@ -126,44 +127,16 @@ def test_ubx_frames_logged_raw_and_replayed_identically(cfg, tmp_path) -> None: 
 
 def test_live_daemon_reads_ubx_from_a_pty(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """`gps.velocity = "ubx"`: the daemon's serial reader splits UBX frames from NMEA on a real pty."""
-    import asyncio
-    import time
-
-    import can
-
-    from slipdaq.live.daemon import run_daemon
     from slipdaq.live.demo import demo_config
     from slipdaq.live.simulate import PtyGps
     from slipdaq.logformat.reader import iter_estimates, iter_raw_records, iter_topic
-    from slipdaq.sim.realtime import play
 
     gps = PtyGps()
     channel = f"ubx-live-{id(gps)}"
     cfg = demo_config(gps.path, channel).with_overrides(gps={"velocity": "ubx"})
     log = tmp_path / "live.mcap"
 
-    async def run() -> None:
-        with can.Bus(interface="virtual", channel=channel) as daemon_bus, \
-                can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus:
-            async def drive() -> None:
-                while not log.exists():
-                    await asyncio.sleep(0.02)
-                await asyncio.sleep(0.3)
-                run = replace(SETTINGS, gps_protocol="both", start_utc_s=time.time() + 0.1)
-                await play(generate(cfg, "cycle", "paved", run, 8.0), bus=sim_bus, nmea_write=gps.write,
-                           start_wall_s=run.start_utc_s, stamp_frames=True)
-
-            async with asyncio.TaskGroup() as tg:
-                sim = tg.create_task(drive())
-                await run_daemon(cfg, daemon_bus, log, duration_s=9.0, status_stream=open(os.devnull, "w"))
-                sim.cancel()
-
-    import os
-
-    try:
-        asyncio.run(run())
-    finally:
-        gps.close()
+    drive_live(cfg, gps, channel, log, "cycle", replace(SETTINGS, gps_protocol="both"), 8.0, 9.0)
     raw = list(iter_raw_records(log))
     ubx = [r for r in raw if isinstance(r, UbxFrame)]
     assert len(ubx) >= 70 and all(UbxDecoder().decode(r) is not None for r in ubx)

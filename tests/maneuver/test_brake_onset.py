@@ -24,6 +24,7 @@ from slipdaq.records import UbxFrame
 from slipdaq.sim.emit import SimSettings, generate, tim_tm2_frame
 from slipdaq.sim.logs import write_drive_logs
 from slipdaq.sim.truth import brake_onset_time_s, speed_at_onset_mps, stopping_distance_m
+from support.live_drive import drive_live
 from support.paths import CONFIG
 
 # ---- TIM-TM2 against pyubx2 ----------------------------------------------------------------------------------------
@@ -264,46 +265,15 @@ def test_50_hz_brake_switch_within_30_cm_and_truth_inside_its_interval(abs_drive
 def test_live_time_mark_on_the_gps_port(tmp_path: Path) -> None:
     """The daemon reading NMEA with the TIM-TM2 mark between on a real pty ([brake] source = "gps-timemark"): the
     mark is placed on the host's clock within 5 ms of the press, and the stop's onset is it."""
-    import asyncio
-    import os
-    import time
-    from dataclasses import replace
-
-    import can
-
-    from slipdaq.live.daemon import run_daemon
     from slipdaq.live.demo import demo_config
     from slipdaq.live.simulate import PtyGps
     from slipdaq.logformat.reader import iter_topic
-    from slipdaq.sim.realtime import play
 
     gps = PtyGps()
     channel = f"timemark-live-{id(gps)}"
     cfg = demo_config(gps.path, channel, "brake-abs").with_overrides(brake={"source": "gps-timemark"})
     log = tmp_path / "live.mcap"
-    run = replace(ABS_SETTINGS, start_utc_s=time.time() + 10.0)
-
-    async def main_() -> None:
-        with can.Bus(interface="virtual", channel=channel) as daemon_bus, \
-                can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as sim_bus:
-            async def drive() -> None:
-                while not log.exists():
-                    await asyncio.sleep(0.02)
-                await asyncio.sleep(0.3)
-                nonlocal run
-                run = replace(run, start_utc_s=time.time() + 0.1)
-                await play(generate(cfg, "brake-abs", "paved", run, 11.0), bus=sim_bus, nmea_write=gps.write,
-                           start_wall_s=run.start_utc_s, stamp_frames=True)
-
-            async with asyncio.TaskGroup() as tg:
-                sim = tg.create_task(drive())
-                await run_daemon(cfg, daemon_bus, log, duration_s=12.5, status_stream=open(os.devnull, "w"))
-                sim.cancel()
-
-    try:
-        asyncio.run(main_())
-    finally:
-        gps.close()
+    run = drive_live(cfg, gps, channel, log, "brake-abs", ABS_SETTINGS, 11.0, 12.5)
     marks = [d for _, _, d in iter_topic(log, ("/can/sensors",)) if d["kind"] == "brake_mark"]
     assert len(marks) == 1
     assert abs(marks[0]["time_s"] - (run.start_utc_s + ONSET_S)) < 0.005
