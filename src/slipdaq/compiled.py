@@ -13,8 +13,10 @@ that the first frames do not wait for it.
 from __future__ import annotations
 
 import os
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, Generic, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -51,6 +53,10 @@ class Kernel(Generic[F]):
         self._run = None
 
     def _compile(self) -> F:
+        with _without_scipy_blas():
+            return self._compile_now()
+
+    def _compile_now(self) -> F:
         try:
             import numba
             from numba.extending import register_jitable
@@ -63,6 +69,26 @@ class Kernel(Generic[F]):
             return cast(F, numba.njit(self.signature, cache=True, nogil=True)(self.py_func))
         except RuntimeError:  # no writable cache directory (a service user without a home): compile in memory
             return cast(F, numba.njit(self.signature, cache=False, nogil=True)(self.py_func))
+
+
+SCIPY_LINALG = "scipy.linalg"
+NUMBA_ARRAYMATH = "numba.np.arraymath"
+
+
+@contextmanager
+def _without_scipy_blas() -> Iterator[None]:
+    """numba's first kernel without scipy.linalg: numba's array maths, imported as the first kernel loads, imports
+    scipy.linalg (0.15 s of CPU) only to call BLAS for np.dot of 1-d arrays, which no kernel here uses (1-d np.dot
+    in a kernel would then sum in a loop, not as numpy does). scipy.linalg imports as usual afterwards; nothing is
+    hidden where scipy.linalg or numba's array maths are imported already."""
+    hide = SCIPY_LINALG not in sys.modules and NUMBA_ARRAYMATH not in sys.modules
+    if hide:
+        sys.modules[SCIPY_LINALG] = None  # type: ignore[assignment]  # its import raises ImportError meanwhile
+    try:
+        yield
+    finally:
+        if hide and SCIPY_LINALG in sys.modules and sys.modules[SCIPY_LINALG] is None:
+            del sys.modules[SCIPY_LINALG]
 
 
 def kernel(fn: F, signature: str, uses: tuple[Callable[..., Any], ...] = ()) -> Kernel[F]:

@@ -79,3 +79,25 @@ def test_an_import_loads_asammdf_only_for_an_mf4_file(tmp_path) -> None:  # type
                str(tmp_path / "b.mcap"), "--allow-empty", "--no-calibration") == "exit 0 True"
     with open(tmp_path / "b.mcap", "rb") as f:  # the MF4's frames, read through python-can's MF4Reader
         assert make_reader(f).get_summary().statistics.channel_message_counts  # type: ignore[union-attr]
+
+
+KERNELS_PROBE = """
+import os, sys
+os.environ["SLIPDAQ_JIT"] = "1"
+import slipdaq.estimator.ring
+from slipdaq import compiled
+compiled.prepare()
+print(all(k() is not k.py_func for k in compiled._kernels), "scipy.linalg" in sys.modules)
+import scipy.linalg  # importable all the same
+print(scipy.linalg.solve([[2.0]], [4.0])[0])
+"""
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None or importlib.util.find_spec("scipy") is None,
+                    reason="numba or scipy is not installed")
+def test_kernels_load_without_scipy_linalg() -> None:
+    """numba's kernels load (compiled) without numba's array maths importing scipy.linalg, which imports as usual
+    afterwards."""
+    got = subprocess.run([sys.executable, "-c", KERNELS_PROBE], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert got == ["True", "False", "2.0"]

@@ -65,6 +65,48 @@ def test_local_linear(series, queries, half) -> None:  # type: ignore[no-untyped
         assert abs(got[0][k] - want) <= 1e-6 * (1.0 + abs(want))
 
 
+def lines_one_by_one(t: list[float], v: list[float], q: list[float], half: int) -> tuple[list[float], list[float]]:
+    """local_lines with each time's sample found by bisecting (numpy's searchsorted) and its line summed in the
+    kernel's order, in Python floats."""
+    k = 2 * half + 1
+    out, slopes = [], []
+    for x in q:
+        c = min(max(int(np.searchsorted(t, x)), half), len(t) - half - 1)
+        st = sv = 0.0
+        for j in range(c - half, c + half + 1):  # left to right, as the kernel (not sum(): compensated in 3.12)
+            st += t[j]
+            sv += v[j]
+        t_mean, v_mean = st / k, sv / k
+        sxx = sxy = 0.0
+        for j in range(c - half, c + half + 1):
+            d = t[j] - t_mean
+            sxx += d * d
+            sxy += d * (v[j] - v_mean)
+        slope = sxy / sxx if t[c + half] - t[c - half] > 1e-6 else 0.0
+        out.append(v_mean + slope * (x - t_mean))
+        slopes.append(slope)
+    return out, slopes
+
+
+@settings(max_examples=150, deadline=None)
+@given(series=series, queries=st.lists(st.floats(-0.2, 2.5), min_size=1, max_size=50), half=st.integers(0, 6),
+       order=st.sampled_from(["falling", "rising", "as drawn"]))
+def test_local_lines_bit_for_bit(series, queries, half, order) -> None:  # type: ignore[no-untyped-def]
+    """Times in any order (the kernel steps from one time's sample to the next): the same bits as each time's line
+    found by bisection and summed in order."""
+    times, values = series
+    q = sorted(queries, reverse=order == "falling") if order != "as drawn" else queries
+    if len(times) < 2 * half + 1:
+        return
+    want = lines_one_by_one(times, values, q, half)
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            got = ring_of(times, values).local_lines(np.array(q), half)
+        assert got is not None
+        assert [x.hex() for x in got[0].tolist()] == [x.hex() for x in want[0]]
+        assert [x.hex() for x in got[1].tolist()] == [x.hex() for x in want[1]]
+
+
 def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
     """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
     from slipdaq.estimator.fast_slip import FAST_LINE_HALF

@@ -16,6 +16,8 @@ from slipdaq.logformat.json_codec import (
     dumps,
     estimate_json,
     fast_slip_json,
+    fast_slip_messages,
+    fast_slip_row_json,
     fix_json,
     nmea_line_json,
     rows_of_columns,
@@ -109,3 +111,32 @@ def test_fast_slip_rows_as_columns_read_back_as_the_rows(rows: list[FastSlip]) -
     assert exact(fast_slip_json(rows[0])) == exact(std_dumps(rows[0].as_row()))
     assert [exact(std_dumps(r.as_row())) for r in rows] == [exact(std_dumps(_row_by_hand(r, FAST_SLIP_COLUMNS)))
                                                             for r in rows]
+
+
+BIG = st.floats(min_value=1e307, max_value=1.7e308)  # finite values whose sum overflows
+
+
+@given(st.lists(st.builds(FastSlip, st.floats(-1e10, 1e10), st.one_of(FLOAT, BIG), st.one_of(FLOAT, BIG),
+                          st.sampled_from(["imu", "gps"]),
+                          st.one_of(st.tuples(*[FAST_WHEEL] * len(WHEELS)).map(lambda ws: dict(zip(WHEELS, ws))),
+                                    st.tuples(FAST_WHEEL, FAST_WHEEL).map(lambda ws: dict(zip(("RL", "RR"), ws))))),
+                min_size=1, max_size=12))
+def test_fast_slip_messages_are_each_rows_own(rows: list[FastSlip]) -> None:
+    """fast_slip_messages (each row's values taken once) gives the bytes of a message of columns per run of rows with
+    the same wheels and of each row's /slip/fast/row payload, written one by one."""
+    runs: list[bytes] = []
+    i = 0
+    while i < len(rows):
+        k = i + 1
+        while k < len(rows) and tuple(rows[k].wheels) == tuple(rows[i].wheels):
+            k += 1
+        runs.append(fast_slip_json.columns(rows[i:k]))
+        i = k
+
+    def row_by_row(r: FastSlip) -> bytes:
+        ns = round(r.time_s * 1e9)
+        return dumps({"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": ""}}
+                     | r.as_row())
+
+    assert fast_slip_messages(rows) == (runs, [row_by_row(r) for r in rows])
+    assert [fast_slip_row_json(r) for r in rows] == [row_by_row(r) for r in rows]

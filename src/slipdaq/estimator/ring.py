@@ -146,25 +146,36 @@ def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int
                       slopes: np.ndarray) -> None:
     """out[q]: the least-squares line through samples c - half .. c + half at times[q], c the first sample at or
     after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for consecutive times
-    that share it."""
+    that share it. t in time order, as a ring keeps it: from the first time's sample on, each next one is found by
+    stepping from the last (times a step apart are a sample or two apart), not by bisecting the ring again. Samples
+    are indexed by unsigned integers: numba then adds no check for a negative index to each access."""
     n = len(t)
     k = 2 * half + 1
     last_c = -1
     t_mean = v_mean = slope = 0.0
+    r = 0
     for q in range(len(times)):
         x = times[q]
-        c = min(max(first_index(t, x, 0, False), half), n - half - 1)
+        if q == 0:
+            r = first_index(t, x, 0, False)
+        else:  # as first_index(t, x, 0, False) over samples in order
+            while r > 0 and t[r - 1] >= x:
+                r -= 1
+            while r < n and t[r] < x:
+                r += 1
+        c = min(max(r, half), n - half - 1)
         if c != last_c:
+            first = np.uint64(c - half)
             st = sv = 0.0
-            for j in range(c - half, c + half + 1):
-                st += t[j]
-                sv += v[j]
+            for j in range(np.uint64(k)):
+                st += t[first + j]
+                sv += v[first + j]
             t_mean, v_mean = st / k, sv / k
             sxx = sxy = 0.0
-            for j in range(c - half, c + half + 1):
-                d = t[j] - t_mean
+            for j in range(np.uint64(k)):
+                d = t[first + j] - t_mean
                 sxx += d * d
-                sxy += d * (v[j] - v_mean)
+                sxy += d * (v[first + j] - v_mean)
             # samples all at one instant (a burst stamped together): their mean
             slope = sxy / sxx if t[c + half] - t[c - half] > MIN_LINE_SPAN_S else 0.0
             last_c = c

@@ -95,7 +95,11 @@ class ColumnsJson:
         wheels = tuple(records[0].wheels)
         if any(tuple(r.wheels) != wheels for r in records):
             raise ValueError("records with other wheels (or in another order) in one message of columns")
-        table = [record_values(r, self.groups) for r in records]
+        return self._columns([record_values(r, self.groups) for r in records])
+
+    @staticmethod
+    def _columns(table: Sequence[tuple[list[str], list[Any]]]) -> bytes:
+        """columns() of the records' record_values (the same names)."""
         columns = dict(zip(table[0][0], (list(c) for c in zip(*[values for _keys, values in table]))))
         return _dumps_row(columns, [v for _keys, values in table for v in values])
 
@@ -116,9 +120,39 @@ message)."""
 def fast_slip_row_json(row: Any) -> bytes:
     """/slip/fast/row payload: {"header": {"stamp": {"sec", "nsec"}, "frame_id": ""}} and then the row's columns
     (FAST_SLIP_COLUMNS): the stamp is the row's instant, time_s, to the nanosecond."""
+    return _fast_slip_row(row, *record_values(row, FAST_SLIP_COLUMNS))
+
+
+def _fast_slip_row(row: Any, keys: list[str], values: list[Any]) -> bytes:
+    """fast_slip_row_json of the row's record_values."""
     ns = round(row.time_s * 1e9)
-    return dumps({"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": ""}}
-                 | row.as_row())
+    payload: dict[str, Any] = {"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
+                                          "frame_id": ""}}
+    payload.update(zip(keys, values))  # as dict(zip(keys, values)): a name twice keeps its last value
+    try:
+        out = orjson.dumps(payload)
+    except TypeError:
+        return std_dumps(payload)
+    # the header holds no float: a non-finite value is among values (the sum's test, confirmed: it also says True
+    # for finite values whose sum overflows)
+    if b"null" in out and _flat_non_finite(values) and _non_finite(payload):
+        return std_dumps(payload)
+    return out
+
+
+def fast_slip_messages(rows: Sequence[Any]) -> tuple[list[bytes], list[bytes]]:
+    """The /slip/fast messages of rows (fast_slip_json.columns of each run of rows with the same wheels) and their
+    /slip/fast/row payloads (fast_slip_row_json), each row's values taken once."""
+    table = [record_values(r, FAST_SLIP_COLUMNS) for r in rows]
+    runs: list[bytes] = []
+    i, n = 0, len(rows)
+    while i < n:
+        wheels, k = tuple(rows[i].wheels), i + 1
+        while k < n and tuple(rows[k].wheels) == wheels:
+            k += 1
+        runs.append(ColumnsJson._columns(table[i:k]))
+        i = k
+    return runs, [_fast_slip_row(row, keys, values) for row, (keys, values) in zip(rows, table)]
 
 
 def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:

@@ -225,8 +225,31 @@ def _mf_basis(p: _Problem) -> tuple[FloatArray, FloatArray]:
 def _fit_mf(basis: tuple[FloatArray, FloatArray], y: FloatArray, w: FloatArray) -> tuple[MagicFormula, float] | None:
     """D by weighted least squares for each (C, B) of the grid (basis: _mf_basis); the best curve and its sse."""
     e, e2 = basis
-    ee = e2 @ w
-    ey = e @ (w * y)
+    return _best_mf(e2 @ w, e @ (w * y), y, w)
+
+
+MF_ROWS_BLOCK = 64
+"""The resamples' products with the Magic Formula's grid, this many grid rows at a time (_mf_products)."""
+
+
+def _mf_products(basis: tuple[FloatArray, FloatArray], y: FloatArray, ws: list[FloatArray]
+                 ) -> list[tuple[FloatArray, FloatArray]]:
+    """(e2 @ w, e @ (w * y)) of _fit_mf for each weights w in ws, taken MF_ROWS_BLOCK rows of the grid at a time for
+    all of them, so that a block is read from memory once, not once per resample (the grid is megabytes): each row's
+    product is the same dot product of that row, the same bits (tests/maneuver/test_mu_joint_products.py)."""
+    e, e2 = basis
+    wys = [w * y for w in ws]
+    ee, ey = np.empty((len(ws), e.shape[0])), np.empty((len(ws), e.shape[0]))
+    for r in range(0, e.shape[0], MF_ROWS_BLOCK):
+        block, block2 = e[r:r + MF_ROWS_BLOCK], e2[r:r + MF_ROWS_BLOCK]
+        for i, (w, wy) in enumerate(zip(ws, wys)):
+            ee[i, r:r + MF_ROWS_BLOCK] = block2 @ w
+            ey[i, r:r + MF_ROWS_BLOCK] = block @ wy
+    return list(zip(ee, ey))
+
+
+def _best_mf(ee: FloatArray, ey: FloatArray, y: FloatArray, w: FloatArray) -> tuple[MagicFormula, float] | None:
+    """_fit_mf from its products ee = e2 @ w, ey = e @ (w * y)."""
     with np.errstate(all="ignore"):
         d = np.where(ee > 0, ey / ee, 0.0)
     sse = np.where(d > 0, float(np.sum(w * y * y)) - d * ey, np.inf)
@@ -424,16 +447,20 @@ def _bootstrap(p: _Problem, t: FloatArray, n_groups: int, base_w: FloatArray,
     block = block_samples(t)
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     peaks: list[list[tuple[float, float]]] = [[] for _ in range(n_groups)]
+    ws = []
     for _ in range(BOOTSTRAP_RESAMPLES):
         w = np.zeros(n)
         for s in block_starts(rng, n, block):
             w[s:s + block] += 1.0
         w *= base_w
-        if mf_basis is not None:
-            mf = _fit_mf(mf_basis, p.y, w)
+        ws.append(w)
+    if mf_basis is not None:
+        for w, (ee, ey) in zip(ws, _mf_products(mf_basis, p.y, ws)):
+            mf = _best_mf(ee, ey, p.y, w)
             if mf is not None and mf[0].c > 1.0:
                 peaks[0].append(mf[0].peak)
-            continue
+        ws = []
+    for w in ws:
         fit = _fit(p, w)
         if fit is None:
             continue

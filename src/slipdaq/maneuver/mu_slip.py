@@ -135,10 +135,42 @@ class MuSlipFit:
         return self.c1 * self.c2 - self.c3
 
 
-def _solve_grid(x: FloatArray, y: FloatArray, c2s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+def c1_basis(c2s: FloatArray, x: FloatArray) -> FloatArray:
+    """(k, n): 1 − exp(−c2·x) for each c2 of the grid and each point."""
+    return -np.expm1(-np.outer(c2s, x))
+
+
+class Bases:
+    """c1_basis of a maneuver's points (x = sign·slip, for each sign) on the grids the fits take, each computed once
+    over all the points; a subset of them (a bootstrap resample, the points inside the peak window) gathers its
+    columns, the same values bit for bit as its own c1_basis. At most MAX_GRIDS grids are kept; others are computed
+    for the subset alone."""
+
+    MAX_GRIDS = 8
+
+    def __init__(self, slip: FloatArray) -> None:
+        self.slip = slip
+        self._grids: dict[tuple[float, bytes], FloatArray] = {}
+
+    def columns(self, sign: float, c2s: FloatArray, pos: npt.NDArray[np.intp]) -> FloatArray:
+        """c1_basis(c2s, sign·slip[pos])."""
+        key = (sign, c2s.tobytes())
+        e = self._grids.get(key)
+        if e is None:
+            if len(self._grids) >= self.MAX_GRIDS:
+                return c1_basis(c2s, sign * self.slip[pos])
+            with np.errstate(all="ignore"):  # non-finite slips: their columns are never gathered
+                e = self._grids[key] = c1_basis(c2s, sign * self.slip)
+        return np.take(e, pos, axis=1)  # C order, as c1_basis's own: the sums below take its order
+
+
+def _solve_grid(x: FloatArray, y: FloatArray, c2s: FloatArray, e: FloatArray | None = None
+                ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """For each c2: least squares y ≈ c1·(1 − exp(−c2·x)) − c3·x with c1, c3 >= 0 (a 2-variable NNLS: the
-    unconstrained solution if feasible, else the better of the boundary solutions). Returns (c1, c3, sse)."""
-    e = -np.expm1(-np.outer(c2s, x))  # (k, n): the c1 basis
+    unconstrained solution if feasible, else the better of the boundary solutions); e: c1_basis(c2s, x) where it is
+    known. Returns (c1, c3, sse)."""
+    if e is None:
+        e = c1_basis(c2s, x)  # (k, n): the c1 basis
     b = -x  # the c3 basis
     ee = np.einsum("kn,kn->k", e, e)
     eb = e @ b
@@ -191,6 +223,12 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     m = np.asarray(mu, dtype=float).ravel()
     if s.shape != m.shape:
         raise ValueError("slip and mu must have the same length")
+    return _fit_mu_slip(s, m, peak_window)
+
+
+def _fit_mu_slip(s: FloatArray, m: FloatArray, peak_window: float | None, bases: Bases | None = None,
+                 pos: npt.NDArray[np.intp] | None = None) -> MuSlipFit | None:
+    """fit_mu_slip of 1-d arrays; bases: of points of which s are those at pos."""
     ok = np.isfinite(s) & np.isfinite(m)
     s, m = s[ok], m[ok]
     if s.size < MIN_POINTS:
@@ -199,8 +237,9 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
     x, y = sign * s, sign * m
     keep = x >= -OPPOSITE_SLIP_MAX
     x, y = x[keep], y[keep]
+    at = pos[ok][keep] if bases is not None and pos is not None else None
 
-    fit = _fit_points(x, y, sign)
+    fit = _fit_points(x, y, sign, bases, at)
     if peak_window is None or peak_window <= PEAK_MARGIN:
         return fit
     for _ in range(PEAK_WINDOW_ITERATIONS):
@@ -209,7 +248,7 @@ def fit_mu_slip(slip: npt.ArrayLike, mu: npt.ArrayLike, peak_window: float | Non
         inside = x <= peak_window * fit.slip_at_mu_peak
         if inside.all():
             break
-        refit = _fit_points(x[inside], y[inside], sign)
+        refit = _fit_points(x[inside], y[inside], sign, bases, at[inside] if at is not None else None)
         if refit is None or refit.slip_at_mu_peak is None:
             break
         settled = abs(refit.slip_at_mu_peak - fit.slip_at_mu_peak) < 1e-4
@@ -263,10 +302,14 @@ def peak_interval(slip: npt.ArrayLike, mu: npt.ArrayLike, block: int
     block = max(1, min(block, n))
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     peaks = []
+    s, m = s.ravel(), m.ravel()
+    if s.shape != m.shape:
+        raise ValueError("slip and mu must have the same length")
+    bases = Bases(s)
     for _ in range(BOOTSTRAP_RESAMPLES):
         starts = block_starts(rng, n, block)
         idx = (starts[:, None] + np.arange(block)[None, :]).ravel()[:n]
-        fit = fit_mu_slip(s[idx], m[idx])
+        fit = _fit_mu_slip(s[idx], m[idx], PEAK_WINDOW, bases, idx)
         if fit is not None and fit.mu_peak is not None and fit.slip_at_mu_peak is not None:
             peaks.append((fit.mu_peak, fit.slip_at_mu_peak))
     if len(peaks) < BOOTSTRAP_FOUND_SHARE * BOOTSTRAP_RESAMPLES:
@@ -281,16 +324,22 @@ def explained(sse: float, y: FloatArray) -> float:
     return 1.0 - sse / sst if sst > 0 else 0.0
 
 
-def _fit_points(x: FloatArray, y: FloatArray, sign: float) -> MuSlipFit | None:
-    """The grid fit on mirrored points (x >= −OPPOSITE_SLIP_MAX); None as fit_mu_slip says."""
+def _fit_points(x: FloatArray, y: FloatArray, sign: float, bases: Bases | None = None,
+                pos: npt.NDArray[np.intp] | None = None) -> MuSlipFit | None:
+    """The grid fit on mirrored points (x >= −OPPOSITE_SLIP_MAX); None as fit_mu_slip says; bases: of points of
+    which x are sign times those at pos."""
     n = int(x.size)
     if n < MIN_POINTS or float(np.max(np.abs(x)) - np.min(np.abs(x))) < MIN_SLIP_SPAN:
         return None
-    c1s, c3s, sses = _solve_grid(x, y, C2_GRID)
+
+    def basis(c2s: FloatArray) -> FloatArray | None:
+        return bases.columns(sign, c2s, pos) if bases is not None and pos is not None else None
+
+    c1s, c3s, sses = _solve_grid(x, y, C2_GRID, basis(C2_GRID))
     i = int(np.argmin(sses))
     lo, hi = C2_GRID[max(i - 1, 0)], C2_GRID[min(i + 1, C2_GRID.size - 1)]
     fine = np.geomspace(lo, hi, 200)
-    f1, f3, fs = _solve_grid(x, y, fine)
+    f1, f3, fs = _solve_grid(x, y, fine, basis(fine))
     j = int(np.argmin(fs))
     if fs[j] <= sses[i]:
         c1, c2, c3, sse = float(f1[j]), float(fine[j]), float(f3[j]), float(fs[j])

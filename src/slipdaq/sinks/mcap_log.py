@@ -24,8 +24,7 @@ from slipdaq.logformat import cdr
 from slipdaq.logformat.json_codec import (
     dumps,
     estimate_json,
-    fast_slip_json,
-    fast_slip_row_json,
+    fast_slip_messages,
     fix_json,
     location_fix_json,
     nmea_line_json,
@@ -452,15 +451,11 @@ class McapLogSink(Sink):
     def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
         """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice), then
         each row on /slip/fast/row (at the same log time, stamped with its own)."""
-        i, n = 0, len(rows)
-        while i < n:
-            wheels, k = tuple(rows[i].wheels), i + 1
-            while k < n and tuple(rows[k].wheels) == wheels:
-                k += 1
-            self._write(TOPIC_FAST_SLIP, log_time_s, fast_slip_json.columns(rows[i:k]))
-            i = k
-        for row in rows:
-            self._write(TOPIC_FAST_SLIP_ROW, log_time_s, fast_slip_row_json(row))
+        runs, each = fast_slip_messages(rows)
+        for data in runs:
+            self._write(TOPIC_FAST_SLIP, log_time_s, data)
+        for data in each:
+            self._write(TOPIC_FAST_SLIP_ROW, log_time_s, data)
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))
