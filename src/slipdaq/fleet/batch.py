@@ -10,7 +10,8 @@ this machine) the task itself, into DIR; on a cluster of --scheduler this proces
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
 worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: each
 log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
-on a thread while the cluster stops. Where the time went is in BatchResult.client (ClientTime).
+while the report's tire files are fitted on the cluster, one task per label group and wheel (fleet_task.fit_tire),
+the most points first. Where the time went is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -42,6 +43,7 @@ from slipdaq.fleet.task import (
     Out,
     error_text,
     failure,
+    fit_tire,
     inputs_inside,
     load_cached,
     log_identity,
@@ -53,6 +55,7 @@ from slipdaq.fleet.task import (
 from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
+from slipdaq.report.tires import TireFitter
 
 T = TypeVar("T")
 
@@ -69,17 +72,17 @@ class ClientTime:
     cluster_start_s: float = 0.0
     """The cluster started (or reached) and its workers warm."""
     waiting_s: float = 0.0
-    """Blocked on the tasks (none ended yet)."""
+    """Blocked on the tasks (none ended yet), the tire fits' included."""
     collecting_s: float = 0.0
     """Each result taken: saved where the task could not, its plots placed in the report, its line printed."""
     report_s: float = 0.0
-    """The report's tables and page after the last result (on a thread, while the cluster stops)."""
+    """The report's tables and page after the last result (not the waits on its tire fits: waiting_s)."""
     cluster_stop_s: float = 0.0
     """The local cluster stopped (or the scheduler left)."""
     first_result_s: float | None = None
     """From run_batch's start to the first task's result."""
     tasks_s: float = 0.0
-    """The tasks' own times (LogResult.seconds), summed."""
+    """The tasks' own times (LogResult.seconds, and each tire fit's), summed."""
     total_s: float = 0.0
     """run_batch from start to end."""
 
@@ -226,6 +229,7 @@ class _Report:
 
     def add(self, log: LogSummary) -> None:
         if self.build is None:
+
             from slipdaq.outputs import atomic_tree
             from slipdaq.report.build import TABLES
 
@@ -239,12 +243,15 @@ class _Report:
                 self.build = ReportBuild(tree, d, plot=self.place, png=self.png)
         self.build.add(log)
 
-    def finish(self, logs: Sequence[LogSummary]) -> Path | str | None:
-        """index.html's path (or URL) once it is in place; None without a log."""
+    def finish(self, logs: Sequence[LogSummary], fit_tires: TireFitter | None = None) -> Path | str | None:
+        """index.html's path (or URL) once it is in place; None without a log. fit_tires: where the tire files
+        are fitted (default: here)."""
         if self.build is None:
             return None
         from slipdaq.report.build import TABLES
 
+        if fit_tires is not None:
+            self.build.fit_tires = fit_tires
         self.build.finish(logs)
         if isinstance(self.out, UrlStore):  # uploaded: the tables and the page last
             self.out.put_tree(self.build.build, REPORT, last=TABLES)
@@ -303,11 +310,14 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         skipped = set(results)
         clock.planning_s = time.perf_counter() - t0
 
-        def finish() -> Path | str | None:  # the report's tables and page over every log that succeeded
+        def finish(fit_tires: TireFitter | None = None) -> Path | str | None:  # the report over every log that succeeded
+            waited = clock.waiting_s
             with clock.timing("report_s"):
                 summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
                              for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
-                return report.finish(summaries)
+                index = report.finish(summaries, fit_tires)
+            clock.report_s -= clock.waiting_s - waited
+            return index
 
         if todo:
             def ok(r: LogResult) -> None:
@@ -332,17 +342,15 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
 
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str | None, workers: int | None,
                stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None],
-               clock: ClientTime, then: Callable[[], T]) -> tuple[list[LogResult], T]:
+               clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
     """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
     holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
-    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report) on a thread
-    while the cluster stops. Returns the failures and what `then` returned. Each step's time goes to the clock."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
+    files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
+    clock."""
     from slipdaq.fleet.cluster import connect
 
     failed: list[LogResult] = []
-    after = ThreadPoolExecutor(1, thread_name_prefix="slipdaq-batch-report")
     t = time.perf_counter()
     with connect(scheduler, workers) as client:
         clock.cluster_start_s += time.perf_counter() - t
@@ -390,13 +398,28 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
                 else:
                     failed.append(r)
                     bad(r)
-        last = after.submit(then)
+        last = then(_tire_fitter(client, clock))
         t = time.perf_counter()
     clock.cluster_stop_s += time.perf_counter() - t
-    try:
-        return failed, last.result()
-    finally:
-        after.shutdown()
+    return failed, last
+
+
+def _tire_fitter(client: Any, clock: ClientTime) -> TireFitter:
+    """report.tires.TireFitter on the cluster: a task per tire file, the most points first; their waits and times go
+    to the clock as the log tasks' do."""
+    from slipdaq.report.tires import TireJob, TireResult
+
+    def fit(jobs: Sequence[TireJob]) -> Callable[[], list[TireResult]]:
+        futures = {i: client.submit(fit_tire, jobs[i], key=("slipdaq-tire", i), pure=False)
+                   for i in sorted(range(len(jobs)), key=lambda i: -jobs[i].points)}
+
+        def wait() -> list[TireResult]:
+            with clock.timing("waiting_s"):
+                done = [futures[i].result() for i in range(len(jobs))]
+            clock.tasks_s += sum(seconds for _, seconds in done)
+            return [r for r, _ in done]
+        return wait
+    return fit
 
 
 def _task_lost(e: BaseException) -> str:

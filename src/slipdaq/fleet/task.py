@@ -36,6 +36,7 @@ from slipdaq.fleet.storage import UrlStore, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output
 from slipdaq.report.page_data import PagePlots
 from slipdaq.report.summary import LogSummary
+from slipdaq.report.tires import TireJob, TireResult
 
 CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
@@ -153,6 +154,13 @@ def process_log(job: Job) -> LogResult:
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=error_text(e))
     return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def fit_tire(job: TireJob) -> tuple[TireResult, float]:
+    """The task of one report tire file (report.tires.TireJob): its result and how long it took (seconds)."""
+    t0 = time.perf_counter()
+    result = job.fit()
+    return result, time.perf_counter() - t0
 
 
 # ---- DIR: the dataset, the cache, the report --------------------------------------------------------------------
