@@ -8,8 +8,9 @@ this machine) the task itself, into DIR; on a cluster of --scheduler this proces
 (fleet_storage) the task, through fsspec. A task copies a log at a URL into a local temporary file first.
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
-worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: each
-log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
+worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: on the
+local cluster each task writes its page data where the report is being built (fleet_task.place_page), elsewhere
+each log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
 while the report's tire files are fitted on the cluster, one task per label group and wheel (fleet_task.fit_tire),
 the most points first. Where the time went is in BatchResult.client (ClientTime).
 
@@ -25,6 +26,7 @@ import contextlib
 import dataclasses
 import os
 import pickle
+import shutil
 import sys
 import tempfile
 import time
@@ -48,6 +50,7 @@ from slipdaq.fleet.task import (
     load_cached,
     log_identity,
     output_where,
+    place_page,
     process_log,
     read_cache,
     save,
@@ -128,22 +131,18 @@ class BatchResult:
 
 
 def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
-    """report.build.PlotMaker writing a log's page data (and with png its PNGs) as its task made them, read back from
-    its cache file (they are not kept in memory meanwhile)."""
-    from slipdaq.report.page_data import LOG_SCRIPT
+    """report.build.PlotMaker: a log's page data (and with png its PNGs) as its task made them, where its task wrote
+    them itself (LogResult.placed), else read back from its cache file (they are not kept in memory meanwhile)."""
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
-        cached: LogResult = pickle.loads(read_cache(out, results[log.name]))
+        r = results[log.name]
+        if r.placed:
+            assert r.page is not None  # the task makes sure
+            return Placed(r.page, {k: {s: out_dir / f for s, (f, _) in v.items()} for k, v in r.pngs.items()}
+                          if png else {})
+        cached: LogResult = pickle.loads(read_cache(out, r))
         assert cached.page is not None  # load_cached and the tasks make sure
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / LOG_SCRIPT).write_bytes(cached.page.script)
-        made: dict[str, dict[str, Path]] = {}
-        for key, by_stem in (cached.pngs if png else {}).items():
-            made[key] = {}
-            for stem, (file, data) in by_stem.items():
-                (out_dir / file).write_bytes(data)
-                made[key][stem] = out_dir / file
-        return Placed(cached.page, made)
+        return Placed(cached.page, place_page(out_dir, cached, png))
     return place
 
 
@@ -210,6 +209,10 @@ def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None)
     return jobs, failed
 
 
+class _NoLog(Exception):
+    """No log succeeded: the report is not written."""
+
+
 class _Report:
     """The fleet report, built as the logs come (ReportBuild): in DIR/report (moved into place at the end, as
     write_report does), or in a temporary directory uploaded at the end when DIR is a URL. Nothing is written when no
@@ -227,9 +230,8 @@ class _Report:
     def __exit__(self, *exc: Any) -> None:
         self.stack.__exit__(*exc)  # an error or an interrupt: the half-built report is removed, not moved into place
 
-    def add(self, log: LogSummary) -> None:
+    def _open(self) -> ReportBuild:
         if self.build is None:
-
             from slipdaq.outputs import atomic_tree
             from slipdaq.report.build import TABLES
 
@@ -241,12 +243,20 @@ class _Report:
                 d = self.out / REPORT
                 tree = self.stack.enter_context(atomic_tree(d, inputs=self.inputs, last=TABLES))
                 self.build = ReportBuild(tree, d, plot=self.place, png=self.png)
-        self.build.add(log)
+        return self.build
+
+    def page_dir(self) -> Path:
+        """Where the report is being built: a log's page data goes in <it>/<name>/."""
+        return self._open().build
+
+    def add(self, log: LogSummary) -> None:
+        self._open().add(log)
 
     def finish(self, logs: Sequence[LogSummary], fit_tires: TireFitter | None = None) -> Path | str | None:
-        """index.html's path (or URL) once it is in place; None without a log. fit_tires: where the tire files
-        are fitted (default: here)."""
-        if self.build is None:
+        """index.html's path (or URL) once it is in place; None without a log (the report's directory removed).
+        fit_tires: where the tire files are fitted (default: here)."""
+        if self.build is None or not self.build.links:
+            self.stack.__exit__(_NoLog, _NoLog(), None)  # as on an error: nothing moved into place
             return None
         from slipdaq.report.build import TABLES
 
@@ -292,7 +302,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         report = stack.enter_context(_Report(out, results, png, inputs))
 
         def succeeded(r: LogResult, cached: bool) -> None:
-            results[r.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
+            results[r.name] = r if r.placed else dataclasses.replace(r, parquet=b"", page=None, pngs={})
             progress.line(_ok_line(r, out, cached=cached))
             if r.summary is not None:
                 report.add(r.summary)  # its plots by its name; its path and group are the tables' (at the end)
@@ -326,7 +336,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                 clock.tasks_s += r.seconds
                 succeeded(r, cached=False)
 
-            lost, index = _run_tasks(todo, out, inputs, scheduler, workers, stream, ok,
+            lost, index = _run_tasks(todo, out, inputs, report.page_dir, scheduler, workers, stream, ok,
                                      lambda r: progress.line(f"FAILED {failure(r)}"), clock, finish)
             failed += lost
         else:
@@ -340,12 +350,13 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                        failed, index, clock)
 
 
-def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str | None, workers: int | None,
-               stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None],
-               clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
+def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Callable[[], Path],
+               scheduler: str | None, workers: int | None, stream: TextIO, ok: Callable[[LogResult], None],
+               bad: Callable[[LogResult], None], clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
     """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
-    holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
-    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
+    holds the task it runs, and a worker's death counts against that task only); on the local cluster a task writes
+    its files in DIR and its page data in page_dir(); each result handed to `ok` (saved first where the task could
+    not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
     files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
     clock."""
     from slipdaq.fleet.cluster import connect
@@ -363,7 +374,9 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
             for d in (ESTIMATES, CACHE):
                 (out / d).mkdir(parents=True, exist_ok=True)
             mine = tuple(os.path.abspath(i) for i in inputs)
-            todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine) for j in todo]
+            pages = str(page_dir().resolve())
+            todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine, page_dir=pages)
+                    for j in todo]
         queue = sorted(todo, key=lambda j: -j.size_bytes)[::-1]  # popped from the end: the longest first
         futures: dict[Any, Job] = {}
         running = as_completed()
@@ -384,18 +397,20 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
                 break
             with clock.timing("collecting_s"):
                 job = futures.pop(fut)
+                submit()  # the next task out first: its worker does not wait while this result is fetched
                 try:
                     r = fut.result()
                 except Exception as e:  # its worker died twice (KilledWorker), the task was lost, ...
                     r = LogResult(job.path, job.name, job.key, error=_task_lost(e))
                 fut.release()
-                submit()
                 if r.error is None:
                     if not r.written:  # a cluster of --scheduler: DIR is this machine's
                         assert isinstance(out, Path)  # a task writes at a URL itself
                         save(out, r, inputs)
                     ok(r)
                 else:
+                    if job.page_dir is not None:  # what a task that failed may have left of its page data
+                        shutil.rmtree(Path(job.page_dir) / job.name, ignore_errors=True)
                     failed.append(r)
                     bad(r)
         last = then(_tire_fitter(client, clock))
