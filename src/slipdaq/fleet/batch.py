@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import os
 import pickle
 import shutil
@@ -359,10 +360,13 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
     not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
     files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
     clock."""
-    from slipdaq.fleet.cluster import connect
-
-    failed: list[LogResult] = []
     t = time.perf_counter()
+    gc.disable()  # Dask's modules: as slipdaq.__main__ imports the CLI's (fleet_cluster._warm_here)
+    try:
+        from slipdaq.fleet.cluster import connect
+    finally:
+        gc.enable()
+    failed: list[LogResult] = []
     with connect(scheduler, workers) as client:
         clock.cluster_start_s += time.perf_counter() - t
         from distributed import as_completed
@@ -382,7 +386,8 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
         running = as_completed()
 
         def submit() -> None:  # as many tasks out as the cluster has threads: one per worker (fleet_cluster)
-            while queue and running.count() < max(1, sum(client.nthreads().values())):
+            slots = _threads(client)
+            while queue and running.count() < slots:
                 job = queue.pop()
                 fut = client.submit(process_log, job, key=("slipdaq-batch", job.stem), pure=False)
                 futures[fut] = job
@@ -417,6 +422,14 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
         t = time.perf_counter()
     clock.cluster_stop_s += time.perf_counter() - t
     return failed, last
+
+
+def _threads(client: Any) -> int:
+    """The cluster's threads now: the local cluster's own count (kept by the scheduler's messages as workers come and
+    go), the scheduler's of --scheduler asked of it."""
+    if client.cluster is not None:
+        return max(1, sum(w["nthreads"] for w in list(client.cluster.scheduler_info["workers"].values())))
+    return max(1, sum(client.nthreads().values()))
 
 
 def _tire_fitter(client: Any, clock: ClientTime) -> TireFitter:

@@ -18,6 +18,7 @@ cluster is started with this setting; a scheduler of --scheduler keeps its own (
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 from collections.abc import Iterator
@@ -74,14 +75,26 @@ def _client(client_cls: Any, cluster_cls: Any, scheduler: str | None, workers: i
         with client:
             yield client
         return
-    import slipdaq.fleet.warm  # noqa: F401  (before the workers are forked)
-
+    _warm_here()
     n = workers or os.cpu_count() or 1
     with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
                           "distributed.worker.multiprocessing-method": "fork"}):
         with cluster_cls(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                          silence_logs=logging.ERROR) as cluster, client_cls(cluster) as client:
             yield client
+
+
+def _warm_here() -> None:
+    """slipdaq.fleet.warm imported in this process before it forks the workers, with the garbage collector paused
+    (as slipdaq.__main__ does: these objects live as long as the process, a collection that walks them frees
+    nothing) and then frozen (gc.freeze): a worker's collections do not touch, and so copy, the pages it shares."""
+    gc.disable()
+    try:
+        import slipdaq.fleet.warm  # noqa: F401
+
+        gc.freeze()
+    finally:
+        gc.enable()
 
 
 class WarmUp(WorkerPlugin):
