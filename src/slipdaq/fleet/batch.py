@@ -354,10 +354,9 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Callable[[], Path],
                scheduler: str | None, workers: int | None, stream: TextIO, ok: Callable[[LogResult], None],
                bad: Callable[[LogResult], None], clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
-    """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
-    holds the task it runs, and a worker's death counts against that task only); on the local cluster a task writes
-    its files in DIR and its page data in page_dir(); each result handed to `ok` (saved first where the task could
-    not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
+    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); on the
+    local cluster a task writes its files in DIR and its page data in page_dir(); each result handed to `ok` (saved
+    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
     files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
     clock."""
     t = time.perf_counter()
@@ -369,8 +368,6 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
     failed: list[LogResult] = []
     with connect(scheduler, workers) as client:
         clock.cluster_start_s += time.perf_counter() - t
-        from distributed import as_completed
-
         if scheduler and not client.scheduler_info().get("workers"):
             print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
                   file=stream, flush=True)
@@ -381,33 +378,18 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
             pages = str(page_dir().resolve())
             todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine, page_dir=pages)
                     for j in todo]
-        queue = sorted(todo, key=lambda j: -j.size_bytes)[::-1]  # popped from the end: the longest first
-        futures: dict[Any, Job] = {}
-        running = as_completed()
+        from slipdaq.fleet.feed import Feed
 
-        def submit() -> None:  # as many tasks out as the cluster has threads: one per worker (fleet_cluster)
-            slots = _threads(client)
-            while queue and running.count() < slots:
-                job = queue.pop()
-                fut = client.submit(process_log, job, key=("slipdaq-batch", job.stem), pure=False)
-                futures[fut] = job
-                running.add(fut)
-
-        submit()
-        ended = iter(running)
+        ended = iter(Feed(client, todo, lambda: _threads(client)))
         while True:
             with clock.timing("waiting_s"):
-                fut = next(ended, None)
-            if fut is None:
+                got = next(ended, None)
+            if got is None:
                 break
             with clock.timing("collecting_s"):
-                job = futures.pop(fut)
-                submit()  # the next task out first: its worker does not wait while this result is fetched
-                try:
-                    r = fut.result()
-                except Exception as e:  # its worker died twice (KilledWorker), the task was lost, ...
-                    r = LogResult(job.path, job.name, job.key, error=_task_lost(e))
-                fut.release()
+                job, value = got
+                r = value if isinstance(value, LogResult) else LogResult(job.path, job.name, job.key,
+                                                                          error=_task_lost(value))
                 if r.error is None:
                     if not r.written:  # a cluster of --scheduler: DIR is this machine's
                         assert isinstance(out, Path)  # a task writes at a URL itself
