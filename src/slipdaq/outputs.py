@@ -13,9 +13,12 @@ import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 PathLike = str | os.PathLike[str]
+MOVERS = 8
+"""Threads that move a report's files into place (atomic_tree): their fsyncs overlap."""
 
 
 class OutputError(Exception):
@@ -47,6 +50,11 @@ def _fsync(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _rmdir(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.rmdir()
 
 
 @contextlib.contextmanager
@@ -88,9 +96,9 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
 def atomic_tree(directory: PathLike, *, inputs: Iterable[PathLike] = (), last: Sequence[str] = ()) -> Iterator[Path]:
     """A temporary directory inside `directory` for the caller to build its files in. When the block ends without an
     exception each file is moved to the same place under `directory` (fsync, rename: each one complete, an older one
-    replaced), the files named in `last` (relative paths) last, in that order; nothing is moved when one of them
-    would be one of `inputs`. On any error the temporary directory is removed, and `directory` too when it was
-    made here."""
+    replaced; several at a time), the files named in `last` (relative paths) last, one by one in that order; nothing
+    is moved when one of them would be one of `inputs`. On any error the temporary directory is removed, and
+    `directory` too when it was made here."""
     inputs = list(inputs)
     refuse_inputs([directory], inputs)
     out = Path(directory)
@@ -103,11 +111,20 @@ def atomic_tree(directory: PathLike, *, inputs: Iterable[PathLike] = (), last: S
             files = sorted((p.relative_to(build).as_posix() for p in build.rglob("*") if p.is_file()),
                            key=lambda rel: (rel in last, last.index(rel) if rel in last else 0, rel))
             refuse_inputs((out / rel for rel in files), inputs)
-            for rel in files:
-                (out / rel).parent.mkdir(parents=True, exist_ok=True)
+            for d in dict.fromkeys((out / rel).parent for rel in files):
+                d.mkdir(parents=True, exist_ok=True)
+
+            def move(rel: str) -> None:
                 _fsync(build / rel)
                 os.replace(build / rel, out / rel)
-            for d in {(out / rel).parent for rel in files}:
-                _fsync(d)
+
+            ordinary = [rel for rel in files if rel not in last]
+            with ThreadPoolExecutor(MOVERS) as pool:  # fsync and rename wait on the disk, not on Python
+                list(pool.map(move, ordinary))
+                for rel in files[len(ordinary):]:
+                    move(rel)
+                list(pool.map(_fsync, {(out / rel).parent for rel in files}))
+                for level in sorted({len(p.parts) for p in build.rglob("*")}, reverse=True):  # the emptied folders
+                    list(pool.map(_rmdir, [p for p in build.rglob("*") if len(p.parts) == level]))
         finally:
             shutil.rmtree(build, ignore_errors=True)

@@ -1,6 +1,7 @@
 """`slipdaq batch` on real logs (the pipeline over simulator records, as `import`) and a corrupt file: on a local
 cluster of two worker processes, and against a `dask scheduler` and a `dask worker` started here on localhost. The
-Parquet files equal the two-pass estimates; a re-run skips every log (its line says "up to date", no file is
+Parquet files equal the two-pass estimates, the report's tire files (fitted on the cluster) and each log's page data
+(written by its task) those of `slipdaq report`; a re-run skips every log (its line says "up to date", no file is
 written again: the mtimes are unchanged); a changed log is processed again and replaces its older file."""
 
 from __future__ import annotations
@@ -130,6 +131,14 @@ def test_batch_on_a_local_cluster_skip_rule_and_a_failing_log(logs: dict[str, Pa
     _check_outputs(out, logs, good, png=True)
     tasks, total, outside, start, _, _, report, _ = _client_time(err)
     assert 0 < tasks and 0 < outside < total and 0 < start < outside  # the time the batch process spent itself
+    assert main(["report", *(str(logs[n]) for n in good), "-o", str(tmp_path / "report")]) == 0
+    capsys.readouterr()
+    tires = {p.relative_to(out / "report").as_posix(): p.read_bytes() for p in (out / "report" / "tires").rglob("*.tir")}
+    assert any(p.endswith(".tir") for p in tires)  # fitted on the cluster, byte for byte those of `slipdaq report`
+    assert tires == {p.relative_to(tmp_path / "report").as_posix(): p.read_bytes()
+                     for p in (tmp_path / "report" / "tires").rglob("*.tir")}
+    for n in good:  # each log's page data, written by its task where the report was built: `slipdaq report`'s
+        assert (out / "report" / n / "plots.js").read_bytes() == (tmp_path / "report" / n / "plots.js").read_bytes()
 
     written = {p: p.stat().st_mtime_ns for p in (*(out / "estimates").iterdir(), *(out / "cache").iterdir())}
     rc, err, stdout = _batch(args, capsys)

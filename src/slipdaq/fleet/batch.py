@@ -8,9 +8,11 @@ this machine) the task itself, into DIR; on a cluster of --scheduler this proces
 (fleet_storage) the task, through fsspec. A task copies a log at a URL into a local temporary file first.
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
-worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: each
-log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
-on a thread while the cluster stops. Where the time went is in BatchResult.client (ClientTime).
+worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: on the
+local cluster each task writes its page data where the report is being built (fleet_task.place_page), elsewhere
+each log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
+while the report's tire files are fitted on the cluster, one task per label group and wheel (fleet_task.fit_tire),
+the most points first. Where the time went is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -22,8 +24,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import os
 import pickle
+import shutil
 import sys
 import tempfile
 import time
@@ -42,10 +46,12 @@ from slipdaq.fleet.task import (
     Out,
     error_text,
     failure,
+    fit_tire,
     inputs_inside,
     load_cached,
     log_identity,
     output_where,
+    place_page,
     process_log,
     read_cache,
     save,
@@ -53,6 +59,7 @@ from slipdaq.fleet.task import (
 from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
+from slipdaq.report.tires import TireFitter
 
 T = TypeVar("T")
 
@@ -69,17 +76,17 @@ class ClientTime:
     cluster_start_s: float = 0.0
     """The cluster started (or reached) and its workers warm."""
     waiting_s: float = 0.0
-    """Blocked on the tasks (none ended yet)."""
+    """Blocked on the tasks (none ended yet), the tire fits' included."""
     collecting_s: float = 0.0
     """Each result taken: saved where the task could not, its plots placed in the report, its line printed."""
     report_s: float = 0.0
-    """The report's tables and page after the last result (on a thread, while the cluster stops)."""
+    """The report's tables and page after the last result (not the waits on its tire fits: waiting_s)."""
     cluster_stop_s: float = 0.0
     """The local cluster stopped (or the scheduler left)."""
     first_result_s: float | None = None
     """From run_batch's start to the first task's result."""
     tasks_s: float = 0.0
-    """The tasks' own times (LogResult.seconds), summed."""
+    """The tasks' own times (LogResult.seconds, and each tire fit's), summed."""
     total_s: float = 0.0
     """run_batch from start to end."""
 
@@ -125,22 +132,18 @@ class BatchResult:
 
 
 def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
-    """report.build.PlotMaker writing a log's page data (and with png its PNGs) as its task made them, read back from
-    its cache file (they are not kept in memory meanwhile)."""
-    from slipdaq.report.page_data import LOG_SCRIPT
+    """report.build.PlotMaker: a log's page data (and with png its PNGs) as its task made them, where its task wrote
+    them itself (LogResult.placed), else read back from its cache file (they are not kept in memory meanwhile)."""
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
-        cached: LogResult = pickle.loads(read_cache(out, results[log.name]))
+        r = results[log.name]
+        if r.placed:
+            assert r.page is not None  # the task makes sure
+            return Placed(r.page, {k: {s: out_dir / f for s, (f, _) in v.items()} for k, v in r.pngs.items()}
+                          if png else {})
+        cached: LogResult = pickle.loads(read_cache(out, r))
         assert cached.page is not None  # load_cached and the tasks make sure
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / LOG_SCRIPT).write_bytes(cached.page.script)
-        made: dict[str, dict[str, Path]] = {}
-        for key, by_stem in (cached.pngs if png else {}).items():
-            made[key] = {}
-            for stem, (file, data) in by_stem.items():
-                (out_dir / file).write_bytes(data)
-                made[key][stem] = out_dir / file
-        return Placed(cached.page, made)
+        return Placed(cached.page, place_page(out_dir, cached, png))
     return place
 
 
@@ -207,6 +210,10 @@ def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None)
     return jobs, failed
 
 
+class _NoLog(Exception):
+    """No log succeeded: the report is not written."""
+
+
 class _Report:
     """The fleet report, built as the logs come (ReportBuild): in DIR/report (moved into place at the end, as
     write_report does), or in a temporary directory uploaded at the end when DIR is a URL. Nothing is written when no
@@ -224,7 +231,7 @@ class _Report:
     def __exit__(self, *exc: Any) -> None:
         self.stack.__exit__(*exc)  # an error or an interrupt: the half-built report is removed, not moved into place
 
-    def add(self, log: LogSummary) -> None:
+    def _open(self) -> ReportBuild:
         if self.build is None:
             from slipdaq.outputs import atomic_tree
             from slipdaq.report.build import TABLES
@@ -237,14 +244,25 @@ class _Report:
                 d = self.out / REPORT
                 tree = self.stack.enter_context(atomic_tree(d, inputs=self.inputs, last=TABLES))
                 self.build = ReportBuild(tree, d, plot=self.place, png=self.png)
-        self.build.add(log)
+        return self.build
 
-    def finish(self, logs: Sequence[LogSummary]) -> Path | str | None:
-        """index.html's path (or URL) once it is in place; None without a log."""
-        if self.build is None:
+    def page_dir(self) -> Path:
+        """Where the report is being built: a log's page data goes in <it>/<name>/."""
+        return self._open().build
+
+    def add(self, log: LogSummary) -> None:
+        self._open().add(log)
+
+    def finish(self, logs: Sequence[LogSummary], fit_tires: TireFitter | None = None) -> Path | str | None:
+        """index.html's path (or URL) once it is in place; None without a log (the report's directory removed).
+        fit_tires: where the tire files are fitted (default: here)."""
+        if self.build is None or not self.build.links:
+            self.stack.__exit__(_NoLog, _NoLog(), None)  # as on an error: nothing moved into place
             return None
         from slipdaq.report.build import TABLES
 
+        if fit_tires is not None:
+            self.build.fit_tires = fit_tires
         self.build.finish(logs)
         if isinstance(self.out, UrlStore):  # uploaded: the tables and the page last
             self.out.put_tree(self.build.build, REPORT, last=TABLES)
@@ -285,7 +303,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         report = stack.enter_context(_Report(out, results, png, inputs))
 
         def succeeded(r: LogResult, cached: bool) -> None:
-            results[r.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
+            results[r.name] = r if r.placed else dataclasses.replace(r, parquet=b"", page=None, pngs={})
             progress.line(_ok_line(r, out, cached=cached))
             if r.summary is not None:
                 report.add(r.summary)  # its plots by its name; its path and group are the tables' (at the end)
@@ -303,11 +321,14 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         skipped = set(results)
         clock.planning_s = time.perf_counter() - t0
 
-        def finish() -> Path | str | None:  # the report's tables and page over every log that succeeded
+        def finish(fit_tires: TireFitter | None = None) -> Path | str | None:  # the report over every log that succeeded
+            waited = clock.waiting_s
             with clock.timing("report_s"):
                 summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
                              for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
-                return report.finish(summaries)
+                index = report.finish(summaries, fit_tires)
+            clock.report_s -= clock.waiting_s - waited
+            return index
 
         if todo:
             def ok(r: LogResult) -> None:
@@ -316,7 +337,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                 clock.tasks_s += r.seconds
                 succeeded(r, cached=False)
 
-            lost, index = _run_tasks(todo, out, inputs, scheduler, workers, stream, ok,
+            lost, index = _run_tasks(todo, out, inputs, report.page_dir, scheduler, workers, stream, ok,
                                      lambda r: progress.line(f"FAILED {failure(r)}"), clock, finish)
             failed += lost
         else:
@@ -330,24 +351,23 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
                        failed, index, clock)
 
 
-def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str | None, workers: int | None,
-               stream: TextIO, ok: Callable[[LogResult], None], bad: Callable[[LogResult], None],
-               clock: ClientTime, then: Callable[[], T]) -> tuple[list[LogResult], T]:
-    """The jobs as Dask tasks, longest log first, no more out at a time than the cluster has threads (a worker
-    holds the task it runs, and a worker's death counts against that task only); each result handed to `ok` (saved
-    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report) on a thread
-    while the cluster stops. Returns the failures and what `then` returned. Each step's time goes to the clock."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from slipdaq.fleet.cluster import connect
-
-    failed: list[LogResult] = []
-    after = ThreadPoolExecutor(1, thread_name_prefix="slipdaq-batch-report")
+def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Callable[[], Path],
+               scheduler: str | None, workers: int | None, stream: TextIO, ok: Callable[[LogResult], None],
+               bad: Callable[[LogResult], None], clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
+    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); on the
+    local cluster a task writes its files in DIR and its page data in page_dir(); each result handed to `ok` (saved
+    first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
+    files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
+    clock."""
     t = time.perf_counter()
+    gc.disable()  # Dask's modules: as slipdaq.__main__ imports the CLI's (fleet_cluster._warm_here)
+    try:
+        from slipdaq.fleet.cluster import connect
+    finally:
+        gc.enable()
+    failed: list[LogResult] = []
     with connect(scheduler, workers) as client:
         clock.cluster_start_s += time.perf_counter() - t
-        from distributed import as_completed
-
         if scheduler and not client.scheduler_info().get("workers"):
             print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
                   file=stream, flush=True)
@@ -355,48 +375,61 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], scheduler: str 
             for d in (ESTIMATES, CACHE):
                 (out / d).mkdir(parents=True, exist_ok=True)
             mine = tuple(os.path.abspath(i) for i in inputs)
-            todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine) for j in todo]
-        queue = sorted(todo, key=lambda j: -j.size_bytes)[::-1]  # popped from the end: the longest first
-        futures: dict[Any, Job] = {}
-        running = as_completed()
+            pages = str(page_dir().resolve())
+            todo = [dataclasses.replace(j, out=str(out.resolve()), inputs=mine, page_dir=pages)
+                    for j in todo]
+        from slipdaq.fleet.feed import Feed
 
-        def submit() -> None:  # as many tasks out as the cluster has threads: one per worker (fleet_cluster)
-            while queue and running.count() < max(1, sum(client.nthreads().values())):
-                job = queue.pop()
-                fut = client.submit(process_log, job, key=("slipdaq-batch", job.stem), pure=False)
-                futures[fut] = job
-                running.add(fut)
-
-        submit()
-        ended = iter(running)
+        ended = iter(Feed(client, todo, lambda: _threads(client)))
         while True:
             with clock.timing("waiting_s"):
-                fut = next(ended, None)
-            if fut is None:
+                got = next(ended, None)
+            if got is None:
                 break
             with clock.timing("collecting_s"):
-                job = futures.pop(fut)
-                try:
-                    r = fut.result()
-                except Exception as e:  # its worker died twice (KilledWorker), the task was lost, ...
-                    r = LogResult(job.path, job.name, job.key, error=_task_lost(e))
-                fut.release()
-                submit()
+                job, value = got
+                r = value if isinstance(value, LogResult) else LogResult(job.path, job.name, job.key,
+                                                                          error=_task_lost(value))
                 if r.error is None:
                     if not r.written:  # a cluster of --scheduler: DIR is this machine's
                         assert isinstance(out, Path)  # a task writes at a URL itself
                         save(out, r, inputs)
                     ok(r)
                 else:
+                    if job.page_dir is not None:  # what a task that failed may have left of its page data
+                        shutil.rmtree(Path(job.page_dir) / job.name, ignore_errors=True)
                     failed.append(r)
                     bad(r)
-        last = after.submit(then)
+        last = then(_tire_fitter(client, clock))
         t = time.perf_counter()
     clock.cluster_stop_s += time.perf_counter() - t
-    try:
-        return failed, last.result()
-    finally:
-        after.shutdown()
+    return failed, last
+
+
+def _threads(client: Any) -> int:
+    """The cluster's threads now: the local cluster's own count (kept by the scheduler's messages as workers come and
+    go), the scheduler's of --scheduler asked of it."""
+    if client.cluster is not None:
+        return max(1, sum(w["nthreads"] for w in list(client.cluster.scheduler_info["workers"].values())))
+    return max(1, sum(client.nthreads().values()))
+
+
+def _tire_fitter(client: Any, clock: ClientTime) -> TireFitter:
+    """report.tires.TireFitter on the cluster: a task per tire file, the most points first; their waits and times go
+    to the clock as the log tasks' do."""
+    from slipdaq.report.tires import TireJob, TireResult
+
+    def fit(jobs: Sequence[TireJob]) -> Callable[[], list[TireResult]]:
+        futures = {i: client.submit(fit_tire, jobs[i], key=("slipdaq-tire", i), pure=False)
+                   for i in sorted(range(len(jobs)), key=lambda i: -jobs[i].points)}
+
+        def wait() -> list[TireResult]:
+            with clock.timing("waiting_s"):
+                done = [futures[i].result() for i in range(len(jobs))]
+            clock.tasks_s += sum(seconds for _, seconds in done)
+            return [r for r, _ in done]
+        return wait
+    return fit
 
 
 def _task_lost(e: BaseException) -> str:

@@ -1,9 +1,11 @@
 """The Dask cluster of `slipdaq batch`: a local one, or the scheduler at an address; its workers warm before the
 first task; a task whose worker dies is retried once.
 
-Warm: each worker, a remote one too, imports the task's modules and loads the compiled kernels (slipdaq.fleet.warm)
-when it joins (WarmUp), before it takes a task. (Workers forked from a warm server would start faster, but would
-take that server's environment, not the caller's: the credentials and endpoint of the logs' object store.)
+Warm: the local cluster's workers are forked from this process once it has imported the task's modules and loaded
+the compiled kernels (slipdaq.fleet.warm): the imports are made once, not once per worker, and a worker is up in
+milliseconds. A forked worker has this process's environment, as a spawned one would: the same user's credentials
+and endpoint of the logs' object store. A worker of --scheduler imports them when it joins (WarmUp), before it takes
+a task.
 
 A worker that dies (killed, out of memory, a crash in a library) loses its task; the scheduler gives the task to
 another worker, and reports it failed (distributed's KilledWorker) once it has lost `ALLOWED_FAILURES` + 1 workers.
@@ -16,6 +18,7 @@ cluster is started with this setting; a scheduler of --scheduler keeps its own (
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 from collections.abc import Iterator
@@ -72,11 +75,26 @@ def _client(client_cls: Any, cluster_cls: Any, scheduler: str | None, workers: i
         with client:
             yield client
         return
+    _warm_here()
     n = workers or os.cpu_count() or 1
-    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+                          "distributed.worker.multiprocessing-method": "fork"}):
         with cluster_cls(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                          silence_logs=logging.ERROR) as cluster, client_cls(cluster) as client:
             yield client
+
+
+def _warm_here() -> None:
+    """slipdaq.fleet.warm imported in this process before it forks the workers, with the garbage collector paused
+    (as slipdaq.__main__ does: these objects live as long as the process, a collection that walks them frees
+    nothing) and then frozen (gc.freeze): a worker's collections do not touch, and so copy, the pages it shares."""
+    gc.disable()
+    try:
+        import slipdaq.fleet.warm  # noqa: F401
+
+        gc.freeze()
+    finally:
+        gc.enable()
 
 
 class WarmUp(WorkerPlugin):

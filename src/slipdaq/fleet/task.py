@@ -34,8 +34,9 @@ from pathlib import Path
 import slipdaq
 from slipdaq.fleet.storage import UrlStore, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output
-from slipdaq.report.page_data import PagePlots
+from slipdaq.report.page_data import LOG_SCRIPT, PagePlots
 from slipdaq.report.summary import LogSummary
+from slipdaq.report.tires import TireJob, TireResult
 
 CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
@@ -60,6 +61,9 @@ class Job:
     """With a local `out`: the inputs its files must not be (inputs_inside)."""
     size_bytes: int = 0
     """The log's size: the longest logs go first."""
+    page_dir: str | None = None
+    """On the local cluster: the directory where the report is being built; the task writes its page data there
+    (place_page) and returns only its plots' names."""
 
     @property
     def stem(self) -> str:
@@ -87,7 +91,10 @@ class LogResult:
     """How many plots the page has (and PNGs were drawn): for the progress line."""
     png_files: int = 0
     written: bool = False
-    """The task wrote its Parquet and cache files itself: `parquet`, `page` and `pngs` are empty."""
+    """The task wrote its Parquet and cache files itself: `parquet`, `page` and `pngs` are empty (but with `placed`)."""
+    placed: bool = False
+    """The task wrote its page data where the report is built (Job.page_dir): `page` has no script, `pngs` no
+    bytes."""
 
 
 def log_identity(path: str | Path, name: str) -> tuple[str, int]:
@@ -149,10 +156,42 @@ def process_log(job: Job) -> LogResult:
                 save_to(UrlStore(job.out), r)
             else:
                 save(Path(job.out), r, job.inputs)
-            r = dataclasses.replace(r, parquet=b"", page=None, pngs={}, written=True)
+            placed = job.page_dir is not None
+            if job.page_dir is not None:
+                place_page(Path(job.page_dir) / job.name, r, job.png, sync=True)
+            r = dataclasses.replace(r, parquet=b"", page=dataclasses.replace(page, script=b"") if placed else None,
+                                    pngs={k: {s: (f, b"") for s, (f, _) in v.items()} for k, v in pngs.items()}
+                                    if placed else {}, written=True, placed=placed)
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=error_text(e))
     return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def place_page(out_dir: Path, r: LogResult, png: bool, sync: bool = False) -> dict[str, dict[str, Path]]:
+    """A log's page data in the report being built (out_dir: its directory there): plots.js, with png its PNGs; with
+    sync each file synced to disk (by a task: the report's move into place then finds nothing left to sync). Returns
+    the PNGs' paths by maneuver key and stem."""
+    assert r.page is not None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    made: dict[str, dict[str, Path]] = {}
+    files = [(out_dir / LOG_SCRIPT, r.page.script)]
+    for key, by_stem in (r.pngs if png else {}).items():
+        made[key] = {stem: out_dir / file for stem, (file, _) in by_stem.items()}
+        files += [(out_dir / file, data) for file, data in by_stem.values()]
+    for path, data in files:
+        with open(path, "wb") as fh:
+            fh.write(data)
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
+    return made
+
+
+def fit_tire(job: TireJob) -> tuple[TireResult, float]:
+    """The task of one report tire file (report.tires.TireJob): its result and how long it took (seconds)."""
+    t0 = time.perf_counter()
+    result = job.fit()
+    return result, time.perf_counter() - t0
 
 
 # ---- DIR: the dataset, the cache, the report --------------------------------------------------------------------

@@ -27,7 +27,7 @@ from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
-from slipdaq.report.tires import TIRES_DIR, tire_results, write_tires
+from slipdaq.report.tires import TIRES_DIR, TireFitter, fit_here, start_tires, write_tires
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
@@ -180,8 +180,8 @@ class ReportBuild:
     (finish). `slipdaq batch` adds each log as its task ends."""
 
     def __init__(self, build: Path, out: Path, *, plot: PlotMaker | None = None, png: bool = False,
-                 say: Callable[[str], None] = lambda msg: None) -> None:
-        self.build, self.out, self.png, self.say = build, out, png, say
+                 say: Callable[[str], None] = lambda msg: None, fit_tires: TireFitter = fit_here) -> None:
+        self.build, self.out, self.png, self.say, self.fit_tires = build, out, png, say, fit_tires
         self.plot: PlotMaker = plot or (lambda log, d: place_log(log, d, log_page(log), png, say))
         self.links: dict[str, LogLinks] = {}
         self.pngs: list[Path] = []
@@ -193,10 +193,12 @@ class ReportBuild:
         self.pngs += (self.out / p for v in rel.values() for p in v.values())
 
     def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
-        """The comparison (two or more logs), the tables and index.html over `logs` (each one added before)."""
+        """The comparison (two or more logs), the tables and index.html over `logs` (each one added before); the tire
+        files fitted meanwhile (fit_tires)."""
         from slipdaq.report import page, page_data, sets, write
 
         build, logs, links = self.build, list(logs), self.links
+        tires = start_tires(logs, self.fit_tires)
         comparisons = compare(logs) if len(logs) > 1 else []
         compare_pngs: dict[str, str] = {}
         if comparisons:
@@ -210,10 +212,6 @@ class ReportBuild:
                 self.pngs.append(self.out / compare_pngs[c.phase])
             self.say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
         page_data.write_assets(build)
-        tire_groups = tire_results(logs)
-        tire_links = {g: {w: f"{TIRES_DIR}/{rel}" for w, rel in files.items()}
-                      for g, files in write_tires(build / TIRES_DIR, tire_groups).items()}
-        self.say(f"tire files: {sum(len(v) for v in tire_links.values())} in {TIRES_DIR}/")
         rows = table_rows(logs)
         groups = sets.group_sets(logs)
         group_records = {g.group: g.sets.records() for g in groups}
@@ -224,6 +222,10 @@ class ReportBuild:
                          {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
                          overviews={n.name: links[n.name].page.overview for n in logs},
                          group_sets=group_records, differences=diffs)
+        tire_groups = tires()
+        tire_links = {g: {w: f"{TIRES_DIR}/{rel}" for w, rel in files.items()}
+                      for g, files in write_tires(build / TIRES_DIR, tire_groups).items()}
+        self.say(f"tire files: {sum(len(v) for v in tire_links.values())} in {TIRES_DIR}/")
         page.write_html(logs, comparisons, {n.name: links[n.name] for n in logs}, compare_pngs, index,
                         tires=(tire_groups, tire_links), group_sets=group_records, differences=diffs)
         cs, js, index = (self.out / name for name in TABLES)

@@ -1,15 +1,18 @@
 """The tire files of a report or an export: one MF 6.1 `.tir` per tire and label group (tire_model/files.py), from
-every accelerate and brake maneuver of the group's logs, with the vehicle and tire of its first log's config."""
+every accelerate and brake maneuver of the group's logs, with the vehicle and tire of its first log's config. Each
+file is one TireJob, fitted here or, by `slipdaq batch`, on its cluster (tire_results' `fit`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from slipdaq import WHEELS
-from slipdaq.config import Config
+from slipdaq.config import Config, TireConfig, VehicleConfig
+from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.report.summary import LogSummary
 from slipdaq.tire_model.files import TireResult, build_tire
 from slipdaq.tire_model.tir_file import write_tir
@@ -30,8 +33,46 @@ def group_folder(group: str) -> str:
     return re.sub(r"[^A-Za-z0-9._=-]+", "_", group).strip("._") or "group"
 
 
-def tire_results(logs: Sequence[LogSummary]) -> list[GroupTires]:
-    """Per label group (in the logs' order): each wheel's tire file, or why it has none."""
+@dataclass(frozen=True)
+class TireJob:
+    """One tire file to fit: a wheel of a label group, from the group's maneuvers cut to what its fit reads (that
+    wheel's points and loads; no rows): small to send to a worker."""
+
+    wheel: str
+    group: str
+    maneuvers: tuple[tuple[str, ManeuverSummary], ...]
+    """(log name, maneuver) pairs."""
+    vehicle: VehicleConfig
+    tire: TireConfig
+    sample_period_s: float
+
+    @property
+    def points(self) -> int:
+        """How many slip points it fits (the longest jobs go first)."""
+        return sum(len(m.mu_points[self.wheel][0]) for _, m in self.maneuvers if self.wheel in m.mu_points)
+
+    def fit(self) -> TireResult:
+        return build_tire(self.wheel, self.maneuvers, self.vehicle, self.tire, group=self.group,
+                          sample_period_s=self.sample_period_s)
+
+
+TireFitter = Callable[[Sequence[TireJob]], Callable[[], Sequence[TireResult]]]
+"""Starts fitting the jobs and returns what waits for their results (in the jobs' order)."""
+
+
+def fit_here(jobs: Sequence[TireJob]) -> Callable[[], Sequence[TireResult]]:
+    """TireFitter in this process (when its results are asked for)."""
+    return lambda: [j.fit() for j in jobs]
+
+
+def _cut(m: ManeuverSummary, wheel: str) -> ManeuverSummary:
+    keep = {k: v for k, v in m.mu_points.items() if k == wheel}
+    return dataclasses.replace(m, rows=(), mu_points=keep, mu_loads={k: v for k, v in m.mu_loads.items() if k == wheel},
+                               speed_at=(m.speed_at[0][:0], m.speed_at[1][:0]))
+
+
+def tire_jobs(logs: Sequence[LogSummary]) -> list[tuple[str, str, list[TireJob]]]:
+    """Per label group (in the logs' order): the group, its folder and a job per wheel."""
     out = []
     taken: set[str] = set()
     for group in dict.fromkeys(log.group for log in logs):
@@ -43,9 +84,25 @@ def tire_results(logs: Sequence[LogSummary]) -> list[GroupTires]:
         while folder in taken:
             folder, n = f"{group_folder(group)}-{n}", n + 1
         taken.add(folder)
-        out.append(GroupTires(group, folder, [build_tire(w, pairs, cfg.vehicle, cfg.tire, group=group,
-                                                         sample_period_s=period) for w in WHEELS]))
+        out.append((group, folder, [TireJob(w, group, tuple((name, _cut(m, w)) for name, m in pairs), cfg.vehicle,
+                                            cfg.tire, period) for w in WHEELS]))
     return out
+
+
+def tire_results(logs: Sequence[LogSummary]) -> list[GroupTires]:
+    """Per label group (in the logs' order): each wheel's tire file, or why it has none."""
+    return start_tires(logs, fit_here)()
+
+
+def start_tires(logs: Sequence[LogSummary], fit: TireFitter) -> Callable[[], list[GroupTires]]:
+    """tire_results with its fits started by `fit`: what waits for them."""
+    groups = tire_jobs(logs)
+    wait = fit([j for _, _, jobs in groups for j in jobs])
+
+    def results() -> list[GroupTires]:
+        done = iter(wait())
+        return [GroupTires(group, folder, [next(done) for _ in jobs]) for group, folder, jobs in groups]
+    return results
 
 
 def write_tires(out_dir: Path, groups: Sequence[GroupTires], *, flat: bool = False) -> dict[str, dict[str, str]]:
