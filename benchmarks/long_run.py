@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from benchmarks.base_revision import ROOT, unpack
+from slipdaq.allocator import fix_malloc_thresholds
 from benchmarks.doc_block import machine
 
 MAKE_LOGS = """
@@ -218,6 +219,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None,
                     help="the import target's directory: its logs are kept there and reused (default: a temporary one)")
     a = ap.parse_args()
+    fix_malloc_thresholds()  # as the slipdaq command's process does (slipdaq/allocator.py)
     if a.import_target:
         return import_target(a)
     with tempfile.TemporaryDirectory(dir=a.tmp_dir) as tmp:
