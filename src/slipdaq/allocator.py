@@ -6,9 +6,10 @@ to 32 MB), and its trim threshold to twice that: after a maneuver's summary has 
 (maneuver/mu_joint.py), later blocks up to that size come from the heap (the main one, or the summary thread's
 arena), whose free memory goes back to the system only when twice that lies free at its top. The resident set then
 keeps several MB of freed arrays, or not, depending on the order of allocations, and its largest value over a run
-grows with the run's length. Both thresholds are held fixed instead: MMAP_THRESHOLD_BYTES (the summary's grids are
-mapped on their own; the log's 1 MB chunk and commit buffers, below it, stay in the heap, which maps and faults
-nothing per chunk) and TRIM_THRESHOLD_BYTES (twice it, glibc's own ratio).
+grows with the run's length. Both thresholds are held fixed instead: MMAP_THRESHOLD_BYTES (the summary's arrays of
+1 MB and more are mapped on their own; at glibc's 128 kB start value every chunk and commit buffer of the log would
+be mapped and faulted anew: 20 times the system time of an import) and TRIM_THRESHOLD_BYTES (twice it, glibc's own
+ratio).
 
 `fix_malloc_thresholds()` is called once by the process's entry (`python -m slipdaq`, the `slipdaq` command); other
 C libraries (musl, macOS) have no such call and are left as they are.
@@ -23,7 +24,7 @@ import platform
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 """mallopt's parameter numbers (malloc.h)."""
-MMAP_THRESHOLD_BYTES = 4 << 20
+MMAP_THRESHOLD_BYTES = 1 << 20
 TRIM_THRESHOLD_BYTES = 2 * MMAP_THRESHOLD_BYTES
 
 
