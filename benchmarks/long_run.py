@@ -16,6 +16,8 @@ Import target (--import-target): the same drive written as a candump -L and an N
 the long one may take at most 16.8 x the time (16 x the data) and 5 MB more memory.
 
     python -m benchmarks.long_run --import-target [--wpt-rate-hz 1000] [--base REV] [--rounds 1] [--work DIR]
+
+The imported logs stay in --work DIR as out-0-short.mcap, out-0-long.mcap (this tree), out-1-... (--base).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pathlib import Path
 
 from benchmarks.base_revision import ROOT, unpack
 from benchmarks.doc_block import machine
+from slipdaq.allocator import fix_malloc_thresholds
 
 MAKE_LOGS = """
 import sys
@@ -175,7 +178,7 @@ def import_target(a: argparse.Namespace) -> int:
                 for key in lengths if r else ["short"]:
                     cmd = [sys.executable, "-m", "slipdaq", "import", "--can", str(tmp / f"{key}.log"), "--nmea",
                            str(tmp / f"{key}.nmea"), "--config", str(tmp / "slipdaq.toml"), "-o",
-                           str(tmp / f"out-{key}.mcap"), "--no-calibration"]
+                           str(tmp / f"out-{list(trees).index(name)}-{key}.mcap"), "--no-calibration"]
                     got = run_measured(cmd, tree_env)
                     print(f"round {r}: {name}, {lengths[key]:g} min: {got[0]:.2f} s, {got[1]:.1f} MB", flush=True)
                     if r:
@@ -218,6 +221,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None,
                     help="the import target's directory: its logs are kept there and reused (default: a temporary one)")
     a = ap.parse_args()
+    fix_malloc_thresholds()  # as the slipdaq command's process does (slipdaq/allocator.py)
     if a.import_target:
         return import_target(a)
     with tempfile.TemporaryDirectory(dir=a.tmp_dir) as tmp:

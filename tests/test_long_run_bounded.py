@@ -5,15 +5,21 @@ repeating drive as after a short one, but for containers bounded by construction
 from __future__ import annotations
 
 import io
+import math
+import platform
+import subprocess
+import sys
 from collections import deque
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
+import slipdaq
 from slipdaq.config import load_config
-from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.detector import ANCHOR_KEYS, ANCHOR_WINDOWS, AnchorRing, ManeuverDetector, _anchor
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.offline.run import batched, read_ahead
 from slipdaq.pipeline import Pipeline
@@ -99,6 +105,97 @@ def test_the_detector_keeps_the_same_after_20000_rows_as_after_5000() -> None:
             sizes.append(container_sizes(det))
     assert decided > 350  # accelerate, cruise, brake of each cycle: every one decided as it ends
     assert grown(*sizes) == {}
+
+
+def retained_bytes(root: object) -> int:
+    """sys.getsizeof of everything reachable from root through attributes and container items (a numpy array's
+    data counted where it owns it)."""
+    total = 0
+    seen: set[int] = set()
+    stack: list[Any] = [root]
+    while stack:
+        o = stack.pop()
+        if id(o) in seen or isinstance(o, type) or callable(o) and not hasattr(o, "__dict__"):
+            continue
+        seen.add(id(o))
+        total += sys.getsizeof(o)
+        if isinstance(o, dict):
+            stack.extend(o.keys())
+            stack.extend(o.values())
+        elif isinstance(o, list | tuple | set | frozenset | deque):
+            stack.extend(o)
+        elif not isinstance(o, _ATOMS + (np.ndarray, bytearray)):
+            attrs = getattr(o, "__dict__", None) or {k: getattr(o, k, None)
+                                                     for c in type(o).__mro__ for k in getattr(c, "__slots__", ())}
+            stack.extend(attrs.values())
+    return total
+
+
+def test_the_detector_holds_as_many_bytes_while_its_anchors_fill_as_once_they_are_full() -> None:
+    """The cruise anchors are arrays allocated once (AnchorRing): they hold the same bytes after 2 000 rows (about 490
+    anchors) as after 20 000 (the latest 1000), and the whole detector the same within its open event's rows and
+    high-rate rows (a deque of the rows' dicts grew by about 200 kB)."""
+    rows = _drive_rows(20_000)
+    det = ManeuverDetector(None)
+    held = {}
+    for i, (row, (t, fast)) in enumerate(rows, 1):
+        det.add_estimate(row)
+        det.add_fast([(t, fast)])
+        if i in (2_000, 20_000):
+            held[i] = (len(det._anchors), retained_bytes(det._anchors), retained_bytes(det))
+    assert held[2_000][0] < ANCHOR_WINDOWS // 2 and held[20_000][0] == ANCHOR_WINDOWS
+    assert held[20_000][1] == held[2_000][1]
+    assert held[20_000][2] - held[2_000][2] < 100_000, held
+
+
+def test_the_anchor_ring_gives_back_the_latest_rows_values() -> None:
+    """AnchorRing.rows() is what the latest ANCHOR_WINDOWS rows' ANCHOR_KEYS were, value for value and bit for bit
+    (None stays None, NaN stays NaN), oldest first, before and after it wraps."""
+    ring, reference = AnchorRing(), deque(maxlen=ANCHOR_WINDOWS)
+    rng = np.random.default_rng(3)
+    for i in range(2 * ANCHOR_WINDOWS + 37):
+        row = {k: float(rng.normal()) * 10 ** int(rng.integers(-12, 6)) for k in ANCHOR_KEYS} | {"time_s": 0.1 * i}
+        row[ANCHOR_KEYS[i % len(ANCHOR_KEYS)]] = None
+        row[ANCHOR_KEYS[(i * 7) % len(ANCHOR_KEYS)]] = math.nan if i % 5 == 0 else -0.0 if i % 5 == 1 else row.get(
+            ANCHOR_KEYS[(i * 7) % len(ANCHOR_KEYS)])
+        ring.add(row)
+        reference.append(_anchor(row))
+        if i in (10, ANCHOR_WINDOWS - 1, ANCHOR_WINDOWS, 2 * ANCHOR_WINDOWS + 36):
+            got = ring.rows()
+            assert len(got) == len(reference)
+            assert [{k: None if v is None else np.float64(v).tobytes() for k, v in r.items()} for r in got] == \
+                [{k: None if v is None else np.float64(v).tobytes() for k, v in r.items()} for r in reference]
+
+
+PROBE = """
+import sys
+import numpy as np
+from slipdaq.allocator import fix_malloc_thresholds
+if sys.argv[1] == "fixed":
+    assert fix_malloc_thresholds()
+def rss():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * 4096
+grids = np.ones(3 << 20)  # a summary's 24 MB of model grids, freed
+del grids
+before = rss()
+grid = np.ones(1 << 20)  # the next summary's 8 MB, freed
+del grid
+print(rss() - before)
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's malloc")
+def test_a_freed_array_goes_back_to_the_system_with_the_threshold_fixed() -> None:
+    """A process of the slipdaq command (allocator.fix_malloc_thresholds) gives an 8 MB array's memory back when it
+    is freed, after a 24 MB one was freed before; with glibc's dynamic threshold the resident set keeps it."""
+    def kept(mode: str) -> int:
+        return int(subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True,
+                                  env={"PYTHONPATH": str(Path(slipdaq.__file__).parents[1]),
+                                       "OPENBLAS_NUM_THREADS": "1"}).stdout)
+
+    assert kept("fixed") < 1 << 20
+    assert kept("dynamic") >= 6 << 20  # what the fixed threshold prevents
 
 
 def test_the_pipeline_keeps_the_same_after_a_long_drive_as_after_a_short_one(tmp_path: Path) -> None:

@@ -10,7 +10,10 @@ asammdf itself stays importable (`export --mf4` imports it).
 numpy's OpenBLAS runs on one thread unless OPENBLAS_NUM_THREADS says otherwise: slipdaq's matrix products are
 small, or memory-bound (the maneuver fits' bootstrap: 40 products of a 1920 x n grid by a vector), where a second
 thread only contends with the process's own (the log's compression): a 300 s replay took 0.84x the wall time and
-0.84x the CPU with it, the same bytes."""
+0.84x the CPU with it, the same bytes.
+
+glibc's mmap threshold is held at its start value (slipdaq/allocator.py): a transient array's memory goes back to the
+system when it is freed."""
 
 import gc
 import os
@@ -50,6 +53,9 @@ def import_python_can(with_mf4: bool) -> None:
 
 def main() -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
+    from slipdaq.allocator import fix_malloc_thresholds
+
+    fix_malloc_thresholds()  # before the first large block (slipdaq/allocator.py)
     gc.disable()
     try:
         import_python_can(with_mf4=reads_mf4(sys.argv[1:]))

@@ -18,6 +18,8 @@ from collections.abc import Callable, Iterable, Mapping
 from functools import partial
 from typing import Any
 
+import numpy as np
+
 from slipdaq import WHEELS
 from slipdaq.config import Config, TestConfig, TireConfig, VehicleConfig
 from slipdaq.maneuver.events import MIN_MANEUVER_ROWS, MIN_RUN_ROWS, close_events
@@ -43,6 +45,33 @@ Job = Callable[[], ManeuverSummary]
 
 def _anchor(row: dict[str, Any]) -> dict[str, Any]:
     return {k: row.get(k) for k in ANCHOR_KEYS}
+
+
+class AnchorRing:
+    """The latest ANCHOR_WINDOWS cruise rows' ANCHOR_KEYS, in arrays allocated once (float64, and whether the row had
+    the value: None is not NaN): what a run keeps of them is the same size from its first row on. rows() gives them
+    back as the rows' values (a float64 holds a row's float exactly), oldest first."""
+
+    def __init__(self, size: int = ANCHOR_WINDOWS) -> None:
+        self.values = np.zeros((size, len(ANCHOR_KEYS)))
+        self.present = np.zeros((size, len(ANCHOR_KEYS)), dtype=bool)
+        self.added = 0
+
+    def __len__(self) -> int:
+        return min(self.added, len(self.values))
+
+    def add(self, row: dict[str, Any]) -> None:
+        i = self.added % len(self.values)
+        got = [row.get(k) for k in ANCHOR_KEYS]
+        self.present[i] = [v is not None for v in got]
+        self.values[i] = [0.0 if v is None else v for v in got]
+        self.added += 1
+
+    def rows(self) -> list[dict[str, Any]]:
+        n = len(self)
+        order = np.arange(self.added - n, self.added) % len(self.values)
+        return [{k: v if p else None for k, v, p in zip(ANCHOR_KEYS, vs, ps)}
+                for vs, ps in zip(self.values[order].tolist(), self.present[order].tolist())]
 
 
 def _has_slip(rows: list[dict[str, Any]]) -> bool:
@@ -76,7 +105,7 @@ class ManeuverDetector:
         self._times: list[float] = []
         self._await_seal = False
         """An open accelerate or brake event long enough for a maneuver: a cruise after it closes it in time."""
-        self._anchors: deque[dict[str, Any]] = deque(maxlen=ANCHOR_WINDOWS)
+        self._anchors = AnchorRing()
         self._queue: deque[tuple[str, list[dict[str, Any]], list[dict[str, Any]], float, float]] = deque()
         """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
         self._fast: deque[tuple[float, Any]] = deque()
@@ -137,11 +166,12 @@ class ManeuverDetector:
         for k, (p, idx) in enumerate(found[:closed]):
             ev = [rows[i] for i in idx]
             if p == "cruise":
-                self._anchors.extend(_anchor(r) for r in ev)
+                for r in ev:
+                    self._anchors.add(r)
             if p in self.phases and len(ev) >= MIN_MANEUVER_ROWS and _has_slip(ev):
                 t_from, t_to = span_s(str(p), ev)
                 after = [_anchor(rows[i]) for q, later in found[k + 1:] if q == "cruise" for i in later]
-                anchors = [*self._anchors, *after] if p != "cruise" else []
+                anchors = [*self._anchors.rows(), *after] if p != "cruise" else []
                 self._queue.append((str(p), ev, anchors, t_from, t_to))
         last = found[closed - 1][1][-1] + 1
         del self._rows[:last], self._phase[:last], self._times[:last]

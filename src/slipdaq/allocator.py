@@ -1,0 +1,41 @@
+"""The C allocator of a slipdaq process: blocks of MMAP_THRESHOLD_BYTES and more mapped on their own, whatever came
+before, so that the memory of a large transient array goes back to the system when the array is freed.
+
+glibc's malloc starts with a 128 kB mmap threshold and raises it to the size of each mapped block that is freed (up
+to 32 MB), and its trim threshold to twice that: after a maneuver's summary has freed its 8–16 MB model grids
+(maneuver/mu_joint.py), later blocks up to that size come from the heap (the main one, or the summary thread's
+arena), whose free memory goes back to the system only when twice that lies free at its top. The resident set then
+keeps several MB of freed arrays, or not, depending on the order of allocations, and its largest value over a run
+grows with the run's length. Both thresholds are held fixed instead: MMAP_THRESHOLD_BYTES (the summary's arrays of
+1 MB and more are mapped on their own; at glibc's 128 kB start value every chunk and commit buffer of the log would
+be mapped and faulted anew: 20 times the system time of an import) and TRIM_THRESHOLD_BYTES (twice it, glibc's own
+ratio).
+
+`fix_malloc_thresholds()` is called once by the process's entry (`python -m slipdaq`, the `slipdaq` command); other
+C libraries (musl, macOS) have no such call and are left as they are.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import platform
+
+M_TRIM_THRESHOLD = -1
+M_MMAP_THRESHOLD = -3
+"""mallopt's parameter numbers (malloc.h)."""
+MMAP_THRESHOLD_BYTES = 1 << 20
+TRIM_THRESHOLD_BYTES = 2 * MMAP_THRESHOLD_BYTES
+
+
+def fix_malloc_thresholds() -> bool:
+    """glibc's mmap and trim thresholds held at MMAP_THRESHOLD_BYTES and TRIM_THRESHOLD_BYTES; False where the C
+    library is not glibc (nothing done)."""
+    if platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and \
+            bool(libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+    except (OSError, AttributeError):
+        return False
