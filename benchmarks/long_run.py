@@ -221,7 +221,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None,
                     help="the import target's directory: its logs are kept there and reused (default: a temporary one)")
     a = ap.parse_args()
-    fix_malloc_thresholds()  # as the slipdaq command's process does (slipdaq/allocator.py)
+    fix_malloc_thresholds()  # as the process of slipdaq run or import does (slipdaq/allocator.py)
     if a.import_target:
         return import_target(a)
     with tempfile.TemporaryDirectory(dir=a.tmp_dir) as tmp:

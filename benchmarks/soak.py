@@ -288,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-dir", help="where the log goes (default: a temporary directory, deleted)")
     p.add_argument("--json", help="write the summary and the samples here")
     a = p.parse_args(argv)
-    fix_malloc_thresholds()  # as the slipdaq command's process does (slipdaq/allocator.py)
+    fix_malloc_thresholds()  # as the process of slipdaq run or import does (slipdaq/allocator.py)
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(a.log_dir) if a.log_dir else Path(tmp)
         r = run_soak(a.duration, log_dir, wpt_rate_hz=a.wpt_rate_hz, gps_rate_hz=a.gps_rate_hz,

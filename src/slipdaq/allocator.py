@@ -11,7 +11,8 @@ grows with the run's length. Both thresholds are held fixed instead: MMAP_THRESH
 be mapped and faulted anew: 20 times the system time of an import) and TRIM_THRESHOLD_BYTES (twice it, glibc's own
 ratio).
 
-`fix_malloc_thresholds()` is called once by the process's entry (`python -m slipdaq`, the `slipdaq` command); other
+`fix_malloc_thresholds()` is called once by the process's entry for the verbs that log for hours (`run`, `demo`,
+`import`: `__main__.ALLOCATOR_FIXED_VERBS`; a replay mapping its 1 MB blocks anew would take 5 % longer); other
 C libraries (musl, macOS) have no such call and are left as they are.
 """
 
