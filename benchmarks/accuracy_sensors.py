@@ -265,7 +265,7 @@ def row_beyond() -> list[tuple[str, str, str, str]]:
             + maneuver_rows("launch-spin", "sand", imu=True, brake_switch=False, wpt_rate_hz=200.0, duration_s=20.0))
 
 
-def _true_line_cx(m_rows, anchors, ts: dict, w: str, slip_max: float) -> float | None:
+def true_line_cx(m_rows, anchors, ts: dict, w: str, slip_max: float) -> float | None:
     """The report's line (slip on force with intercept, weighted by speed^2, over the maneuver's windows of its force
     sign and the cruise windows, |s| <= slip_max) fitted to the truth's window means at the same windows."""
     s_true, f_true, speeds = [], [], []
@@ -279,7 +279,7 @@ def _true_line_cx(m_rows, anchors, ts: dict, w: str, slip_max: float) -> float |
         s_true.append(_window_mean(ts, f"slip_{w}", r["time_s"], half))
         f_true.append(_window_mean(ts, f"force_{w}", r["time_s"], half))
         speeds.append(r["speed_mps"])
-    if len(s_true) < 10:
+    if len(s_true) < 10 or not anchors:
         return None
     weights = speed_weights(speeds, float(np.median([r["speed_mps"] for r in anchors])))  # as the report weighs them
     slope, _ = np.polyfit(np.array(f_true), np.array(s_true), 1, w=np.sqrt(weights))
@@ -303,7 +303,7 @@ def row_report_line(seed: int = SEED) -> list[tuple[str, str, str, str]]:
             errs, fit_errs, lin_errs = [], [], []
             for w in ("FL", "FR"):
                 line = m.wheels[w].linearity.line
-                truth_cx = _true_line_cx(m.rows, cruise, ts, w, cfg.estimator.cx_slip_max)
+                truth_cx = true_line_cx(m.rows, cruise, ts, w, cfg.estimator.cx_slip_max)
                 fit_truth = linear_stiffness_truth(m.rows, ts, w)
                 if line is not None and truth_cx:
                     errs.append((line.cx_n / truth_cx - 1) * 100)

@@ -30,50 +30,18 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.accuracy_sensors import run, true_line_cx
 from slipdaq.config import Config, load_config
 from slipdaq.maneuver.figures import ManeuverSummary
-from slipdaq.maneuver.linearity import speed_weights
 from slipdaq.maneuver.stats import welch_difference
-from slipdaq.offline.run import Rows, first_pass, process
 from slipdaq.report.summary import summarize_log
 from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sim.truth import _window_mean, truth_series
+from slipdaq.sim.truth import truth_series
 from slipdaq.sim.vehicle import ROADS, static_loads_n
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "slipdaq.toml"
 FRONT = ("FL", "FR")
-
-
-class _Quiet:
-    def write(self, _s: str) -> int:
-        return 0
-
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
-
-
-def true_line_cx(m_rows: Sequence[dict[str, Any]], anchors: Sequence[dict[str, Any]], ts: dict[str, np.ndarray],
-                 w: str, slip_max: float) -> float | None:
-    """The report's line through the truth's window means at the maneuver's and the anchors' windows."""
-    s_true, f_true, speeds = [], [], []
-    sign = 1.0 if sum(r[f"force_{w}_n"] or 0.0 for r in m_rows) >= 0 else -1.0
-    for r, own in [(r, True) for r in m_rows] + [(r, False) for r in anchors]:
-        s, f = r.get(f"slip_{w}"), r.get(f"force_{w}_n")
-        if s is None or f is None or abs(s) > slip_max or (own and f * sign <= 0):
-            continue
-        half = 0.5 * r["window_s"]
-        s_true.append(_window_mean(ts, f"slip_{w}", r["time_s"], half))
-        f_true.append(_window_mean(ts, f"force_{w}", r["time_s"], half))
-        speeds.append(r["speed_mps"])
-    if len(s_true) < 10 or not anchors:
-        return None
-    weights = speed_weights(speeds, float(np.median([r["speed_mps"] for r in anchors])))
-    slope, _ = np.polyfit(np.array(f_true), np.array(s_true), 1, w=np.sqrt(weights))
-    return float(1.0 / slope) if slope > 0 else None
 
 
 def _anchors(found: Sequence[ManeuverSummary], m: ManeuverSummary) -> list[dict[str, Any]]:
@@ -97,9 +65,7 @@ def brakes(cfg: Config, road: str, seed: int) -> list[tuple[dict[str, float], di
         if ev.truth is not None:
             truth.append(ev.truth)
     ts = truth_series(truth, SimSettings(seed=seed).start_utc_s)
-    rows = Rows()
-    process(cfg, records, [rows], stream=_Quiet(), **first_pass(cfg, records, None, "benchmark",
-                                                                 stream=_Quiet()).second_pass())
+    rows = run(cfg, records, two_pass=True)
     summary = summarize_log(rows.rows, {"config_toml": cfg.to_toml()}, None, path="x", name="x", labels={},
                             fast=rows.fast, sensors=rows.sensors)
     by_time = sorted(summary.maneuvers, key=lambda m: m.rows[0]["time_s"])
