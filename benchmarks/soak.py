@@ -8,13 +8,21 @@ bus only works inside one). Checks what docs/reliability.md promises:
 - the daemon keeps up: the virtual bus's receive queue (the frames not yet read) stays small;
 - replay: the log replays to the same estimates, every field of every one, bit for bit.
 
+The process is set up as `slipdaq run`'s: python-can without asammdf (slipdaq.__main__.import_python_can) and the C
+allocator's thresholds held fixed (slipdaq/allocator.py).
+
     .venv/bin/python -m benchmarks.soak [--duration 600] [--wpt-rate-hz 1000] [--gps-rate-hz 20] [--log-dir D]
 
 Prints one line per sample (elapsed, RSS, CAN frames, backlog) and a JSON summary; exit status 1 when a check fails.
 tests/test_reliability_soak.py runs a short version (run_soak).
 """
 
+# ruff: noqa: E402  (python-can imported first, as the process of `slipdaq run` imports it)
 from __future__ import annotations
+
+from slipdaq.__main__ import import_python_can
+
+import_python_can(with_mf4=False)  # without asammdf, and its pandas and pyarrow, as `slipdaq run` has it
 
 import argparse
 import asyncio

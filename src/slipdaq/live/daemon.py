@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import can
 
 from slipdaq import compiled
+from slipdaq.allocator import RELEASE_EVERY_S, release_free_memory
 from slipdaq.config import Config, ConfigError
 from slipdaq.config.calibration import Calibration, Learned, to_toml
 from slipdaq.decode.xbus import XbusFramer
@@ -123,6 +124,13 @@ def can_metadata(config: Config, bus: can.BusABC) -> dict[str, str]:
         return {}
     return {"can_receive_buffer_bytes": str(got),
             "can_receive_buffer_requested_bytes": str(config.can.receive_buffer_bytes)}
+
+
+async def release_memory_every(period_s: float) -> None:
+    """The allocator's free pages back to the system every period_s, until cancelled (slipdaq/allocator.py)."""
+    while True:
+        await asyncio.sleep(period_s)
+        release_free_memory()
 
 
 def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
@@ -247,6 +255,7 @@ async def run_daemon(
             tg.create_task(show(status, status_stream or sys.stdout, status_every_s), name="status")
             tg.create_task(stopper(), name="stop")
             tg.create_task(watch_steps(clock, events), name="clock")
+            tg.create_task(release_memory_every(RELEASE_EVERY_S), name="memory")
     except* _Stop:
         pass
     finally:
