@@ -145,16 +145,17 @@ def _forward(t: np.ndarray, z: np.ndarray, var: np.ndarray, q: float) -> float:
     return float(filter_kernel()(t, z, var, q, _NO_STATES, False))
 
 
-def _backward(t: list[float], predicted: list[list[float]], filtered: list[list[float]]
-              ) -> tuple[list[float], list[float]]:
-    """RTS pass: the smoothed speed and acceleration."""
+def _backward(t: np.ndarray, states: np.ndarray, sv: np.ndarray, sa: np.ndarray) -> None:
+    """RTS pass over _filter's states (predicted states[k, :5], filtered states[k, 5:]): the smoothed speed and
+    acceleration into sv and sa."""
     n = len(t)
-    sv = [x[0] for x in filtered]
-    sa = [x[1] for x in filtered]
+    for k in range(n):
+        sv[k] = states[k, 5]
+        sa[k] = states[k, 6]
     for k in range(n - 2, -1, -1):
         dt = t[k + 1] - t[k]
-        fv, fa, f00, f01, f11 = filtered[k]
-        pv, pa, m00, m01, m11 = predicted[k + 1]
+        fv, fa, f00, f01, f11 = states[k, 5], states[k, 6], states[k, 7], states[k, 8], states[k, 9]
+        pv, pa, m00, m01, m11 = states[k + 1, 0], states[k + 1, 1], states[k + 1, 2], states[k + 1, 3], states[k + 1, 4]
         # G = P[k|k] F'
         g00 = f00 + dt * f01
         g01 = f01
@@ -168,7 +169,10 @@ def _backward(t: list[float], predicted: list[list[float]], filtered: list[list[
         da = sa[k + 1] - pa
         sv[k] = fv + (g00 * i00 + g01 * i01) * dv + (g00 * i01 + g01 * i11) * da
         sa[k] = fa + (g10 * i00 + g11 * i01) * dv + (g10 * i01 + g11 * i11) * da
-    return sv, sa
+
+
+backward_kernel = kernel(_backward, "void(float64[:], float64[:, :], float64[:], float64[:])")
+"""backward_kernel()(t, states, sv, sa): see _backward."""
 
 
 def _short(t: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,8 +195,9 @@ def rts(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float | np.ndarray
         raise ValueError("jerk_psd must be finite and > 0")
     states = np.empty((len(t), 10))
     filter_kernel()(t, z, r * r, float(jerk_psd), states, True)
-    sv, sa = _backward(t.tolist(), states[:, :5].tolist(), states[:, 5:].tolist())
-    return np.array(sv), np.array(sa)
+    sv, sa = np.empty(len(t)), np.empty(len(t))
+    backward_kernel()(t, states, sv, sa)
+    return sv, sa
 
 
 def log_likelihood(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float | np.ndarray, jerk_psd: float) -> float:
