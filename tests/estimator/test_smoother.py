@@ -20,6 +20,7 @@ from slipdaq.estimator.smoother import (
     smooth_segments,
     smooth_speed,
 )
+from support.paths import kernels
 
 SIGMA_MPS = 0.03
 
@@ -192,6 +193,18 @@ def test_noisy_drive_errors() -> None:
     assert rms(err) < 1.05 * hindsight
     central = np.gradient(z, t)
     assert rms(res.accel_mps2 - a) < rms(central - a)
+
+
+def test_compiled_and_python_filter_agree_bit_for_bit() -> None:
+    """The Kalman filter kernel (the likelihood grid's and the RTS pass's forward pass), compiled and as Python."""
+    t, z, _, _ = noisy_drive(seed=3)
+    got = []
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            res = smooth_speed(t, z)
+            got.append((res.speed_mps.tobytes(), res.accel_mps2.tobytes(), res.jerk_psd,
+                        log_likelihood(t, z, res.noise_mps, 0.37)))
+    assert got[0] == got[1]
 
 
 def test_jerk_psd_is_the_likelihood_maximum() -> None:

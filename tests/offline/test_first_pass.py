@@ -8,11 +8,21 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import numpy as np
 import pytest
 
+from slipdaq import WHEELS
 from slipdaq.config import Config, load_config
 from slipdaq.config.calibration import Learned, StoredLatency, merged
-from slipdaq.offline.run import batched, first_pass, read_ahead
+from slipdaq.offline.run import (
+    _FirstPassSink,
+    batched,
+    first_pass,
+    process,
+    read_ahead,
+    reference_wheels,
+    smoothed_gps_speeds,
+)
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import Estimate, SourceEvent
 from slipdaq.sim.emit import SimSettings, generate
@@ -71,3 +81,25 @@ def test_the_first_pass_learns_what_a_full_pass_learns(stored: str) -> None:
     assert dataclasses.asdict(lean.diagnostics()) == dataclasses.asdict(full.diagnostics())
     got = first_pass(cfg, records, start, "log")
     assert got.learned == full.estimator.learned()
+
+
+def test_the_first_pass_keeps_only_the_reference_wheels_and_gets_the_same_speeds() -> None:
+    """The first pass keeps the non-driven wheels' samples only (what the reference speed uses): its per-fix speeds
+    equal those smoothed from a full pass's fixes and every wheel's samples."""
+    cfg = load_config(CONFIG)
+    records = _records(cfg)
+    every = _FirstPassSink()
+    p = Pipeline(cfg, [every])
+    for run in read_ahead(batched(records)):
+        p.process_all(run)
+    p.finish()
+    got = first_pass(cfg, records, None, "log")
+    assert len(reference_wheels(cfg)) == 2  # one axle driven
+    assert got.gps_speeds == smoothed_gps_speeds(every, got.calibration, cfg)
+    assert got.gps_speeds != [f.speed_mps for f in every.fixes] and len(got.gps_speeds) > 300
+    kept = _FirstPassSink(reference_wheels(cfg))
+    process(cfg, records, [kept], maneuvers=False, fast_slip=False)
+    for w in reference_wheels(cfg):
+        assert all(np.array_equal(a, b) for a, b in zip(kept.wheel_series(w), every.wheel_series(w)))
+    with pytest.raises(KeyError):
+        kept.wheel_series(next(w for w in WHEELS if w not in reference_wheels(cfg)))

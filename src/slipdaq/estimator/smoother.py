@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slipdaq.estimator.speed_model import State, predict, update_speed
+from slipdaq.compiled import kernel
+from slipdaq.estimator.speed_model import predict, update_speed
 
 MIN_NOISE_MPS = 0.005
 """Floor of the measurement sigma (estimated or stated): keeps the filter off a zero measurement variance."""
@@ -111,45 +112,50 @@ def estimate_noise_mps(time_s: np.ndarray, speed_mps: np.ndarray, max_gap_s: flo
     return max(MIN_NOISE_MPS, MAD_TO_SIGMA * float(np.median(scaled)))
 
 
-class _Filtered:
-    """The forward pass's predicted and filtered states, each (v, a, c00, c01, c11): speed, acceleration and the
-    covariance's three elements."""
-
-    __slots__ = ("predicted", "filtered")
-
-    def __init__(self) -> None:
-        self.predicted: list[tuple[float, float, float, float, float]] = []
-        self.filtered: list[tuple[float, float, float, float, float]] = []
-
-
-def _forward(t: list[float], z: list[float], var: list[float], q: float, out: _Filtered | None) -> float:
+def _filter(t: np.ndarray, z: np.ndarray, var: np.ndarray, q: float, states: np.ndarray, keep: bool) -> float:
     """Kalman filter over one segment (len >= 2); returns the log-likelihood of the innovations k >= 2 (the first two
-    are those of the prior's centre, ~0 with a huge variance, and carry no information about q)."""
-    x: State = (z[0], (z[1] - z[0]) / (t[1] - t[0]), PRIOR_SIGMA_SPEED_MPS * PRIOR_SIGMA_SPEED_MPS, 0.0,
-                PRIOR_SIGMA_ACCEL_MPS2 * PRIOR_SIGMA_ACCEL_MPS2)
+    are those of the prior's centre, ~0 with a huge variance, and carry no information about q). keep: each fix's
+    predicted state into states[k, :5] and its filtered state into states[k, 5:] (v, a, c00, c01, c11)."""
+    x = (z[0], (z[1] - z[0]) / (t[1] - t[0]), PRIOR_SIGMA_SPEED_MPS * PRIOR_SIGMA_SPEED_MPS, 0.0,
+         PRIOR_SIGMA_ACCEL_MPS2 * PRIOR_SIGMA_ACCEL_MPS2)
     loglik = 0.0
     for k in range(len(t)):
         if k:
             x = predict(x, t[k] - t[k - 1], q)
-        if out is not None:
-            out.predicted.append(x)
+        if keep:
+            for j in range(5):
+                states[k, j] = x[j]
         x, y, s = update_speed(x, z[k], var[k])
         if k >= 2:
             loglik -= 0.5 * (_LOG_2PI + math.log(s) + y * y / s)
-        if out is not None:
-            out.filtered.append(x)
+        if keep:
+            for j in range(5):
+                states[k, 5 + j] = x[j]
     return loglik
 
 
-def _backward(t: list[float], f: _Filtered) -> tuple[list[float], list[float]]:
-    """RTS pass: the smoothed speed and acceleration."""
+filter_kernel = kernel(_filter, "float64(float64[:], float64[:], float64[:], float64, float64[:, :], boolean)",
+                       uses=(predict, update_speed))
+"""filter_kernel()(t, z, var, q, states, keep): see _filter."""
+_NO_STATES = np.empty((0, 10))
+
+
+def _forward(t: np.ndarray, z: np.ndarray, var: np.ndarray, q: float) -> float:
+    """The innovations' log-likelihood of one segment (len >= 2) at q (_filter)."""
+    return float(filter_kernel()(t, z, var, q, _NO_STATES, False))
+
+
+def _backward(t: np.ndarray, states: np.ndarray, sv: np.ndarray, sa: np.ndarray) -> None:
+    """RTS pass over _filter's states (predicted states[k, :5], filtered states[k, 5:]): the smoothed speed and
+    acceleration into sv and sa."""
     n = len(t)
-    sv = [x[0] for x in f.filtered]
-    sa = [x[1] for x in f.filtered]
+    for k in range(n):
+        sv[k] = states[k, 5]
+        sa[k] = states[k, 6]
     for k in range(n - 2, -1, -1):
         dt = t[k + 1] - t[k]
-        fv, fa, f00, f01, f11 = f.filtered[k]
-        pv, pa, m00, m01, m11 = f.predicted[k + 1]
+        fv, fa, f00, f01, f11 = states[k, 5], states[k, 6], states[k, 7], states[k, 8], states[k, 9]
+        pv, pa, m00, m01, m11 = states[k + 1, 0], states[k + 1, 1], states[k + 1, 2], states[k + 1, 3], states[k + 1, 4]
         # G = P[k|k] F'
         g00 = f00 + dt * f01
         g01 = f01
@@ -163,7 +169,10 @@ def _backward(t: list[float], f: _Filtered) -> tuple[list[float], list[float]]:
         da = sa[k + 1] - pa
         sv[k] = fv + (g00 * i00 + g01 * i01) * dv + (g00 * i01 + g01 * i11) * da
         sa[k] = fa + (g10 * i00 + g11 * i01) * dv + (g10 * i01 + g11 * i11) * da
-    return sv, sa
+
+
+backward_kernel = kernel(_backward, "void(float64[:], float64[:, :], float64[:], float64[:])")
+"""backward_kernel()(t, states, sv, sa): see _backward."""
 
 
 def _short(t: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -184,11 +193,11 @@ def rts(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float | np.ndarray
         return _short(t, z)
     if not (math.isfinite(jerk_psd) and jerk_psd > 0.0):
         raise ValueError("jerk_psd must be finite and > 0")
-    tl = t.tolist()
-    f = _Filtered()
-    _forward(tl, z.tolist(), (r * r).tolist(), float(jerk_psd), f)
-    sv, sa = _backward(tl, f)
-    return np.array(sv), np.array(sa)
+    states = np.empty((len(t), 10))
+    filter_kernel()(t, z, r * r, float(jerk_psd), states, True)
+    sv, sa = np.empty(len(t)), np.empty(len(t))
+    backward_kernel()(t, states, sv, sa)
+    return sv, sa
 
 
 def log_likelihood(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float | np.ndarray, jerk_psd: float) -> float:
@@ -197,7 +206,7 @@ def log_likelihood(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float |
     r = _noise_array(noise_mps, len(t))
     if len(t) < 3:
         return 0.0
-    return _forward(t.tolist(), z.tolist(), (r * r).tolist(), float(jerk_psd), None)
+    return _forward(t, z, r * r, float(jerk_psd))
 
 
 def smooth_segments(time_s: np.ndarray, speed_mps: np.ndarray, noise_mps: float | np.ndarray, jerk_psd: float,
@@ -256,11 +265,12 @@ def smooth_speed(time_s: np.ndarray, speed_mps: np.ndarray, accuracy_mps: np.nda
         speed, accel = smooth_segments(t, z, noise, 1.0, max_gap_s)
         return SmoothedSpeed(speed, accel, noise, math.nan)
 
-    data = [(t[i:j].tolist(), z[i:j].tolist(), (noise[i:j] ** 2).tolist()) for i, j in segments]
+    var = noise**2
+    data = [(t[i:j], z[i:j], var[i:j]) for i, j in segments]
 
     def loglik(log10_q: float) -> float:
         q = 10.0**log10_q
-        return sum(_forward(ts, zs, vs, q, None) for ts, zs, vs in data)
+        return sum(_forward(ts, zs, vs, q) for ts, zs, vs in data)
 
     grid = np.log10(JERK_PSD_GRID_M2PS5)
     values = [loglik(float(x)) for x in grid]

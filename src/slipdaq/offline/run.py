@@ -19,7 +19,6 @@ from slipdaq.config import Config
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
-from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
     CanFrame,
@@ -193,30 +192,31 @@ def process_to_log(
 
 
 class _FirstPassSink(Sink):
-    """The GPS fixes and the wheel samples of the first pass (all it keeps: no raw record, estimate, high-rate slip
-    row or diagnostics)."""
+    """The GPS fixes and the given wheels' samples (the reference speed's: the non-driven wheels) of the first pass
+    (all it keeps: no raw record, estimate, high-rate slip row or diagnostics, no other wheel's sample)."""
 
-    def __init__(self) -> None:
+    def __init__(self, wheels: Sequence[str] = WHEELS) -> None:
         self.fixes: list[GpsFix] = []
-        self._wheel: list[np.ndarray] = []
-        self._time: list[np.ndarray] = []
-        self._revs: list[np.ndarray] = []
+        self._index = {w: WHEELS.index(w) for w in wheels}
+        self._time: dict[str, list[np.ndarray]] = {w: [] for w in wheels}
+        self._revs: dict[str, list[np.ndarray]] = {w: [] for w in wheels}
 
     def on_fix(self, fix: GpsFix) -> None:
         self.fixes.append(fix)
 
     def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
-        self._wheel.append(samples.wheel)
-        self._time.append(samples.timestamp_s)
-        self._revs.append(samples.revolutions)
+        for w, i in self._index.items():
+            mine = samples.wheel == i
+            self._time[w].append(samples.timestamp_s[mine])
+            self._revs[w].append(samples.revolutions[mine])
 
     def wheel_series(self, wheel: str) -> tuple[np.ndarray, np.ndarray]:
-        """One wheel's (sample times, revolutions), in time order."""
-        if not self._wheel:
+        """One kept wheel's (sample times, revolutions), in time order."""
+        if not self._time[wheel]:
             return np.empty(0), np.empty(0)
-        i = WHEELS.index(wheel)
-        mine = np.concatenate(self._wheel) == i
-        t, r = np.concatenate(self._time)[mine], np.concatenate(self._revs)[mine]
+        t, r = np.concatenate(self._time[wheel]), np.concatenate(self._revs[wheel])
+        if bool((t[1:] > t[:-1]).all()):  # every sample later than the one before: all count
+            return t, r
         # a sample counts when it is later than every one before it, as the estimator keeps them (readiness.py)
         keep = t > np.concatenate(([-np.inf], np.maximum.accumulate(t)[:-1]))
         return t[keep], r[keep]
@@ -242,7 +242,7 @@ def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], sta
                learned_from: str, *, total: int | None = None, stream: TextIO | None = None) -> FirstPass:
     """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix. What
     only the second pass keeps is not made: no maneuver summarized, no high-rate slip row, nothing written."""
-    seen = _FirstPassSink()
+    seen = _FirstPassSink(reference_wheels(config))
     p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2",
                 maneuvers=False, fast_slip=False)
     learned = p.estimator.learned()
@@ -250,10 +250,18 @@ def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], sta
     return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))
 
 
+def reference_wheels(config: Config) -> list[str]:
+    """The wheels whose speed shapes the reference speed: the non-driven ones."""
+    return [w for w in WHEELS if w not in driven_wheels(config.vehicle.driven_axle)]
+
+
 def smoothed_gps_speeds(seen: _FirstPassSink, calibration: Calibration, config: Config) -> list[float]:
     """Each fix's speed smoothed over the run (reference_speed_mps), where the fixes are valid, finite and in time
     order, on the estimator's time line (smooth_arrival_times with the run's median offset of arrival from UTC,
     minus the latency); the others' speeds as they are."""
+    # imported here: its kernels are loaded (compiled.prepare) by two-pass runs only
+    from slipdaq.estimator.reference_speed import reference_speed_mps, wheel_speed_mps
+
     fixes = seen.fixes
     speeds = [f.speed_mps for f in fixes]
     arrival = np.array([f.timestamp_s for f in fixes])
@@ -272,7 +280,7 @@ def smoothed_gps_speeds(seen: _FirstPassSink, calibration: Calibration, config: 
         return speeds
     t_use = times[use]
     acc = np.array([math.nan if (a := fixes[i].speed_accuracy_mps) is None else a for i in use])
-    reference = [w for w in WHEELS if w not in driven_wheels(config.vehicle.driven_axle)]
+    reference = reference_wheels(config)
     wheel = None
     if reference:
         radius = [calibration.r0[w].radius_m if w in calibration.r0 else config.tire.radius_m
