@@ -29,7 +29,7 @@ from slipdaq.logformat.rotation import RotationPolicy, later_segments_glob
 from slipdaq.maneuver.record import Maneuver
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import RawRecord, SourceEvent, channel_name
-from slipdaq.sinks import EventFanout
+from slipdaq.sinks import EventFanout, Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 from slipdaq.sinks.status import SourceStatus, StatusSink, imu_name, print_maneuvers, show
 from slipdaq.sources.can_bus import CanBusSource, receive_buffer_bytes, set_receive_buffer
@@ -133,6 +133,14 @@ async def release_memory_every(period_s: float) -> None:
         release_free_memory()
 
 
+class _ReleaseAfterSummary(Sink):
+    """A maneuver's summary frees megabytes of arrays on its thread as it ends: those pages go back to the system as
+    the maneuver arrives (on the loop's thread), not at the next period."""
+
+    def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
+        release_free_memory()
+
+
 def new_log_path(log_dir: Path, prefix: str = "slipdaq") -> Path:
     """PREFIX-STAMP.mcap in log_dir, a name that neither a file nor a segment of one (NAME_002.mcap, ...) has."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
@@ -224,7 +232,8 @@ async def run_daemon(
     sink.extra += [can_source.status] + ([gps_source.status] if gps_source is not None else []) + \
         ([live.status] if live is not None else [])
     summaries = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slipdaq-maneuvers", initializer=_lower_priority)
-    pipeline = Pipeline(config, [sink, status], calibration=calibration, maneuver_executor=summaries)
+    pipeline = Pipeline(config, [sink, status, _ReleaseAfterSummary()], calibration=calibration,
+                        maneuver_executor=summaries)
     installed: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):

@@ -36,6 +36,8 @@ def _trailer() -> bytes:
 
 
 TRAILER = _trailer()
+FIRST_BUFFER_BYTES = 64 * 1024
+"""The commit buffer's first size; it doubles (at least) when a write does not fit."""
 """DataEnd + Footer (no summary) + magic: what makes the committed part a complete MCAP file."""
 
 
@@ -69,7 +71,10 @@ class CommitFile:
         self.path = Path(path)
         keep = os.O_EXCL if new_file else os.O_TRUNC
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | keep | os.O_CLOEXEC, 0o644)
-        self._pending = bytearray()
+        self._pending = bytearray(FIRST_BUFFER_BYTES)
+        """What is buffered: its first self._pending_bytes bytes (the buffer is kept from commit to commit, grown to
+        the most ever buffered: a live run commits every second)."""
+        self._pending_bytes = 0
         self._committed = 0
         """Bytes of the file that are committed (the provisional trailer after them is not counted)."""
         self._fsync = fsync
@@ -82,13 +87,23 @@ class CommitFile:
 
     # ---- the stream interface the MCAP writer uses ----
     def write(self, data: bytes | bytearray | memoryview) -> int:
-        self._pending += data
-        if len(self._pending) >= self._auto_commit_bytes:
+        self._buffer(data)
+        if self._pending_bytes >= self._auto_commit_bytes:
             self.commit()
         return len(data)
 
+    def _buffer(self, data: bytes | bytearray | memoryview) -> None:
+        n = self._pending_bytes
+        end = n + len(data)
+        if end > len(self._pending):
+            grown = bytearray(max(end, 2 * len(self._pending)))
+            grown[:n] = memoryview(self._pending)[:n]
+            self._pending = grown
+        self._pending[n:end] = data
+        self._pending_bytes = end
+
     def tell(self) -> int:
-        return self._committed + len(self._pending)
+        return self._committed + self._pending_bytes
 
     def flush(self) -> None:
         self.commit()
@@ -99,27 +114,27 @@ class CommitFile:
 
         Raises LogWriteError when the write fails; the file is then cut back to its last commit (with its trailer,
         if that still fits), so it stays readable, and the buffered data is dropped."""
-        if self.closed or (not final and not self._pending and self.commits):
+        if self.closed or (not final and not self._pending_bytes and self.commits):
             return
         self._raise_sync_error()
-        n = len(self._pending)
+        n = self._pending_bytes
         if not final:
-            self._pending += TRAILER  # written from the buffer itself: no copy of up to auto_commit_bytes
+            self._buffer(TRAILER)  # written from the buffer itself: no copy of up to auto_commit_bytes
         try:
-            self._write_at(self._committed, self._pending)
+            self._write_at(self._committed, memoryview(self._pending)[:self._pending_bytes])
             if final:
                 os.ftruncate(self._fd, self._committed + n)
         except OSError as e:
-            self._pending = bytearray()  # a new one: the traceback's frames still hold a view of the old
+            self._pending_bytes = 0
             self._restore()
             raise LogWriteError(e.errno, describe(e), str(self.path)) from None
         self._committed += n
-        self._pending.clear()
+        self._pending_bytes = 0
         self.commits += 1
         if self._fsync:
             self._start_sync()
 
-    def _write_at(self, offset: int, data: bytes | bytearray) -> None:
+    def _write_at(self, offset: int, data: bytes | bytearray | memoryview) -> None:
         view = memoryview(data)
         while view:
             n = os.pwrite(self._fd, view, offset)
