@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from slipdaq.logformat.mcap_writer import FIRST_BUFFER_BYTES, McapWriter
+from slipdaq.logformat.mcap_writer import McapWriter
 
 CALL = st.one_of(
     st.tuples(st.just("message"), st.integers(0, 5), st.integers(0, 2**40), st.binary(max_size=300),
@@ -67,24 +67,6 @@ def test_many_chunks_by_size_read_back() -> None:
     assert summary is not None and len(summary.chunk_indexes) > 50
     messages = [m.data for _s, _c, m in make_reader(io.BytesIO(ours)).iter_messages(log_time_order=False)]
     assert messages == [c[3] for c in calls if c[0] == "message"]
-
-
-def test_chunks_of_every_size_in_the_kept_buffers() -> None:
-    """Chunks much larger than the buffers' first size, messages larger than a buffer and than a chunk, chunks closed
-    by flush at any size between them: the two buffers grow, take turns, and the bytes are mcap.Writer's."""
-    rng = random.Random(2)
-    calls: list[tuple] = []
-    for i in range(3000):
-        size = rng.choice([10, 300, 5000, FIRST_BUFFER_BYTES + 1, 3 * FIRST_BUFFER_BYTES]) if i % 97 == 0 \
-            else rng.randrange(600)
-        calls.append(("message", rng.randrange(3), 10**9 + i * 1000, rng.randbytes(size), i))
-        if rng.random() < 0.01:
-            calls.append(("flush",))
-    calls.append(("message", 0, 10**12, rng.randbytes(3 << 20), 0))  # larger than the 1 MB chunk
-    theirs, ours = _both(calls, 1 << 20)
-    assert ours == theirs
-    summary = make_reader(io.BytesIO(ours)).get_summary()
-    assert summary is not None and max(c.uncompressed_size for c in summary.chunk_indexes) > 3 << 20
 
 
 def test_a_with_block_finishes_the_file() -> None:

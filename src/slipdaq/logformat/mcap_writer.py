@@ -1,13 +1,9 @@
 """The log's MCAP writer: the file mcap.Writer writes (zstd chunks, message indexes, the summary with statistics,
 chunk and metadata indexes, summary offsets), byte for byte (tested against it), with what the log does per message
-made cheap: a message is packed into its chunk in place, a chunk's message indexes are packed whole, and a chunk
-filled by messages is compressed on a worker thread (zstd releases the GIL) while the next one fills. That chunk is
-written in its place, before any later record, and flush() and finish() wait for it; the stream gets whole records in
-each write() as from mcap.Writer (logformat.durable relies on it).
-
-A chunk fills one of two buffers that the writer keeps (one filling, one being compressed), grown to the largest chunk
-and never given back: a day's live log closes a chunk every second, and a buffer grown anew for each would churn the
-heap by as much every second."""
+made cheap: a message is appended to its chunk with one struct.pack, a chunk's message indexes are packed whole, and a
+chunk filled by messages is compressed on a worker thread (zstd releases the GIL) while the next one fills. That chunk
+is written in its place, before any later record, and flush() and finish() wait for it; the stream gets whole
+records in each write() as from mcap.Writer (logformat.durable relies on it)."""
 
 from __future__ import annotations
 
@@ -39,11 +35,9 @@ MAGIC = b"\x89MCAP0\r\n"
 _MESSAGE = struct.Struct("<BQHIQQ")
 """A Message record's opcode, length, channel id, sequence, log time and publish time; its data follows."""
 _MESSAGE_INDEX = struct.Struct("<BQHI")
-FIRST_BUFFER_BYTES = 64 * 1024
-"""A chunk buffer's first size; it doubles (at least) when a record does not fit."""
 
 
-def _compress(data: bytes | memoryview) -> tuple[bytes, int]:
+def _compress(data: bytes) -> tuple[bytes, int]:
     """The chunk's records compressed as mcap.Writer does (zstd at its default level, 3), and their CRC-32 (both
     release the GIL)."""
     return zstandard.compress(data), zlib.crc32(data)
@@ -54,7 +48,7 @@ class _Finished:
 
     __slots__ = ("compressed", "end_ns", "indexes", "size", "start_ns")
 
-    def __init__(self, data: memoryview, start_ns: int, end_ns: int, indexes: dict[int, list[int]],
+    def __init__(self, data: bytes, start_ns: int, end_ns: int, indexes: dict[int, list[int]],
                  pool: ThreadPoolExecutor | None) -> None:
         self.compressed: Future[tuple[bytes, int]] | tuple[bytes, int] = \
             pool.submit(_compress, data) if pool is not None else _compress(data)
@@ -70,11 +64,7 @@ class McapWriter:
         self._stream = stream
         self._chunk_size = chunk_size
         self._records = RecordBuilder()
-        self._chunk = bytearray(FIRST_BUFFER_BYTES)
-        """The chunk being filled: its first self._chunk_bytes bytes."""
-        self._chunk_bytes = 0
-        self._spare = bytearray(FIRST_BUFFER_BYTES)
-        """The other buffer: the chunk being compressed, if any."""
+        self._chunk = bytearray()
         self._chunk_messages = 0
         self._chunk_start = self._chunk_end = 0
         self._indexes: dict[int, list[int]] = {}
@@ -114,22 +104,11 @@ class McapWriter:
         self._flush_records()
 
     # ---- into the chunk ----
-    def _room(self, end: int) -> bytearray:
-        """The chunk buffer, grown to hold end bytes."""
-        if end > len(self._chunk):
-            grown = bytearray(max(end, 2 * len(self._chunk)))
-            grown[:self._chunk_bytes] = memoryview(self._chunk)[:self._chunk_bytes]
-            self._chunk = grown
-        return self._chunk
-
     def _add_to_chunk(self, record: Schema | Channel) -> None:
         b = RecordBuilder()
         record.write(b)
-        data = b.end()
-        n = self._chunk_bytes
-        self._room(n + len(data))[n:n + len(data)] = data
-        self._chunk_bytes = n + len(data)
-        if self._chunk_bytes > self._chunk_size:
+        self._chunk += b.end()
+        if len(self._chunk) > self._chunk_size:
             self._close_chunk(compress_on_thread=True)
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -160,18 +139,14 @@ class McapWriter:
         if log_time > self._chunk_end:
             self._chunk_end = log_time
         self._chunk_messages += 1
-        n = self._chunk_bytes
+        chunk = self._chunk
         index = self._indexes.get(channel_id)
         if index is None:
             index = self._indexes[channel_id] = []
-        index += (log_time, n)
-        body = n + _MESSAGE.size
-        end = body + len(data)
-        chunk = self._chunk if end <= len(self._chunk) else self._room(end)
-        _MESSAGE.pack_into(chunk, n, Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time)
-        chunk[body:end] = data
-        self._chunk_bytes = end
-        if end > self._chunk_size:
+        index += (log_time, len(chunk))
+        chunk += _MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time)
+        chunk += data
+        if len(chunk) > self._chunk_size:
             self._close_chunk(compress_on_thread=True)
 
     # ---- chunks ----
@@ -185,11 +160,9 @@ class McapWriter:
         if compress_on_thread and self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-zstd")
         self._stats.chunk_count += 1
-        # the spare buffer's chunk is written (above): it takes the next one while this one is compressed
-        self._finished = _Finished(memoryview(self._chunk)[:self._chunk_bytes], self._chunk_start, self._chunk_end,
-                                   self._indexes, self._pool if compress_on_thread else None)
-        self._chunk, self._spare = self._spare, self._chunk
-        self._chunk_bytes = 0
+        self._finished = _Finished(bytes(self._chunk), self._chunk_start, self._chunk_end, self._indexes,
+                                   self._pool if compress_on_thread else None)
+        self._chunk = bytearray()
         self._chunk_messages = 0
         self._chunk_start = self._chunk_end = 0
         self._indexes = {}
