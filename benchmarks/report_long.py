@@ -10,7 +10,9 @@ by later runs with the same --hours and --rate-hz. Per round, `python -m slipdaq
 each side (the order reversed every other round); round 0, untimed, warms .pyc files and numba's kernel cache.
 
 --parts: this tree's report once more, in one process, part by part (the two-pass replay, the maneuver summaries,
-the page's data, the writing of the report's files), with the sizes of what it wrote.
+the page's data, the tire files' fits, the writing of the report's files), each part's wall and CPU time: the
+tire files fitted one after the other (as tires.fit_here), not on threads (tires.ThreadFits) while the page's data
+is laid out, so that each part has a CPU time of its own.
 
     python -m benchmarks.report_long [--hours 2] [--rate-hz 1000] [--work DIR] [--base REV] [--rounds 1] [--parts]
 """
@@ -53,7 +55,7 @@ print(frames)
 """
 
 PARTS = """
-import functools, io, json, sys, time
+import contextlib, functools, io, json, sys, time
 from pathlib import Path
 from slipdaq.report import build, page, page_data, tires, write
 from slipdaq.report.labels import labels_of
@@ -72,6 +74,7 @@ def timed(owner, name, label):  # the seconds (wall, CPU) a function of the repo
             spent[label] = (w0 + time.perf_counter() - t, c0 + time.process_time() - c)
     setattr(owner, name, wrapper)
 
+build.ThreadFits = lambda: contextlib.nullcontext(tires.fit_here)  # one part after the other: each one's CPU time
 timed(build, "read_log", "two-pass replay (read_log)")
 timed(build, "summarize_log", "maneuver summaries (summarize_log)")
 timed(build, "log_page", "page data: figures and plots.js (log_page)")
