@@ -9,12 +9,17 @@ The log (--hours of the simulator's `cycle` drive on paved, repeated back to bac
 by later runs with the same --hours and --rate-hz. Per round, `python -m slipdaq report LOG -o OUT` runs once for
 each side (the order reversed every other round); round 0, untimed, warms .pyc files and numba's kernel cache.
 
+--fits ROUNDS: this tree's report after its summaries (the tire files' fits, the page's data, the report's files
+written), in one process, with the tire files fitted one after the other (tires.fit_here) and on threads
+(tires.ThreadFits, what `slipdaq report` does), in turns, the order reversed every round: wall and CPU time.
+
 --parts: this tree's report once more, in one process, part by part (the two-pass replay, the maneuver summaries,
 the page's data, the tire files' fits, the writing of the report's files), each part's wall and CPU time: the
 tire files fitted one after the other (as tires.fit_here), not on threads (tires.ThreadFits) while the page's data
 is laid out, so that each part has a CPU time of its own.
 
     python -m benchmarks.report_long [--hours 2] [--rate-hz 1000] [--work DIR] [--base REV] [--rounds 1] [--parts]
+                                     [--fits ROUNDS]
 """
 
 from __future__ import annotations
@@ -94,6 +99,34 @@ spent["make_report in all"] = whole
 print(json.dumps({"parts": spent, "estimates": result.logs[0].estimates, "maneuvers": len(result.logs[0].maneuvers)}))
 """
 
+FITS = """
+import contextlib, io, json, shutil, sys, time
+from pathlib import Path
+from slipdaq.report.build import place_log, read_log, write_report
+from slipdaq.report.labels import labels_of
+from slipdaq.report.page_data import log_page
+from slipdaq.report.summary import summarize_log
+from slipdaq.report.tires import ThreadFits, fit_here, start_tires
+log, out, rounds = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
+data = read_log(log, two_pass=True, progress=io.StringIO())
+s = summarize_log(data.rows, data.metadata, data.diagnostics, path=str(log), name=log.stem,
+                  labels=labels_of(data.metadata), fast=data.fast, sensors=data.sensors)
+fitters = {"in turn (tires.fit_here)": lambda: contextlib.nullcontext(fit_here), "on threads (tires.ThreadFits)": ThreadFits}
+got = {k: [] for k in fitters}
+for r in range(rounds):
+    for name in (list(fitters) if r % 2 == 0 else list(fitters)[::-1]):
+        shutil.rmtree(out, ignore_errors=True)
+        t, c = time.perf_counter(), time.process_time()
+        with fitters[name]() as fits:  # as make_report: the fits started, the page laid out, the report written
+            tires = start_tires([s], fits)
+            page = log_page(s, data.fast)
+            write_report([s], out, plot=lambda lg, d: place_log(lg, d, page), tires=tires)
+        got[name].append((time.perf_counter() - t, time.process_time() - c))
+        print(json.dumps({"round": r + 1, "fits": name, "wall_s": got[name][-1][0], "cpu_s": got[name][-1][1]}),
+              flush=True)
+print(json.dumps({"fits": got}))
+"""
+
 
 def python_path(src: Path) -> str:
     """PYTHONPATH for a side: its src first, then what PYTHONPATH held (packages installed elsewhere)."""
@@ -144,6 +177,8 @@ def main() -> int:
     ap.add_argument("--base", default=None, metavar="REV", help="that revision's report too, side by side")
     ap.add_argument("--rounds", type=int, default=1, help="timed rounds (default 1; 0: none, with --parts)")
     ap.add_argument("--parts", action="store_true", help="this tree's report part by part, in one process")
+    ap.add_argument("--fits", type=int, default=0, metavar="ROUNDS",
+                    help="the report after its summaries with the tire files fitted in turn and on threads, ROUNDS each")
     a = ap.parse_args()
     work = a.work or Path(tempfile.mkdtemp(prefix="slipdaq-report-long-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -195,7 +230,19 @@ def main() -> int:
             for k, (w, c) in parts["parts"].items():
                 print(f"| {k} | {w:.1f} | {c:.1f} | {100 * c / whole_cpu:.0f} % |")
             summary["parts"] = parts
-        written = work / ("report-0" if med else "report-parts")
+        if a.fits:
+            out = work / "report-fits"
+            p = subprocess.run([sys.executable, "-c", FITS, str(log), str(out), str(a.fits)], check=True,
+                               capture_output=True, text=True, env=sides["this tree"])
+            fits = json.loads(p.stdout.strip().splitlines()[-1])["fits"]
+            print(f"\nthe report after its summaries (the tire files' fits, the page's data, the files written), "
+                  f"in one process, {a.fits} interleaved rounds, medians:\n\n"
+                  "| tire files fitted | wall | CPU |\n|---|---:|---:|")
+            for name, v in fits.items():
+                print(f"| {name} | {statistics.median(w for w, _ in v):.1f} s | "
+                      f"{statistics.median(c for _, c in v):.1f} s |")
+            summary["fits"] = fits
+        written = work / ("report-0" if med else "report-parts" if a.parts else "report-fits")
         files = tree_mb(written)
         summary["report_mb"], summary["largest_files_mb"] = sum(files.values()), dict(list(files.items())[:5])
         print(f"\nthe report: {sum(files.values()):.1f} MB; its largest files: "
