@@ -106,7 +106,7 @@ from slipdaq.report.build import place_log, read_log, write_report
 from slipdaq.report.labels import labels_of
 from slipdaq.report.page_data import log_page
 from slipdaq.report.summary import summarize_log
-from slipdaq.report.tires import ThreadFits, fit_here, start_tires
+from slipdaq.report.tires import ThreadFits, fit_here
 log, out, rounds = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
 data = read_log(log, two_pass=True, progress=io.StringIO())
 s = summarize_log(data.rows, data.metadata, data.diagnostics, path=str(log), name=log.stem,
@@ -117,10 +117,9 @@ for r in range(rounds):
     for name in (list(fitters) if r % 2 == 0 else list(fitters)[::-1]):
         shutil.rmtree(out, ignore_errors=True)
         t, c = time.perf_counter(), time.process_time()
-        with fitters[name]() as fits:  # as make_report: the fits started, the page laid out, the report written
-            tires = start_tires([s], fits)
-            page = log_page(s, data.fast)
-            write_report([s], out, plot=lambda lg, d: place_log(lg, d, page), tires=tires)
+        page = log_page(s, data.fast)
+        with fitters[name]() as fits:  # as make_report
+            write_report([s], out, plot=lambda lg, d: place_log(lg, d, page), fit_tires=fits)
         got[name].append((time.perf_counter() - t, time.process_time() - c))
         print(json.dumps({"round": r + 1, "fits": name, "wall_s": got[name][-1][0], "cpu_s": got[name][-1][1]}),
               flush=True)

@@ -27,7 +27,7 @@ from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
-from slipdaq.report.tires import TIRES_DIR, GroupTires, ThreadFits, TireFitter, fit_here, start_tires, write_tires
+from slipdaq.report.tires import TIRES_DIR, ThreadFits, TireFitter, fit_here, start_tires, write_tires
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
@@ -156,8 +156,8 @@ def make_report(
     png: bool = False,
 ) -> ReportResult:
     """Every log read first (a bad one fails before anything is written), summarized and its plots laid out (with
-    every high-rate row of its maneuvers), then written (write_report); png: the PNGs too. The tire files are fitted
-    on threads (tires.ThreadFits) from the summaries on, while the plots are laid out and the report written."""
+    every high-rate row of its maneuvers), then written (write_report), the tire files fitted on threads
+    (tires.ThreadFits); png: the PNGs too."""
     say = _sayer(progress)
     refuse_report_inputs(out_dir, log_paths)
     data = []
@@ -169,12 +169,11 @@ def make_report(
     logs = [summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=unique_name(d.path.stem, taken),
                           labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
             for d in data]
+    pages = {log.name: log_page(log, d.fast) for log, d in zip(logs, data)}
+    del data
     with ThreadFits() as fits:
-        tires = start_tires(logs, fits)
-        pages = {log.name: log_page(log, d.fast) for log, d in zip(logs, data)}
-        del data
         return write_report(logs, out_dir, inputs=log_paths, progress=progress, png=png,
-                            plot=lambda log, d: place_log(log, d, pages[log.name], png, say), tires=tires)
+                            plot=lambda log, d: place_log(log, d, pages[log.name], png, say), fit_tires=fits)
 
 
 class ReportBuild:
@@ -183,12 +182,8 @@ class ReportBuild:
     (finish). `slipdaq batch` adds each log as its task ends."""
 
     def __init__(self, build: Path, out: Path, *, plot: PlotMaker | None = None, png: bool = False,
-                 say: Callable[[str], None] = lambda msg: None, fit_tires: TireFitter = fit_here,
-                 tires: Callable[[], list[GroupTires]] | None = None) -> None:
-        """tires: the tire files' fits of the logs to come, started by the caller (start_tires); default: started
-        by finish (fit_tires)."""
+                 say: Callable[[str], None] = lambda msg: None, fit_tires: TireFitter = fit_here) -> None:
         self.build, self.out, self.png, self.say, self.fit_tires = build, out, png, say, fit_tires
-        self.tires = tires
         self.plot: PlotMaker = plot or (lambda log, d: place_log(log, d, log_page(log), png, say))
         self.links: dict[str, LogLinks] = {}
         self.pngs: list[Path] = []
@@ -201,11 +196,11 @@ class ReportBuild:
 
     def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
         """The comparison (two or more logs), the tables and index.html over `logs` (each one added before); the tire
-        files fitted meanwhile (fit_tires), or the ones started before (tires)."""
+        files fitted meanwhile (fit_tires)."""
         from slipdaq.report import page, page_data, sets, write
 
         build, logs, links = self.build, list(logs), self.links
-        tires = self.tires or start_tires(logs, self.fit_tires)
+        tires = start_tires(logs, self.fit_tires)
         comparisons = compare(logs) if len(logs) > 1 else []
         compare_pngs: dict[str, str] = {}
         if comparisons:
@@ -252,16 +247,16 @@ def write_report(
     progress: TextIO | None = None,
     plot: PlotMaker | None = None,
     png: bool = False,
-    tires: Callable[[], list[GroupTires]] | None = None,
+    fit_tires: TireFitter = fit_here,
 ) -> ReportResult:
     """The report of summarized logs (unique names) in out_dir: per log its plots' data (and PNGs) in DIR/<log>/
     (`plot`, default: laid out from the summary alone, then place_log), the comparison, the tables, plotly.js and the
     page's script, index.html last; built in a temporary directory in DIR and moved into place when all are done
-    (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too. tires: the
-    tire files' fits of `logs`, started by the caller (start_tires); default: fitted here."""
+    (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too. fit_tires:
+    where the tire files are fitted (tires.TireFitter)."""
     out, say = Path(out_dir), _sayer(progress)
     with atomic_tree(out, inputs=inputs, last=TABLES) as build:
-        report = ReportBuild(build, out, plot=plot, png=png, say=say, tires=tires)
+        report = ReportBuild(build, out, plot=plot, png=png, say=say, fit_tires=fit_tires)
         for log in logs:
             report.add(log)
         result = report.finish(logs)
