@@ -15,8 +15,8 @@ written), in one process, with the tire files fitted one after the other (tires.
 
 --parts: this tree's report once more, in one process, part by part (the two-pass replay, the maneuver summaries,
 the page's data, the tire files' fits, the writing of the report's files), each part's wall and CPU time: the
-tire files fitted one after the other (as tires.fit_here), not on threads (tires.ThreadFits) while the page's data
-is laid out, so that each part has a CPU time of its own.
+tire files fitted one after the other (tires.fit_here), not on threads (tires.ThreadFits), so that each part has a
+CPU time of its own.
 
     python -m benchmarks.report_long [--hours 2] [--rate-hz 1000] [--work DIR] [--base REV] [--rounds 1] [--parts]
                                      [--fits ROUNDS]
@@ -174,7 +174,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None,
                     help="directory for the log (kept and reused) and the reports (default: a temporary one)")
     ap.add_argument("--base", default=None, metavar="REV", help="that revision's report too, side by side")
-    ap.add_argument("--rounds", type=int, default=1, help="timed rounds (default 1; 0: none, with --parts)")
+    ap.add_argument("--rounds", type=int, default=1, help="timed rounds (default 1; 0: none, with --parts or --fits)")
     ap.add_argument("--parts", action="store_true", help="this tree's report part by part, in one process")
     ap.add_argument("--fits", type=int, default=0, metavar="ROUNDS",
                     help="the report after its summaries with the tire files fitted in turn and on threads, ROUNDS each")

@@ -1,6 +1,7 @@
 """The tire files of a report or an export: one MF 6.1 `.tir` per tire and label group (tire_model/files.py), from
 every accelerate and brake maneuver of the group's logs, with the vehicle and tire of its first log's config. Each
-file is one TireJob, fitted here or, by `slipdaq batch`, on its cluster (tire_results' `fit`)."""
+file is one TireJob, fitted here (in turn: fit_here; on threads: ThreadFits, `slipdaq report`'s) or, by `slipdaq
+batch`, on its cluster (start_tires' `fit`)."""
 
 from __future__ import annotations
 
