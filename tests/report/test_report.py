@@ -31,6 +31,7 @@ from slipdaq.maneuver.events import debounce
 from slipdaq.maneuver.linearity import analyse_linearity
 from slipdaq.offline.run import process_to_log
 from slipdaq.report.labels import LabelError, labels_metadata, labels_of, parse_labels
+from slipdaq.report.page_data import script
 from slipdaq.report.plots import FIG_H_PX, FIG_W_PX, PLOTS
 from slipdaq.report.summary import group_of, summarize_log
 from slipdaq.sim.emit import SimSettings, generate
@@ -249,6 +250,33 @@ def test_default_report_and_batch_task_import_no_matplotlib(report, tmp_path: Pa
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     assert not list((tmp_path / "r").rglob("*.png"))
+
+
+def test_a_logs_plots_script_is_its_figures_as_json_writes_them(report) -> None:  # type: ignore[no-untyped-def]
+    """Each log's plots.js is `slipdaqReport.add(FIGURES);` with FIGURES the bytes `json.dumps` gives the figures
+    (compact, UTF-8 unescaped), every plot of the log in it."""
+    for log in ("cycle-paved", "brake-sand"):
+        text = (report["out"] / log / "plots.js").read_bytes()
+        head, tail = b"slipdaqReport.add(", b");\n"
+        assert text.startswith(head) and text.endswith(tail)
+        body = text[len(head):-len(tail)]
+        figures = json.loads(body)
+        assert body == json.dumps(figures, ensure_ascii=False, separators=(",", ":"), allow_nan=False).encode()
+        names = {n for m in next(x for x in _summary(report)["logs"] if x["log"] == log)["maneuvers"]
+                 for n in m["plots"].values()}
+        assert names and names <= set(figures) and all(figures[n]["data"] is not None for n in names)
+
+
+def test_the_plots_script_writes_text_numbers_and_nan_as_the_page_reads_them() -> None:
+    """Text unescaped but for JSON's own escapes, numbers (numpy's too) read back as they were, NaN as null."""
+    figures = {"a/b": {"data": [{"x": [0.0, -0.0, 1.5, np.float64(2.25), None, float("nan"), 1e-05, 12345678901],
+                                 "name": 'FL – μ "q" \\ <br>\n'}], "layout": {"title": {"text": "Fx–s"}}}}
+    got = script(figures)
+    assert got.startswith(b"slipdaqReport.add(") and got.endswith(b");\n")
+    back = json.loads(got[len(b"slipdaqReport.add("):-len(b");\n")])
+    assert back["a/b"]["data"][0]["x"] == [0.0, -0.0, 1.5, 2.25, None, None, 1e-05, 12345678901]
+    assert back["a/b"]["data"][0]["name"] == figures["a/b"]["data"][0]["name"]
+    assert "FL – μ".encode() in got and b'\\"q\\"' in got
 
 
 def test_report_of_a_file_that_is_not_a_slipdaq_log_is_one_line_exit_1(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -17,8 +17,9 @@ from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.record import Z95
 from slipdaq.offline.run import Rows
 from slipdaq.pipeline import Pipeline
-from slipdaq.report.build import make_report
-from slipdaq.report.summary import detect_maneuvers
+from slipdaq.report.build import make_report, read_log
+from slipdaq.report.summary import detect_maneuvers, summarize_log
+from slipdaq.report.tires import ThreadFits, fit_here, tire_jobs
 from slipdaq.sim.emit import generate
 from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.vehicle import ROADS, TireModel
@@ -167,6 +168,26 @@ def test_the_report_writes_and_links_the_tire_files(rav4: Path, tmp_path: Path) 
         rel = f"tires/no_labels/{w}.tir"
         assert (tmp_path / "report" / rel).is_file() and f'href="{rel}"' in page
         assert read_tir(tmp_path / "report" / rel)["MODEL"]["FITTYP"] == 61.0
+
+
+def test_the_tire_files_fitted_on_threads_are_the_ones_fitted_in_turn(rav4: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The report's fitter (ThreadFits: the jobs on threads, the longest first) gives each wheel's result in the
+    jobs' order, the same file and the same fit as fitting one job after the other."""
+    monkeypatch.setattr("os.cpu_count", lambda: 4)  # threads, whatever cores this machine has
+    data = read_log(rav4)
+    log = summarize_log(data.rows, data.metadata, data.diagnostics, path=str(rav4), name="rav4", labels={},
+                        fast=data.fast, sensors=data.sensors)
+    jobs = [j for _, _, group in tire_jobs([log]) for j in group]
+    with ThreadFits() as fits:
+        threaded = fits(jobs)()
+        assert len(fits.futures) == len(jobs) == 4
+    in_turn = fit_here(jobs)()
+    assert [r.wheel for r in threaded] == [j.wheel for j in jobs] == ["FL", "FR", "RL", "RR"]
+    for a, b in zip(threaded, in_turn, strict=True):
+        assert a.file is not None and b.file is not None and a.fit is not None and b.fit is not None
+        assert tir_text(a.file) == tir_text(b.file) and a.fit.model == b.fit.model
+        assert a.fit.rms_mu == b.fit.rms_mu and a.fit.n_points == b.fit.n_points
 
 
 def test_export_without_an_output_names_tir(rav4: Path, capsys: pytest.CaptureFixture[str]) -> None:

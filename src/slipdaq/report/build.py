@@ -27,7 +27,7 @@ from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
 from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
-from slipdaq.report.tires import TIRES_DIR, TireFitter, fit_here, start_tires, write_tires
+from slipdaq.report.tires import TIRES_DIR, ThreadFits, TireFitter, fit_here, start_tires, write_tires
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
@@ -156,7 +156,8 @@ def make_report(
     png: bool = False,
 ) -> ReportResult:
     """Every log read first (a bad one fails before anything is written), summarized and its plots laid out (with
-    every high-rate row of its maneuvers), then written (write_report); png: the PNGs too."""
+    every high-rate row of its maneuvers), then written (write_report), the tire files fitted on threads
+    (tires.ThreadFits); png: the PNGs too."""
     say = _sayer(progress)
     refuse_report_inputs(out_dir, log_paths)
     data = []
@@ -170,8 +171,9 @@ def make_report(
             for d in data]
     pages = {log.name: log_page(log, d.fast) for log, d in zip(logs, data)}
     del data
-    return write_report(logs, out_dir, inputs=log_paths, progress=progress, png=png,
-                        plot=lambda log, d: place_log(log, d, pages[log.name], png, say))
+    with ThreadFits() as fits:
+        return write_report(logs, out_dir, inputs=log_paths, progress=progress, png=png,
+                            plot=lambda log, d: place_log(log, d, pages[log.name], png, say), fit_tires=fits)
 
 
 class ReportBuild:
@@ -245,14 +247,16 @@ def write_report(
     progress: TextIO | None = None,
     plot: PlotMaker | None = None,
     png: bool = False,
+    fit_tires: TireFitter = fit_here,
 ) -> ReportResult:
     """The report of summarized logs (unique names) in out_dir: per log its plots' data (and PNGs) in DIR/<log>/
     (`plot`, default: laid out from the summary alone, then place_log), the comparison, the tables, plotly.js and the
     page's script, index.html last; built in a temporary directory in DIR and moved into place when all are done
-    (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too."""
+    (outputs.atomic_tree): a report that fails leaves DIR as it was. png: the comparison's PNGs too. fit_tires:
+    where the tire files are fitted (tires.TireFitter)."""
     out, say = Path(out_dir), _sayer(progress)
     with atomic_tree(out, inputs=inputs, last=TABLES) as build:
-        report = ReportBuild(build, out, plot=plot, png=png, say=say)
+        report = ReportBuild(build, out, plot=plot, png=png, say=say, fit_tires=fit_tires)
         for log in logs:
             report.add(log)
         result = report.finish(logs)

@@ -1,12 +1,15 @@
 """The tire files of a report or an export: one MF 6.1 `.tir` per tire and label group (tire_model/files.py), from
 every accelerate and brake maneuver of the group's logs, with the vehicle and tire of its first log's config. Each
-file is one TireJob, fitted here or, by `slipdaq batch`, on its cluster (tire_results' `fit`)."""
+file is one TireJob, fitted here (in turn: fit_here; on threads: ThreadFits, `slipdaq report`'s) or, by `slipdaq
+batch`, on its cluster (start_tires' `fit`)."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,6 +66,35 @@ TireFitter = Callable[[Sequence[TireJob]], Callable[[], Sequence[TireResult]]]
 def fit_here(jobs: Sequence[TireJob]) -> Callable[[], Sequence[TireResult]]:
     """TireFitter in this process (when its results are asked for)."""
     return lambda: [j.fit() for j in jobs]
+
+
+class ThreadFits:
+    """TireFitter on threads of this process, one per core (at most one per job), the longest jobs first: a fit is
+    numpy's arithmetic over every point of its group (fit.py), which runs without the GIL, so the fits share the
+    cores with each other and with what the process does meanwhile. The same results as fit_here (one core, or one
+    job: fit_here). As a context: leaving it drops the fits not yet begun (a report that failed meanwhile)."""
+
+    def __init__(self) -> None:
+        self.futures: list[Future[TireResult]] = []
+
+    def __call__(self, jobs: Sequence[TireJob]) -> Callable[[], Sequence[TireResult]]:
+        cores = os.cpu_count() or 1
+        if cores < 2 or len(jobs) < 2:
+            return fit_here(jobs)
+        pool = ThreadPoolExecutor(max_workers=min(cores, len(jobs)), thread_name_prefix="slipdaq-tire-fit")
+        futures: dict[int, Future[TireResult]] = {}
+        for i in sorted(range(len(jobs)), key=lambda i: -jobs[i].points):
+            futures[i] = pool.submit(jobs[i].fit)
+        pool.shutdown(wait=False)  # its threads end with its last job
+        self.futures += futures.values()
+        return lambda: [futures[i].result() for i in range(len(jobs))]
+
+    def __enter__(self) -> ThreadFits:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for f in self.futures:
+            f.cancel()
 
 
 def _cut(m: ManeuverSummary, wheel: str) -> ManeuverSummary:
