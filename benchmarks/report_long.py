@@ -37,27 +37,7 @@ from pathlib import Path
 
 from benchmarks.base_revision import ROOT, unpack
 from benchmarks.doc_block import machine
-
-MAKE_LOG = """
-import sys
-from dataclasses import replace
-from pathlib import Path
-from slipdaq.config import load_config, packaged_config_path
-from slipdaq.records import CanFrame
-from slipdaq.sim.emit import SimSettings, generate
-from slipdaq.sinks.mcap_log import McapLogSink
-cfg = load_config(packaged_config_path())
-sink = McapLogSink(Path(sys.argv[1]), cfg, mode="bench-raw")
-settings = replace(SimSettings(), wpt_rate_hz=float(sys.argv[3]), gps_rate_hz=20.0, gps_latency_s=0.05,
-                   can_jitter_s=0.0002)
-frames = 0
-for ev in generate(cfg, "cycle", "paved", settings, duration_s=float(sys.argv[2])):
-    if ev.record is not None:
-        sink.on_raw(ev.record)
-        frames += isinstance(ev.record, CanFrame)
-sink.close()
-print(frames)
-"""
+from benchmarks.replay_process import MAKE_LOG  # the same drive, written as the replay benchmark writes it
 
 PARTS = """
 import contextlib, functools, io, json, sys, time
