@@ -14,7 +14,7 @@ allocator's thresholds held fixed (slipdaq/allocator.py).
     .venv/bin/python -m benchmarks.soak [--duration 600] [--wpt-rate-hz 1000] [--gps-rate-hz 20] [--log-dir D]
 
 Prints one line per sample (elapsed, RSS, CAN frames, backlog) and a JSON summary; exit status 1 when a check fails.
-tests/test_reliability_soak.py runs a short version (run_soak).
+tests/live/test_reliability_soak.py runs a short version (run_soak).
 """
 
 # ruff: noqa: E402  (python-can imported first, as the process of `slipdaq run` imports it)

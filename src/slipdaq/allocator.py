@@ -18,9 +18,9 @@ C libraries (musl, macOS) have no such call and are left as they are.
 Free memory among blocks still in use stays in the heap whatever the thresholds, and each thread that allocates (the
 event loop, the log's compression, the maneuver summaries) gets an arena of its own from glibc, a heap that fills and
 fragments apart from the others. The same processes keep one arena (M_ARENA_MAX = ARENAS_MAX: the threads share the
-main heap), and the live daemon gives the whole free pages among the blocks in use back every RELEASE_EVERY_S
-(`release_free_memory()`, glibc's `malloc_trim(0)`: about 1 MB each time, in 0.2–2 ms, in the soak on the 2-core
-machine).
+main heap), and the live daemon gives the whole free pages among the blocks in use back as each maneuver arrives
+(its summary's arrays are freed as it ends) and every RELEASE_EVERY_S (`release_free_memory()`, glibc's
+`malloc_trim(0)`: about 1 MB each time, in 0.2–2 ms, in the soak on the 2-core machine).
 """
 
 from __future__ import annotations

@@ -36,9 +36,9 @@ def _trailer() -> bytes:
 
 
 TRAILER = _trailer()
+"""DataEnd + Footer (no summary) + magic: what makes the committed part a complete MCAP file."""
 FIRST_BUFFER_BYTES = 64 * 1024
 """The commit buffer's first size; it doubles (at least) when a write does not fit."""
-"""DataEnd + Footer (no summary) + magic: what makes the committed part a complete MCAP file."""
 
 
 class LogWriteError(OSError):
