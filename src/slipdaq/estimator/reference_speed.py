@@ -85,12 +85,12 @@ def reference_speed_mps(fix_times_s: np.ndarray, gps_speed_mps: np.ndarray, whee
                         accuracy_mps: np.ndarray | None = None, max_gap_s: float = 1.0) -> np.ndarray:
     """The fixes' speeds, smoothed over the run: around the free-rolling wheels' speed (wheel_speed: their mean r0 *
     omega at the fix times, NaN where unknown) where it is known, the GPS speed alone elsewhere."""
-    if wheel_speed is None or np.isfinite(wheel_speed).sum() < 3:
-        return smooth_speed(fix_times_s, gps_speed_mps, accuracy_mps, max_gap_s=max_gap_s).speed_mps.copy()
-    known = np.isfinite(wheel_speed)
+    known = np.isfinite(wheel_speed) if wheel_speed is not None else np.zeros(len(fix_times_s), dtype=bool)
     out = np.empty(len(fix_times_s))
-    if not known.all():  # the GPS smoothed alone, for the fixes without the wheels' speed
-        out[~known] = smooth_speed(fix_times_s, gps_speed_mps, accuracy_mps, max_gap_s=max_gap_s).speed_mps[~known]
+    if not known.all():  # the GPS smoothed alone: the fixes without the wheels' speed keep it (all, below 3 with it)
+        out[:] = smooth_speed(fix_times_s, gps_speed_mps, accuracy_mps, max_gap_s=max_gap_s).speed_mps
+    if wheel_speed is None or known.sum() < 3:
+        return out
     t, w = fix_times_s[known], wheel_speed[known]
     diff = gps_speed_mps[known] - w
     acc = accuracy_mps[known] if accuracy_mps is not None else None
