@@ -4,10 +4,13 @@ independent evaluator's values for it, the .tir written and read back, and the f
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from slipdaq.cli import main
 from slipdaq.config import Config
@@ -24,8 +27,8 @@ from slipdaq.sim.emit import generate
 from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.vehicle import ROADS, TireModel
 from slipdaq.tire_model.files import build_tire, static_load_n
-from slipdaq.tire_model.fit import fit_mf61
-from slipdaq.tire_model.mf61 import LongitudinalMF61
+from slipdaq.tire_model.fit import MF61Fit, fit_mf61
+from slipdaq.tire_model.mf61 import JACOBIAN_NAMES, Fx0Terms, LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
 from support.paths import DATA, ROOT
 
@@ -216,3 +219,118 @@ def test_the_fit_finds_load_dependence_only_where_the_points_carry_it() -> None:
     fit0 = fit_mf61(*_points(plain, 2), 4000.0)
     assert fit0 is not None and not fit0.load_terms and fit0.model.pdx2 == 0.0 and fit0.model.pkx2 == 0.0
     assert "not identified" in fit0.load_note
+
+
+def _richardson(model: LongitudinalMF61, name: str, k: np.ndarray, fz: np.ndarray, h: float) -> np.ndarray:
+    """dFx0/d(name) by central differences of steps h and h/2, extrapolated (error O(h⁴))."""
+    c = getattr(model, name)
+
+    def central(step: float) -> np.ndarray:
+        return (dataclasses.replace(model, **{name: c + step}).fx0(k, fz)
+                - dataclasses.replace(model, **{name: c - step}).fx0(k, fz)) / (2.0 * step)
+
+    return (4.0 * central(h / 2.0) - central(h)) / 3.0
+
+
+@settings(max_examples=200)
+@given(pcx1=st.floats(1.0, 2.5), pdx1=st.floats(0.05, 3.0), pdx2=st.floats(-1.0, 1.0), pex1=st.floats(-5.0, 0.99),
+       pex4=st.floats(-0.99, 0.99), pkx1=st.floats(1.0, 200.0), pkx2=st.floats(-100.0, 100.0),
+       pkx3=st.floats(-1.0, 1.0), pex2=st.floats(-1.0, 1.0), phx1=st.floats(-0.01, 0.01), pvx1=st.floats(-0.05, 0.05),
+       lmux=st.floats(0.5, 1.5), fnomin=st.floats(1000.0, 8000.0), seed=st.integers(0, 2**32 - 1))
+def test_the_closed_form_jacobian_is_the_curves_derivative(pcx1: float, pdx1: float, pdx2: float, pex1: float,
+                                                           pex4: float, pkx1: float, pkx2: float, pkx3: float,
+                                                           pex2: float, phx1: float, pvx1: float, lmux: float,
+                                                           fnomin: float, seed: int) -> None:
+    """Fx0Terms.jacobian against central differences (Richardson-extrapolated) over random coefficients within the
+    fit's bounds (and the terms it holds fixed), loads from 0.2 to 2 FNOMIN and slip over ±60 %: each column within
+    1e-6 of its largest value (and 1e-9 of the largest |Fx0|: the differences' rounding), away from where Ex meets
+    its limit 1 (a kink) and where the friction mux (PDX2 against the load) falls to 0 (Bx's pole); Fx0Terms' Fx0 is
+    fx0's, the same bits."""
+    model = LongitudinalMF61(fnomin=fnomin, pcx1=pcx1, pdx1=pdx1, pdx2=pdx2, pex1=pex1, pex4=pex4, pkx1=pkx1,
+                             pkx2=pkx2, pkx3=pkx3, pex2=pex2, phx1=phx1, pvx1=pvx1, lmux=lmux)
+    rng = np.random.default_rng(seed)
+    k = rng.uniform(-0.6, 0.6, 400)
+    fz = fnomin * rng.uniform(0.2, 2.0, 400)
+    terms = model.fx0_terms(k, fz)
+    np.testing.assert_array_equal(terms.fx0, model.fx0(k, fz))
+    ex_raw = terms.ex_shape * (1.0 - pex4 * terms.sign_kx)
+    smooth = (np.abs(ex_raw - 1.0) > 0.05) & (model.friction(fz) > 0.05)  # no kink, no pole of Bx at Dx = 0
+    got = terms.jacobian(JACOBIAN_NAMES)
+    assert got.shape == (k.size, len(JACOBIAN_NAMES))
+    floor = 1e-9 * float(np.max(np.abs(terms.fx0)))
+    for i, name in enumerate(JACOBIAN_NAMES):
+        want = _richardson(model, name, k, fz, 1e-4 * max(1.0, abs(getattr(model, name))))
+        tol = 1e-6 * float(np.max(np.abs(want[smooth]), initial=0.0)) + floor
+        np.testing.assert_allclose(got[smooth, i], want[smooth], rtol=0, atol=tol, err_msg=name)
+
+
+def _central_differences(terms: Fx0Terms, names: Sequence[str]) -> np.ndarray:
+    """The Jacobian the fit took before its closed form: central differences of Fx0, step 1e-6·max(1, |c|)."""
+    m = terms.model
+    cols = []
+    for n in names:
+        c = getattr(m, n)
+        h = 1e-6 * max(1.0, abs(c))
+        cols.append((dataclasses.replace(m, **{n: c + h}).fx0(terms.slip, terms.fz)
+                     - dataclasses.replace(m, **{n: c - h}).fx0(terms.slip, terms.fz)) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+FIT_REL = 1e-6
+"""The coefficients of the fit with the closed-form Jacobian against those with central differences: relative."""
+CURVE_OF_PEAK = 1e-4
+"""Their curves (Fx0 over slip at FNOMIN and ±30 %): apart by at most this fraction of the peak |Fx0|."""
+
+
+def _agrees_with_central_differences(fit: MF61Fit | None, oracle: MF61Fit | None) -> None:
+    assert fit is not None and oracle is not None
+    assert (fit.peak_passed, fit.load_terms, fit.asymmetry, fit.stiffness_from) == \
+        (oracle.peak_passed, oracle.load_terms, oracle.asymmetry, oracle.stiffness_from)
+    assert fit.stderr.keys() == oracle.stderr.keys()
+    for name, value in oracle.model.values().items():
+        assert fit.model.values()[name] == pytest.approx(value, rel=FIT_REL, abs=1e-12), name
+    for name, se in oracle.stderr.items():
+        assert fit.stderr[name] == pytest.approx(se, rel=1e-4), name
+    assert fit.rms_mu == pytest.approx(oracle.rms_mu, rel=1e-9)
+    k = np.linspace(-0.6, 0.6, 241)
+    for fz in (0.7 * fit.model.fnomin, fit.model.fnomin, 1.3 * fit.model.fnomin):
+        want = oracle.model.fx0(k, fz)
+        assert np.max(np.abs(fit.model.fx0(k, fz) - want)) <= CURVE_OF_PEAK * np.max(np.abs(want))
+
+
+@pytest.mark.parametrize("seed, load_terms", [(1, True), (2, False), (3, True)])
+def test_the_fit_gives_the_coefficients_of_central_differences_on_synthetic_points(
+        seed: int, load_terms: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The load test's points (and a third draw): fit_mf61 with the closed-form Jacobian against fit_mf61 with the
+    central differences it used before: the same steps taken, coefficients within FIT_REL, curves within
+    CURVE_OF_PEAK of the peak, standard errors within 1e-4."""
+    truth = LongitudinalMF61(fnomin=4000.0, pcx1=1.65, pdx1=1.17, pkx1=16.0, pdx2=-0.1 if load_terms else 0.0,
+                             pkx2=-3.0 if load_terms else 0.0)
+    points = _points(truth, seed)
+    fit = fit_mf61(*points, 4000.0)
+    monkeypatch.setattr(Fx0Terms, "jacobian", _central_differences)
+    _agrees_with_central_differences(fit, fit_mf61(*points, 4000.0))
+    assert fit is not None and fit.load_terms == load_terms
+
+
+@pytest.mark.parametrize("wheel", ["FL", "FR"])
+def test_the_abs_stops_fit_gives_the_coefficients_of_central_differences(
+        abs_stop: tuple[ManeuverSummary, Config], wheel: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ABS stop's front tires (peak passed): as on synthetic points."""
+    stop, cfg = abs_stop
+    got = build_tire(wheel, [("abs.mcap", stop)], cfg.vehicle, cfg.tire)
+    monkeypatch.setattr(Fx0Terms, "jacobian", _central_differences)
+    _agrees_with_central_differences(got.fit, build_tire(wheel, [("abs.mcap", stop)], cfg.vehicle, cfg.tire).fit)
+
+
+def test_a_real_drives_fits_give_the_coefficients_of_central_differences(rav4: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The RAV4's drive (the peak not passed, PKX1 from the points or the force-slip line): as on synthetic points."""
+    data = read_log(rav4)
+    log = summarize_log(data.rows, data.metadata, data.diagnostics, path=str(rav4), name="rav4", labels={},
+                        fast=data.fast, sensors=data.sensors)
+    jobs = [j for _, _, group in tire_jobs([log]) for j in group]
+    fits = [j.fit().fit for j in jobs]
+    monkeypatch.setattr(Fx0Terms, "jacobian", _central_differences)
+    for fit, job in zip(fits, jobs, strict=True):
+        _agrees_with_central_differences(fit, job.fit().fit)

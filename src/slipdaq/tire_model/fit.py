@@ -1,8 +1,8 @@
 """The MF 6.1 pure longitudinal coefficients of one tire from its maneuvers' points (slip, Fx, Fz). Pure: arrays in,
 a dataclass out.
 
-Least squares on the friction residual (Fx0(k, Fz) − Fx)/Fz over the points (Levenberg-Marquardt, numpy, a
-central-difference Jacobian), in steps:
+Least squares on the friction residual (Fx0(k, Fz) − Fx)/Fz over the points (Levenberg-Marquardt, numpy, the
+Jacobian in closed form: mf61.Fx0Terms), in steps:
     1. PCX1, PDX1, PKX1 (the curve at FNOMIN), and PEX1 where it explains the points better (an F test, as in 3).
        Where the points never pass the peak, the peak is not measured: PCX1 is held at C_UNSEEN and PEX1 at 0, PDX1
        is bounded below by the largest |Fx/Fz| seen (99th percentile); where the points leave PKX1 undetermined (its
@@ -72,60 +72,54 @@ class MF61Fit:
     """Where PKX1 came from: 'the points', or 'the force-slip line' (linearity.py's errors-in-variables slope)."""
 
 
-def _lm(residual: Callable[[FloatArray], FloatArray], x0: FloatArray, lo: FloatArray, hi: FloatArray,
-        iterations: int = 80) -> tuple[FloatArray, FloatArray]:
-    """Levenberg-Marquardt within box bounds (steps clipped): (x, Jacobian at x)."""
+Evaluation = tuple[FloatArray, Callable[[], FloatArray]]
+"""The residual at x and what computes its Jacobian there (asked for only where a step is taken)."""
+
+
+def _lm(evaluate: Callable[[FloatArray], Evaluation], x0: FloatArray, lo: FloatArray, hi: FloatArray,
+        iterations: int = 80) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Levenberg-Marquardt within box bounds (steps clipped): (x, residual at x, Jacobian at x)."""
     x = np.clip(x0, lo, hi)
-    r = residual(x)
+    r, jac = evaluate(x)
     cost = float(r @ r)
     lam = 1e-3
-
-    def jac(x: FloatArray) -> FloatArray:
-        cols = []
-        for i in range(x.size):
-            h = 1e-6 * max(1.0, abs(x[i]))
-            xp, xm = x.copy(), x.copy()
-            xp[i] += h
-            xm[i] -= h
-            cols.append((residual(xp) - residual(xm)) / (2 * h))
-        return np.array(cols).T
-
-    j = jac(x)
+    j = jac()
     for _ in range(iterations):
         g = j.T @ r
         a = j.T @ j
         step = np.linalg.solve(a + lam * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
         x_new = np.clip(x + step, lo, hi)
-        r_new = residual(x_new)
+        r_new, jac_new = evaluate(x_new)
         c_new = float(r_new @ r_new)
         if c_new < cost:
             done = cost - c_new < 1e-12 * max(cost, 1e-30) or np.all(np.abs(x_new - x) <= 1e-10 * (1 + np.abs(x)))
             x, r, cost = x_new, r_new, c_new
             lam = max(lam / 3.0, 1e-9)
-            j = jac(x)
+            j = jac_new()
             if done:
                 break
         else:
             lam *= 4.0
             if lam > 1e8:
                 break
-    return x, j
+    return x, r, j
 
 
 def _fit(base: LongitudinalMF61, names: Sequence[str], k: FloatArray, fx: FloatArray, fz: FloatArray,
          lower: dict[str, float] | None = None) -> tuple[LongitudinalMF61, FloatArray, float]:
-    """Fit `names` of base to the points: (model, Jacobian, SSR)."""
+    """Fit `names` of base to the points: (model, Jacobian, SSR); the Jacobian in closed form (Fx0Terms.jacobian)."""
     lo = np.array([max(BOUNDS[n][0], (lower or {}).get(n, -math.inf)) for n in names])
     hi = np.array([BOUNDS[n][1] for n in names])
+    per_fz = 1.0 / fz
 
     def model(x: FloatArray) -> LongitudinalMF61:
         return dataclasses.replace(base, **{n: float(v) for n, v in zip(names, x)})
 
-    def residual(x: FloatArray) -> FloatArray:
-        return np.asarray((model(x).fx0(k, fz) - fx) / fz, dtype=float)
+    def evaluate(x: FloatArray) -> Evaluation:
+        terms = model(x).fx0_terms(k, fz)
+        return np.asarray((terms.fx0 - fx) / fz, dtype=float), lambda: terms.jacobian(names) * per_fz[:, None]
 
-    x, j = _lm(residual, np.array([getattr(base, n) for n in names], dtype=float), lo, hi)
-    r = residual(x)
+    x, r, j = _lm(evaluate, np.array([getattr(base, n) for n in names], dtype=float), lo, hi)
     return model(x), j, float(r @ r)
 
 

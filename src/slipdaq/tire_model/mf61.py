@@ -16,6 +16,7 @@ k is the longitudinal slip (ISO: negative braking), Fz the normal load (N).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,19 +88,32 @@ class LongitudinalMF61:
 
     def fx0(self, slip: npt.ArrayLike, fz: npt.ArrayLike) -> FloatArray:
         """Fx0 (N) at each (slip, Fz), broadcast (module docstring)."""
+        return self.fx0_terms(slip, fz).fx0
+
+    def fx0_terms(self, slip: npt.ArrayLike, fz: npt.ArrayLike) -> Fx0Terms:
+        """Fx0 at each (slip, Fz) with the terms its derivatives need (Fx0Terms)."""
         k = np.asarray(slip, dtype=float)
         fz_a = np.asarray(fz, dtype=float)
         d = self.dfz(fz_a)
         kx = k + (self.phx1 + self.phx2 * d) * self.lhx
         cx = self.pcx1 * self.lcx
         dx = self.friction(fz_a) * fz_a
-        ex = np.minimum((self.pex1 + self.pex2 * d + self.pex3 * d * d) * (1.0 - self.pex4 * np.sign(kx)) * self.lex,
-                        1.0)
-        bx = self.slip_stiffness(fz_a) / (cx * dx + EPS_X)
+        sign_kx = np.sign(kx)
+        ex_shape = self.pex1 + self.pex2 * d + self.pex3 * d * d
+        ex_raw = ex_shape * (1.0 - self.pex4 * sign_kx) * self.lex
+        ex = np.minimum(ex_raw, 1.0)
+        kxk = self.slip_stiffness(fz_a)
+        cd = cx * dx + EPS_X
+        bx = kxk / cd
         lmux_prime = 10.0 * self.lmux / (1.0 + 9.0 * self.lmux)
         svx = fz_a * (self.pvx1 + self.pvx2 * d) * self.lvx * lmux_prime
         bk = bx * kx
-        return np.asarray(dx * np.sin(cx * np.arctan(bk - ex * (bk - np.arctan(bk)))) + svx, dtype=float)
+        atan_bk = np.arctan(bk)
+        phi = bk - ex * (bk - atan_bk)
+        atan_phi = np.arctan(phi)
+        fx0 = np.asarray(dx * np.sin(cx * atan_phi) + svx, dtype=float)
+        return Fx0Terms(self, k, fz_a, d, kx, sign_kx, ex_shape, ex_raw < 1.0, ex, dx, cd, bx, bk, atan_bk, phi, atan_phi,
+                        fx0)
 
     def peak(self, fz: float, sign: float = -1.0, slip_max: float = 1.0) -> tuple[float, float]:
         """(|Fx0| at its peak, |slip| there) on the side `sign` (−1 braking), searched over |slip| <= slip_max (a
@@ -113,3 +127,66 @@ class LongitudinalMF61:
             xs = float(x[i] + frac * 0.0005)
             return float(abs(self.fx0(sign * xs, fz))), xs
         return float(f[i]), float(x[i])
+
+
+JACOBIAN_NAMES = ("pcx1", "pdx1", "pdx2", "pex1", "pex4", "pkx1", "pkx2")
+"""The coefficients Fx0Terms.jacobian differentiates by: those the road fits (tire_model/fit.py)."""
+
+
+@dataclass(frozen=True)
+class Fx0Terms:
+    """Fx0 of a model at points (slip, Fz) and the terms of 4.E9-4.E18 there that its derivatives reuse:
+    phi = Bx·kx − Ex·(Bx·kx − atan(Bx·kx)), Fx0 = Dx·sin(Cx·atan(phi)) + SVx."""
+
+    model: LongitudinalMF61
+    slip: FloatArray
+    fz: FloatArray
+    dfz: FloatArray
+    kx: FloatArray
+    sign_kx: FloatArray
+    ex_shape: FloatArray
+    """PEX1 + PEX2·dfz + PEX3·dfz²."""
+    ex_free: npt.NDArray[np.bool_]
+    """Where Ex is below its limit 1 (elsewhere it does not move with the coefficients)."""
+    ex: FloatArray
+    dx: FloatArray
+    cd: FloatArray
+    """Cx·Dx + eps_x."""
+    bx: FloatArray
+    bk: FloatArray
+    atan_bk: FloatArray
+    phi: FloatArray
+    atan_phi: FloatArray
+    fx0: FloatArray
+
+    def jacobian(self, names: Sequence[str]) -> FloatArray:
+        """dFx0/dc for each coefficient c of names (of JACOBIAN_NAMES), one column each, by the chain rule:
+            dFx0/dphi = Dx·Cx·cos(Cx·atan phi)/(1 + phi²),   dphi/d(Bx·kx) = 1 − Ex·(Bx·kx)²/(1 + (Bx·kx)²),
+            dphi/dEx = atan(Bx·kx) − Bx·kx,   dBx/dKxk = 1/(Cx·Dx + eps),   dBx/dCx = −Bx·Dx/(Cx·Dx + eps),
+            dBx/dDx = −Bx·Cx/(Cx·Dx + eps),   dFx0/dCx = Dx·cos(Cx·atan phi)·atan phi + (via Bx),
+            dFx0/dDx = sin(Cx·atan phi) + (via Bx); Cx, Dx, Ex, Kxk linear in their coefficients (4.E11-4.E15)."""
+        m = self.model
+        cx = m.pcx1 * m.lcx
+        arg = cx * self.atan_phi
+        cos_arg = np.cos(arg)
+        bk2 = self.bk * self.bk
+        by_phi = self.dx * cx * cos_arg / (1.0 + self.phi * self.phi)
+        by_bx = by_phi * (1.0 - self.ex * bk2 / (1.0 + bk2)) * self.kx
+        by_kxk = by_bx / self.cd
+        cols: list[FloatArray] = []
+        for name in names:
+            if name == "pcx1":
+                col = (self.dx * cos_arg * self.atan_phi - by_bx * self.bx * self.dx / self.cd) * m.lcx
+            elif name in ("pdx1", "pdx2"):
+                col = (np.sin(arg) - by_bx * self.bx * cx / self.cd) * (m.lmux * self.fz)
+                col = col * self.dfz if name == "pdx2" else col
+            elif name in ("pkx1", "pkx2"):
+                col = by_kxk * self.fz * np.exp(m.pkx3 * self.dfz) * m.lkx
+                col = col * self.dfz if name == "pkx2" else col
+            elif name in ("pex1", "pex4"):
+                by_ex = np.where(self.ex_free, by_phi * (self.atan_bk - self.bk) * m.lex, 0.0)
+                col = by_ex * (1.0 - m.pex4 * self.sign_kx) if name == "pex1" else -by_ex * self.ex_shape * self.sign_kx
+            else:
+                raise KeyError(f"{name}: not one of {JACOBIAN_NAMES}")
+            cols.append(np.asarray(col, dtype=float))
+        return np.stack(cols, axis=-1)
