@@ -102,18 +102,19 @@ class LongitudinalMF61:
         ex_shape = self.pex1 + self.pex2 * d + self.pex3 * d * d
         ex_raw = ex_shape * (1.0 - self.pex4 * sign_kx) * self.lex
         ex = np.minimum(ex_raw, 1.0)
-        kxk = self.slip_stiffness(fz_a)
+        exp_pkx3 = np.exp(self.pkx3 * d)
         cd = cx * dx + EPS_X
-        bx = kxk / cd
+        bx = fz_a * (self.pkx1 + self.pkx2 * d) * exp_pkx3 * self.lkx / cd  # slip_stiffness / cd
         lmux_prime = 10.0 * self.lmux / (1.0 + 9.0 * self.lmux)
         svx = fz_a * (self.pvx1 + self.pvx2 * d) * self.lvx * lmux_prime
         bk = bx * kx
         atan_bk = np.arctan(bk)
         phi = bk - ex * (bk - atan_bk)
         atan_phi = np.arctan(phi)
-        fx0 = np.asarray(dx * np.sin(cx * atan_phi) + svx, dtype=float)
-        return Fx0Terms(self, k, fz_a, d, kx, sign_kx, ex_shape, ex_raw < 1.0, ex, dx, cd, bx, bk, atan_bk, phi, atan_phi,
-                        fx0)
+        sin_c = np.sin(cx * atan_phi)
+        fx0 = np.asarray(dx * sin_c + svx, dtype=float)
+        return Fx0Terms(self, k, fz_a, d, kx, sign_kx, ex_shape, ex_raw < 1.0, ex, exp_pkx3, dx, cd, bx, bk, atan_bk,
+                        phi, atan_phi, sin_c, fx0)
 
     def peak(self, fz: float, sign: float = -1.0, slip_max: float = 1.0) -> tuple[float, float]:
         """(|Fx0| at its peak, |slip| there) on the side `sign` (−1 braking), searched over |slip| <= slip_max (a
@@ -149,6 +150,8 @@ class Fx0Terms:
     ex_free: npt.NDArray[np.bool_]
     """Where Ex is below its limit 1 (elsewhere it does not move with the coefficients)."""
     ex: FloatArray
+    exp_pkx3: FloatArray
+    """exp(PKX3·dfz)."""
     dx: FloatArray
     cd: FloatArray
     """Cx·Dx + eps_x."""
@@ -157,6 +160,8 @@ class Fx0Terms:
     atan_bk: FloatArray
     phi: FloatArray
     atan_phi: FloatArray
+    sin_c: FloatArray
+    """sin(Cx·atan phi)."""
     fx0: FloatArray
 
     def jacobian(self, names: Sequence[str]) -> FloatArray:
@@ -167,21 +172,20 @@ class Fx0Terms:
             dFx0/dDx = sin(Cx·atan phi) + (via Bx); Cx, Dx, Ex, Kxk linear in their coefficients (4.E11-4.E15)."""
         m = self.model
         cx = m.pcx1 * m.lcx
-        arg = cx * self.atan_phi
-        cos_arg = np.cos(arg)
+        cos_c = np.cos(cx * self.atan_phi)
         bk2 = self.bk * self.bk
-        by_phi = self.dx * cx * cos_arg / (1.0 + self.phi * self.phi)
+        by_phi = self.dx * cx * cos_c / (1.0 + self.phi * self.phi)
         by_bx = by_phi * (1.0 - self.ex * bk2 / (1.0 + bk2)) * self.kx
         by_kxk = by_bx / self.cd
         cols: list[FloatArray] = []
         for name in names:
             if name == "pcx1":
-                col = (self.dx * cos_arg * self.atan_phi - by_bx * self.bx * self.dx / self.cd) * m.lcx
+                col = (self.dx * cos_c * self.atan_phi - by_bx * self.bx * self.dx / self.cd) * m.lcx
             elif name in ("pdx1", "pdx2"):
-                col = (np.sin(arg) - by_bx * self.bx * cx / self.cd) * (m.lmux * self.fz)
+                col = (self.sin_c - by_bx * self.bx * cx / self.cd) * (m.lmux * self.fz)
                 col = col * self.dfz if name == "pdx2" else col
             elif name in ("pkx1", "pkx2"):
-                col = by_kxk * self.fz * np.exp(m.pkx3 * self.dfz) * m.lkx
+                col = by_kxk * self.fz * self.exp_pkx3 * m.lkx
                 col = col * self.dfz if name == "pkx2" else col
             elif name in ("pex1", "pex4"):
                 by_ex = np.where(self.ex_free, by_phi * (self.atan_bk - self.bk) * m.lex, 0.0)
