@@ -242,7 +242,7 @@ def test_the_closed_form_jacobian_is_the_curves_derivative(pcx1: float, pdx1: fl
                                                            pex2: float, phx1: float, pvx1: float, lmux: float,
                                                            fnomin: float, seed: int) -> None:
     """Fx0Terms.jacobian against central differences (Richardson-extrapolated) over random coefficients within the
-    fit's bounds (and the terms it holds fixed), loads from 0.2 to 2 FNOMIN and slip over ±60 %: each column within
+    fit's bounds (and the terms it holds fixed), loads from 0.2 to 2 FNOMIN and slip over ±60 %: each row within
     1e-6 of its largest value (and 1e-9 of the largest |Fx0|: the differences' rounding), away from where Ex meets
     its limit 1 (a kink) and where the friction mux (PDX2 against the load) falls to 0 (Bx's pole); Fx0Terms' Fx0 is
     fx0's, the same bits."""
@@ -256,12 +256,12 @@ def test_the_closed_form_jacobian_is_the_curves_derivative(pcx1: float, pdx1: fl
     ex_raw = terms.ex_shape * (1.0 - pex4 * terms.sign_kx)
     smooth = (np.abs(ex_raw - 1.0) > 0.05) & (model.friction(fz) > 0.05)  # no kink, no pole of Bx at Dx = 0
     got = terms.jacobian(JACOBIAN_NAMES)
-    assert got.shape == (k.size, len(JACOBIAN_NAMES))
+    assert got.shape == (len(JACOBIAN_NAMES), k.size)
     floor = 1e-9 * float(np.max(np.abs(terms.fx0)))
     for i, name in enumerate(JACOBIAN_NAMES):
         want = _richardson(model, name, k, fz, 1e-4 * max(1.0, abs(getattr(model, name))))
         tol = 1e-6 * float(np.max(np.abs(want[smooth]), initial=0.0)) + floor
-        np.testing.assert_allclose(got[smooth, i], want[smooth], rtol=0, atol=tol, err_msg=name)
+        np.testing.assert_allclose(got[i, smooth], want[smooth], rtol=0, atol=tol, err_msg=name)
 
 
 def _central_differences(terms: Fx0Terms, names: Sequence[str]) -> np.ndarray:
@@ -273,7 +273,7 @@ def _central_differences(terms: Fx0Terms, names: Sequence[str]) -> np.ndarray:
         h = 1e-6 * max(1.0, abs(c))
         cols.append((dataclasses.replace(m, **{n: c + h}).fx0(terms.slip, terms.fz)
                      - dataclasses.replace(m, **{n: c - h}).fx0(terms.slip, terms.fz)) / (2 * h))
-    return np.stack(cols, axis=-1)
+    return np.stack(cols)
 
 
 FIT_REL = 1e-6

@@ -73,41 +73,59 @@ class MF61Fit:
 
 
 Evaluation = tuple[FloatArray, Callable[[], FloatArray]]
-"""The residual at x and what computes its Jacobian there (asked for only where a step is taken)."""
+"""The residual at x and what computes its Jacobian there (one row per coefficient; asked for only where a step is
+taken)."""
+
+
+def _dot(a: FloatArray, b: FloatArray) -> float:
+    """a·b by numpy's own loop: a BLAS dot or matrix product over 10⁵ points wakes OpenBLAS's threads, which then spin
+    on the other core between the fit's calls (twice the fit's CPU time on 2 cores)."""
+    return float(np.einsum("n,n->", a, b))
+
+
+def _normal(jt: FloatArray) -> FloatArray:
+    """JᵀJ of the Jacobian's rows jt (_dot)."""
+    p = jt.shape[0]
+    a = np.empty((p, p))
+    for i in range(p):
+        for k in range(i + 1):
+            a[i, k] = a[k, i] = _dot(jt[i], jt[k])
+    return a
 
 
 def _lm(evaluate: Callable[[FloatArray], Evaluation], x0: FloatArray, lo: FloatArray, hi: FloatArray,
         iterations: int = 80) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Levenberg-Marquardt within box bounds (steps clipped): (x, residual at x, Jacobian at x)."""
+    """Levenberg-Marquardt within box bounds (steps clipped): (x, residual at x, Jacobian's rows at x)."""
     x = np.clip(x0, lo, hi)
     r, jac = evaluate(x)
-    cost = float(r @ r)
+    cost = _dot(r, r)
     lam = 1e-3
-    j = jac()
+    jt = jac()
     for _ in range(iterations):
-        g = j.T @ r
-        a = j.T @ j
+        g = np.array([_dot(row, r) for row in jt])
+        a = _normal(jt)
         step = np.linalg.solve(a + lam * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
         x_new = np.clip(x + step, lo, hi)
         r_new, jac_new = evaluate(x_new)
-        c_new = float(r_new @ r_new)
+        c_new = _dot(r_new, r_new)
         if c_new < cost:
             done = cost - c_new < 1e-12 * max(cost, 1e-30) or np.all(np.abs(x_new - x) <= 1e-10 * (1 + np.abs(x)))
             x, r, cost = x_new, r_new, c_new
             lam = max(lam / 3.0, 1e-9)
-            j = jac_new()
+            jt = jac_new()
             if done:
                 break
         else:
             lam *= 4.0
             if lam > 1e8:
                 break
-    return x, r, j
+    return x, r, jt
 
 
 def _fit(base: LongitudinalMF61, names: Sequence[str], k: FloatArray, fx: FloatArray, fz: FloatArray,
          lower: dict[str, float] | None = None) -> tuple[LongitudinalMF61, FloatArray, float]:
-    """Fit `names` of base to the points: (model, Jacobian, SSR); the Jacobian in closed form (Fx0Terms.jacobian)."""
+    """Fit `names` of base to the points: (model, Jacobian's rows, SSR); the Jacobian in closed form
+    (Fx0Terms.jacobian)."""
     lo = np.array([max(BOUNDS[n][0], (lower or {}).get(n, -math.inf)) for n in names])
     hi = np.array([BOUNDS[n][1] for n in names])
     per_fz = 1.0 / fz
@@ -117,17 +135,17 @@ def _fit(base: LongitudinalMF61, names: Sequence[str], k: FloatArray, fx: FloatA
 
     def evaluate(x: FloatArray) -> Evaluation:
         terms = model(x).fx0_terms(k, fz)
-        return np.asarray((terms.fx0 - fx) / fz, dtype=float), lambda: terms.jacobian(names) * per_fz[:, None]
+        return np.asarray((terms.fx0 - fx) / fz, dtype=float), lambda: terms.jacobian(names) * per_fz
 
-    x, r, j = _lm(evaluate, np.array([getattr(base, n) for n in names], dtype=float), lo, hi)
-    return model(x), j, float(r @ r)
+    x, r, jt = _lm(evaluate, np.array([getattr(base, n) for n in names], dtype=float), lo, hi)
+    return model(x), jt, _dot(r, r)
 
 
-def _stderr(j: FloatArray, ssr: float, n_eff: float, names: Sequence[str]) -> dict[str, float]:
-    p = len(names)
-    sigma2 = ssr / max(j.shape[0] - p, 1.0) * (j.shape[0] / max(n_eff, 1.0))
+def _stderr(jt: FloatArray, ssr: float, n_eff: float, names: Sequence[str]) -> dict[str, float]:
+    p, n = jt.shape
+    sigma2 = ssr / max(n - p, 1.0) * (n / max(n_eff, 1.0))
     try:
-        cov = np.linalg.inv(j.T @ j) * sigma2
+        cov = np.linalg.inv(_normal(jt)) * sigma2
     except np.linalg.LinAlgError:
         return {n.upper(): math.nan for n in names}
     return {n.upper(): float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}

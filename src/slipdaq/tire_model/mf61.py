@@ -165,7 +165,7 @@ class Fx0Terms:
     fx0: FloatArray
 
     def jacobian(self, names: Sequence[str]) -> FloatArray:
-        """dFx0/dc for each coefficient c of names (of JACOBIAN_NAMES), one column each, by the chain rule:
+        """dFx0/dc for each coefficient c of names (of JACOBIAN_NAMES), one row each, by the chain rule:
             dFx0/dphi = Dx·Cx·cos(Cx·atan phi)/(1 + phi²),   dphi/d(Bx·kx) = 1 − Ex·(Bx·kx)²/(1 + (Bx·kx)²),
             dphi/dEx = atan(Bx·kx) − Bx·kx,   dBx/dKxk = 1/(Cx·Dx + eps),   dBx/dCx = −Bx·Dx/(Cx·Dx + eps),
             dBx/dDx = −Bx·Cx/(Cx·Dx + eps),   dFx0/dCx = Dx·cos(Cx·atan phi)·atan phi + (via Bx),
@@ -193,4 +193,4 @@ class Fx0Terms:
             else:
                 raise KeyError(f"{name}: not one of {JACOBIAN_NAMES}")
             cols.append(np.asarray(col, dtype=float))
-        return np.stack(cols, axis=-1)
+        return np.stack(cols)
