@@ -251,9 +251,9 @@ def test_the_closed_form_jacobian_is_the_curves_derivative(pcx1: float, pdx1: fl
     rng = np.random.default_rng(seed)
     k = rng.uniform(-0.6, 0.6, 400)
     fz = fnomin * rng.uniform(0.2, 2.0, 400)
-    terms = model.fx0_terms(k, fz)
+    terms = model.fx0_terms(model.point_terms(k, fz))
     np.testing.assert_array_equal(terms.fx0, model.fx0(k, fz))
-    ex_raw = terms.ex_shape * (1.0 - pex4 * terms.sign_kx)
+    ex_raw = terms.ex_shape * (1.0 - pex4 * terms.points.sign_kx)
     smooth = (np.abs(ex_raw - 1.0) > 0.05) & (model.friction(fz) > 0.05)  # no kink, no pole of Bx at Dx = 0
     got = terms.jacobian(JACOBIAN_NAMES)
     assert got.shape == (len(JACOBIAN_NAMES), k.size)
@@ -271,8 +271,8 @@ def _central_differences(terms: Fx0Terms, names: Sequence[str]) -> np.ndarray:
     for n in names:
         c = getattr(m, n)
         h = 1e-6 * max(1.0, abs(c))
-        cols.append((dataclasses.replace(m, **{n: c + h}).fx0(terms.slip, terms.fz)
-                     - dataclasses.replace(m, **{n: c - h}).fx0(terms.slip, terms.fz)) / (2 * h))
+        cols.append((dataclasses.replace(m, **{n: c + h}).fx0(terms.points.slip, terms.points.fz)
+                     - dataclasses.replace(m, **{n: c - h}).fx0(terms.points.slip, terms.points.fz)) / (2 * h))
     return np.stack(cols)
 
 

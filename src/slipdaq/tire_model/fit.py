@@ -129,12 +129,13 @@ def _fit(base: LongitudinalMF61, names: Sequence[str], k: FloatArray, fx: FloatA
     lo = np.array([max(BOUNDS[n][0], (lower or {}).get(n, -math.inf)) for n in names])
     hi = np.array([BOUNDS[n][1] for n in names])
     per_fz = 1.0 / fz
+    points = base.point_terms(k, fz)  # what the fitted coefficients do not enter, once
 
     def model(x: FloatArray) -> LongitudinalMF61:
         return dataclasses.replace(base, **{n: float(v) for n, v in zip(names, x)})
 
     def evaluate(x: FloatArray) -> Evaluation:
-        terms = model(x).fx0_terms(k, fz)
+        terms = model(x).fx0_terms(points)
         return np.asarray((terms.fx0 - fx) / fz, dtype=float), lambda: terms.jacobian(names) * per_fz
 
     x, r, jt = _lm(evaluate, np.array([getattr(base, n) for n in names], dtype=float), lo, hi)

@@ -88,33 +88,41 @@ class LongitudinalMF61:
 
     def fx0(self, slip: npt.ArrayLike, fz: npt.ArrayLike) -> FloatArray:
         """Fx0 (N) at each (slip, Fz), broadcast (module docstring)."""
-        return self.fx0_terms(slip, fz).fx0
+        return self.fx0_terms(self.point_terms(slip, fz)).fx0
 
-    def fx0_terms(self, slip: npt.ArrayLike, fz: npt.ArrayLike) -> Fx0Terms:
-        """Fx0 at each (slip, Fz) with the terms its derivatives need (Fx0Terms)."""
+    def _fixed(self) -> tuple[float, ...]:
+        return tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in JACOBIAN_NAMES)
+
+    def point_terms(self, slip: npt.ArrayLike, fz: npt.ArrayLike) -> PointTerms:
+        """The terms at each (slip, Fz) that the coefficients of JACOBIAN_NAMES do not enter (PointTerms)."""
         k = np.asarray(slip, dtype=float)
         fz_a = np.asarray(fz, dtype=float)
         d = self.dfz(fz_a)
         kx = k + (self.phx1 + self.phx2 * d) * self.lhx
-        cx = self.pcx1 * self.lcx
-        dx = self.friction(fz_a) * fz_a
-        sign_kx = np.sign(kx)
-        ex_shape = self.pex1 + self.pex2 * d + self.pex3 * d * d
-        ex_raw = ex_shape * (1.0 - self.pex4 * sign_kx) * self.lex
-        ex = np.minimum(ex_raw, 1.0)
-        exp_pkx3 = np.exp(self.pkx3 * d)
-        cd = cx * dx + EPS_X
-        bx = fz_a * (self.pkx1 + self.pkx2 * d) * exp_pkx3 * self.lkx / cd  # slip_stiffness / cd
         lmux_prime = 10.0 * self.lmux / (1.0 + 9.0 * self.lmux)
-        svx = fz_a * (self.pvx1 + self.pvx2 * d) * self.lvx * lmux_prime
-        bk = bx * kx
+        return PointTerms(self._fixed(), k, fz_a, d, kx, np.sign(kx), self.pex2 * d, self.pex3 * d * d,
+                          np.exp(self.pkx3 * d), fz_a * (self.pvx1 + self.pvx2 * d) * self.lvx * lmux_prime)
+
+    def fx0_terms(self, points: PointTerms) -> Fx0Terms:
+        """Fx0 at the points with the terms its derivatives need (Fx0Terms); points from a model that differs from
+        this one at most in JACOBIAN_NAMES (a fit's points: their terms computed once)."""
+        if points.fixed != self._fixed():
+            raise ValueError("the points' terms are of a model with other coefficients than JACOBIAN_NAMES'")
+        d, fz_a = points.dfz, points.fz
+        cx = self.pcx1 * self.lcx
+        dx = (self.pdx1 + self.pdx2 * d) * self.lmux * fz_a  # friction(fz)·Fz
+        ex_shape = self.pex1 + points.pex2_dfz + points.pex3_dfz2
+        ex_raw = ex_shape * (1.0 - self.pex4 * points.sign_kx) * self.lex
+        ex = np.minimum(ex_raw, 1.0)
+        cd = cx * dx + EPS_X
+        bx = fz_a * (self.pkx1 + self.pkx2 * d) * points.exp_pkx3 * self.lkx / cd  # slip_stiffness / cd
+        bk = bx * points.kx
         atan_bk = np.arctan(bk)
         phi = bk - ex * (bk - atan_bk)
         atan_phi = np.arctan(phi)
         sin_c = np.sin(cx * atan_phi)
-        fx0 = np.asarray(dx * sin_c + svx, dtype=float)
-        return Fx0Terms(self, k, fz_a, d, kx, sign_kx, ex_shape, ex_raw < 1.0, ex, exp_pkx3, dx, cd, bx, bk, atan_bk,
-                        phi, atan_phi, sin_c, fx0)
+        fx0 = np.asarray(dx * sin_c + points.svx, dtype=float)
+        return Fx0Terms(self, points, ex_shape, ex_raw < 1.0, ex, dx, cd, bx, bk, atan_bk, phi, atan_phi, sin_c, fx0)
 
     def peak(self, fz: float, sign: float = -1.0, slip_max: float = 1.0) -> tuple[float, float]:
         """(|Fx0| at its peak, |slip| there) on the side `sign` (−1 braking), searched over |slip| <= slip_max (a
@@ -135,23 +143,35 @@ JACOBIAN_NAMES = ("pcx1", "pdx1", "pdx2", "pex1", "pex4", "pkx1", "pkx2")
 
 
 @dataclass(frozen=True)
-class Fx0Terms:
-    """Fx0 of a model at points (slip, Fz) and the terms of 4.E9-4.E18 there that its derivatives reuse:
-    phi = Bx·kx − Ex·(Bx·kx − atan(Bx·kx)), Fx0 = Dx·sin(Cx·atan(phi)) + SVx."""
+class PointTerms:
+    """The terms of 4.E9-4.E18 at points (slip, Fz) that the coefficients of JACOBIAN_NAMES do not enter."""
 
-    model: LongitudinalMF61
+    fixed: tuple[float, ...]
+    """The model's other coefficients (those the terms are of)."""
     slip: FloatArray
     fz: FloatArray
     dfz: FloatArray
     kx: FloatArray
     sign_kx: FloatArray
+    pex2_dfz: FloatArray
+    pex3_dfz2: FloatArray
+    exp_pkx3: FloatArray
+    """exp(PKX3·dfz)."""
+    svx: FloatArray
+
+
+@dataclass(frozen=True)
+class Fx0Terms:
+    """Fx0 of a model at points and the terms of 4.E9-4.E18 there that its derivatives reuse:
+    phi = Bx·kx − Ex·(Bx·kx − atan(Bx·kx)), Fx0 = Dx·sin(Cx·atan(phi)) + SVx."""
+
+    model: LongitudinalMF61
+    points: PointTerms
     ex_shape: FloatArray
     """PEX1 + PEX2·dfz + PEX3·dfz²."""
     ex_free: npt.NDArray[np.bool_]
     """Where Ex is below its limit 1 (elsewhere it does not move with the coefficients)."""
     ex: FloatArray
-    exp_pkx3: FloatArray
-    """exp(PKX3·dfz)."""
     dx: FloatArray
     cd: FloatArray
     """Cx·Dx + eps_x."""
@@ -170,26 +190,26 @@ class Fx0Terms:
             dphi/dEx = atan(Bx·kx) − Bx·kx,   dBx/dKxk = 1/(Cx·Dx + eps),   dBx/dCx = −Bx·Dx/(Cx·Dx + eps),
             dBx/dDx = −Bx·Cx/(Cx·Dx + eps),   dFx0/dCx = Dx·cos(Cx·atan phi)·atan phi + (via Bx),
             dFx0/dDx = sin(Cx·atan phi) + (via Bx); Cx, Dx, Ex, Kxk linear in their coefficients (4.E11-4.E15)."""
-        m = self.model
+        m, pt = self.model, self.points
         cx = m.pcx1 * m.lcx
         cos_c = np.cos(cx * self.atan_phi)
         bk2 = self.bk * self.bk
         by_phi = self.dx * cx * cos_c / (1.0 + self.phi * self.phi)
-        by_bx = by_phi * (1.0 - self.ex * bk2 / (1.0 + bk2)) * self.kx
+        by_bx = by_phi * (1.0 - self.ex * bk2 / (1.0 + bk2)) * pt.kx
         by_kxk = by_bx / self.cd
         cols: list[FloatArray] = []
         for name in names:
             if name == "pcx1":
                 col = (self.dx * cos_c * self.atan_phi - by_bx * self.bx * self.dx / self.cd) * m.lcx
             elif name in ("pdx1", "pdx2"):
-                col = (self.sin_c - by_bx * self.bx * cx / self.cd) * (m.lmux * self.fz)
-                col = col * self.dfz if name == "pdx2" else col
+                col = (self.sin_c - by_bx * self.bx * cx / self.cd) * (m.lmux * pt.fz)
+                col = col * pt.dfz if name == "pdx2" else col
             elif name in ("pkx1", "pkx2"):
-                col = by_kxk * self.fz * self.exp_pkx3 * m.lkx
-                col = col * self.dfz if name == "pkx2" else col
+                col = by_kxk * pt.fz * pt.exp_pkx3 * m.lkx
+                col = col * pt.dfz if name == "pkx2" else col
             elif name in ("pex1", "pex4"):
                 by_ex = np.where(self.ex_free, by_phi * (self.atan_bk - self.bk) * m.lex, 0.0)
-                col = by_ex * (1.0 - m.pex4 * self.sign_kx) if name == "pex1" else -by_ex * self.ex_shape * self.sign_kx
+                col = by_ex * (1.0 - m.pex4 * pt.sign_kx) if name == "pex1" else -by_ex * self.ex_shape * pt.sign_kx
             else:
                 raise KeyError(f"{name}: not one of {JACOBIAN_NAMES}")
             cols.append(np.asarray(col, dtype=float))
