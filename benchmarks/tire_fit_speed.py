@@ -9,8 +9,8 @@ once into --work), replayed and summarized as `slipdaq report` does, each wheel'
 passes them (kept in --work and reused); --copies N fits each wheel's points N times over (4 copies of 0.5 h: the
 point count of a 2-hour log).
 
---test-data: instead, the fits of tests/tire_model's data (its synthetic points, the ABS stop, the RAV4 drive) by
-both sides: the largest relative change of each coefficient, the curves' largest gap.
+--test-data: instead, the fits of tests/tire_model's data (its synthetic points, the ABS stop, the RAV4 drive of
+tests/data) by both sides: the largest relative change of each coefficient, the curves' largest gap.
 --tir OLD NEW: instead, the largest relative change of each coefficient between two folders' .tir files of the same
 names (two reports' tires/).
 
@@ -134,7 +134,7 @@ def fit_inputs(work: Path, hours: float) -> tuple[Path, dict[str, dict[str, Any]
             kwargs[wheel] = {"fnomin_n": fnomin, **kw}
             return fit_mf61(slip, fx, fz, fnomin, **kw)
 
-        files.fit_mf61 = recording  # type: ignore[assignment]
+        files.fit_mf61 = recording
         try:
             for _, _, jobs in tire_jobs([s]):
                 for job in jobs:
@@ -183,15 +183,21 @@ def compare_tir(old_dir: Path, new_dir: Path) -> int:
     return 0
 
 
+def _child(args: list[str], env: dict[str, str]) -> str:
+    """The last line `python -c ARGS` prints (its error's end where it fails)."""
+    p = subprocess.run([sys.executable, "-c", *args], env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"a side's process failed ({p.returncode}): {p.stderr[-2000:]}")
+    return p.stdout.strip().splitlines()[-1]
+
+
 def compare_test_data(work: Path, base: str) -> int:
     """The fits of tests/tire_model's points (three synthetic draws, the ABS stop's front tires, the RAV4 drive's
     four), this tree against the base: the largest relative change per coefficient, the curves' largest gap."""
     got = {}
     for name, src in (("this tree", ROOT / "src"), ("base", unpack(base, work / f"base-{base}"))):
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
-        p = subprocess.run([sys.executable, "-c", TEST_DATA, str(ROOT)], env=env, check=True, capture_output=True,
-                           text=True)
-        got[name] = json.loads(p.stdout.strip().splitlines()[-1])
+        got[name] = json.loads(_child([TEST_DATA, str(ROOT)], env))
     print(f"`python -m benchmarks.tire_fit_speed {' '.join(sys.argv[1:])}`: the fits of tests/tire_model's points, "
           f"this tree against base {base}\n\n| fit | largest relative change (coefficient) | curves apart, of the peak |"
           "\n|---|---:|---:|")
@@ -230,9 +236,7 @@ def main() -> int:
     for r in range(a.rounds):
         for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
             env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(sides[name]), str(ROOT)]))
-            p = subprocess.run([sys.executable, "-c", CHILD, str(npz), str(a.copies), json.dumps(kwargs)], env=env,
-                               check=True, capture_output=True, text=True)
-            got[name].append(json.loads(p.stdout.strip().splitlines()[-1]))
+            got[name].append(json.loads(_child([CHILD, str(npz), str(a.copies), json.dumps(kwargs)], env)))
             print(f"round {r + 1} {name}: " + ", ".join(f"{w} {v['cpu_s']:.2f} s" for w, v in got[name][-1].items()),
                   flush=True)
     this, old = list(sides)
