@@ -10,7 +10,8 @@ slip (zeta = 1). Pure: numbers in, numbers out.
     SVx = Fz·(PVX1 + PVX2·dfz)·LVX·LMUX'   (LMUX' = 10·LMUX/(1 + 9·LMUX), 4.E8)
     Fx0 = Dx·sin(Cx·atan(Bx·kx − Ex·(Bx·kx − atan(Bx·kx)))) + SVx
 
-k is the longitudinal slip (ISO: negative braking), Fz the normal load (N).
+k is the longitudinal slip (ISO: negative braking), Fz the normal load (N). Fx0Terms.jacobian: its derivatives by the
+coefficients a fit moves (JACOBIAN_NAMES), in closed form.
 """
 
 from __future__ import annotations
