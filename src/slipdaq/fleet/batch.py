@@ -60,6 +60,7 @@ from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
 from slipdaq.report.tires import TireFitter
+from slipdaq.report.write import LogPieces
 
 T = TypeVar("T")
 
@@ -188,7 +189,8 @@ def _ident(log: str | Path) -> str | Path:
     return str(log) if is_url(log) else Path(log).resolve()
 
 
-def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None) -> tuple[list[Job], list[LogResult]]:
+def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None,
+          group_by: Sequence[str] | None = None) -> tuple[list[Job], list[LogResult]]:
     """A job per log (duplicates dropped), and the failures of logs whose key cannot be made (not readable)."""
     from slipdaq.report.build import unique_name
 
@@ -204,7 +206,8 @@ def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None)
         try:
             file = str(log) if is_url(log) else os.path.abspath(log)
             key, size = log_identity(log, name)
-            jobs.append(Job(str(log), name, key, file, png, out, size_bytes=size))
+            jobs.append(Job(str(log), name, key, file, png, out, size_bytes=size,
+                            group_by=tuple(group_by) if group_by else None))
         except Exception as e:
             failed.append(LogResult(str(log), name, "", error=error_text(e)))
     return jobs, failed
@@ -250,8 +253,8 @@ class _Report:
         """Where the report is being built: a log's page data goes in <it>/<name>/."""
         return self._open().build
 
-    def add(self, log: LogSummary) -> None:
-        self._open().add(log)
+    def add(self, log: LogSummary, pieces: LogPieces | None = None) -> None:
+        self._open().add(log, pieces)
 
     def finish(self, logs: Sequence[LogSummary], fit_tires: TireFitter | None = None) -> Path | str | None:
         """index.html's path (or URL) once it is in place; None without a log (the report's directory removed).
@@ -303,12 +306,15 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         report = stack.enter_context(_Report(out, results, png, inputs))
 
         def succeeded(r: LogResult, cached: bool) -> None:
+            if r.summary is not None:  # the path as given now, the group of --group-by
+                r = dataclasses.replace(r, summary=dataclasses.replace(r.summary, path=r.path,
+                                                                       group=group_of(r.summary.labels, group_by)))
             results[r.name] = r if r.placed else dataclasses.replace(r, parquet=b"", page=None, pngs={})
             progress.line(_ok_line(r, out, cached=cached))
             if r.summary is not None:
-                report.add(r.summary)  # its plots by its name; its path and group are the tables' (at the end)
+                report.add(r.summary, r.pieces)  # its plots by its name, its share of the tables
 
-        jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None)
+        jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None, group_by)
         for r in failed:
             progress.line(f"FAILED {failure(r)}")
         todo: list[Job] = []
@@ -324,8 +330,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         def finish(fit_tires: TireFitter | None = None) -> Path | str | None:  # the report over every log that succeeded
             waited = clock.waiting_s
             with clock.timing("report_s"):
-                summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
-                             for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
+                summaries = [s for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
                 index = report.finish(summaries, fit_tires)
             clock.report_s -= clock.waiting_s - waited
             return index

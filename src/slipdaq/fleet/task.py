@@ -37,6 +37,7 @@ from slipdaq.outputs import atomic_output
 from slipdaq.report.page_data import LOG_SCRIPT, PagePlots
 from slipdaq.report.summary import LogSummary
 from slipdaq.report.tires import TireJob, TireResult
+from slipdaq.report.write import LogPieces
 
 CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
@@ -64,6 +65,8 @@ class Job:
     page_dir: str | None = None
     """On the local cluster: the directory where the report is being built; the task writes its page data there
     (place_page) and returns only its plots' names."""
+    group_by: tuple[str, ...] | None = None
+    """`batch --group-by`: the log's group in the report (its share of the tables is made for it, LogResult.pieces)."""
 
     @property
     def stem(self) -> str:
@@ -95,6 +98,8 @@ class LogResult:
     placed: bool = False
     """The task wrote its page data where the report is built (Job.page_dir): `page` has no script, `pngs` no
     bytes."""
+    pieces: LogPieces | None = None
+    """Its share of the report's tables, encoded (report.write.log_pieces): joined by the report, not made there."""
 
 
 def log_identity(path: str | Path, name: str) -> tuple[str, int]:
@@ -150,7 +155,8 @@ def process_log(job: Job) -> LogResult:
             n = write_parquet(data.rows, pq, log_name=job.name, labels=labels)
             blob = pq.read_bytes()
         r = LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0,
-                      plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()))
+                      plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()),
+                      pieces=_pieces(job, summary, page, pngs))
         if job.out is not None:
             if is_url(job.out):
                 save_to(UrlStore(job.out), r)
@@ -165,6 +171,17 @@ def process_log(job: Job) -> LogResult:
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=error_text(e))
     return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def _pieces(job: Job, summary: LogSummary, page: PagePlots, pngs: PlotBytes) -> LogPieces:
+    """The log's share of the report's tables, made for its path, its group (job.group_by) and its plots' and PNGs'
+    names in the report (DIR/report/<name>/<file>, place_page)."""
+    from slipdaq.report.summary import group_of
+    from slipdaq.report.write import log_pieces
+
+    log = dataclasses.replace(summary, path=job.path, group=group_of(summary.labels, job.group_by))
+    links = {k: {s: f"{job.name}/{f}" for s, (f, _) in v.items()} for k, v in pngs.items()} if job.png else {}
+    return log_pieces(log, page.plots, links, page.overview)
 
 
 def place_page(out_dir: Path, r: LogResult, png: bool, sync: bool = False) -> dict[str, dict[str, Path]]:
