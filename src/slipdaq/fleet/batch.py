@@ -26,7 +26,6 @@ import contextlib
 import dataclasses
 import gc
 import os
-import pickle
 import shutil
 import sys
 import tempfile
@@ -53,7 +52,6 @@ from slipdaq.fleet.task import (
     output_where,
     place_page,
     process_log,
-    read_cache,
     save,
 )
 from slipdaq.outputs import refuse_inputs
@@ -132,19 +130,17 @@ class BatchResult:
         return f"{self.out_dir}/{ESTIMATES}" if isinstance(self.out_dir, str) else str(Path(self.out_dir) / ESTIMATES)
 
 
-def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
+def _placer(results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
     """report.build.PlotMaker: a log's page data (and with png its PNGs) as its task made them, where its task wrote
-    them itself (LogResult.placed), else read back from its cache file (they are not kept in memory meanwhile)."""
+    them itself (LogResult.placed), else from its result as it comes (not kept in memory afterwards)."""
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
         r = results[log.name]
+        assert r.page is not None  # load_cached and the tasks make sure
         if r.placed:
-            assert r.page is not None  # the task makes sure
             return Placed(r.page, {k: {s: out_dir / f for s, (f, _) in v.items()} for k, v in r.pngs.items()}
                           if png else {})
-        cached: LogResult = pickle.loads(read_cache(out, r))
-        assert cached.page is not None  # load_cached and the tasks make sure
-        return Placed(cached.page, place_page(out_dir, cached, png))
+        return Placed(r.page, place_page(out_dir, r, png))
     return place
 
 
@@ -224,7 +220,7 @@ class _Report:
 
     def __init__(self, out: Out, results: dict[str, LogResult], png: bool, inputs: Sequence[str]) -> None:
         self.out, self.png, self.inputs = out, png, inputs
-        self.place = _placer(out, results, png)
+        self.place = _placer(results, png)
         self.stack = contextlib.ExitStack()
         self.build: ReportBuild | None = None
 
@@ -309,10 +305,12 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
             if r.summary is not None:  # the path as given now, the group of --group-by
                 r = dataclasses.replace(r, summary=dataclasses.replace(r.summary, path=r.path,
                                                                        group=group_of(r.summary.labels, group_by)))
-            results[r.name] = r if r.placed else dataclasses.replace(r, parquet=b"", page=None, pngs={})
-            progress.line(_ok_line(r, out, cached=cached))
+            results[r.name] = r
             if r.summary is not None:
-                report.add(r.summary, r.pieces)  # its plots by its name, its share of the tables
+                report.add(r.summary, r.pieces)  # its plots placed by its name, its share of the tables
+            if not r.placed:  # its page data and PNGs are in the report now, its Parquet in DIR
+                results[r.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
+            progress.line(_ok_line(r, out, cached=cached))
 
         jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None, group_by)
         for r in failed:
