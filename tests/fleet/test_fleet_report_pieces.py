@@ -88,3 +88,23 @@ def test_a_tasks_pieces_are_those_the_report_makes_of_its_result(logs: dict[str,
     remade = pieces_of([other], {"sand-1": r.page.plots}, {"sand-1": {}}, {"sand-1": r.page.overview},
                        {"sand-1": r.pieces})
     assert remade[0] is not r.pieces and json.loads(remade[0].json_log)["group"] == "driver=sim, road=sand"
+
+
+def test_a_task_writes_dir_only_where_its_worker_sees_the_report_being_built(logs: dict[str, Path],
+                                                                            tmp_path: Path) -> None:
+    """A worker of --scheduler on another machine does not find the report's build directory (made by the batch under
+    a random name): its task returns its files' bytes for the batch to write; where it finds it, it writes them."""
+    path, out = str(logs["paved-1"]), tmp_path / "fleet"
+    key, size = log_identity(path, "paved-1")
+    building = out / "report" / ".slipdaq-build.part"
+    job = Job(path, "paved-1", key, path, size_bytes=size, out=str(out), page_dir=str(building))
+    elsewhere = process_log(job)
+    assert elsewhere.error is None and not elsewhere.written and not elsewhere.placed
+    assert elsewhere.parquet and elsewhere.page is not None and elsewhere.page.script
+    assert not out.exists()  # nothing written: the batch writes it from the result
+    building.mkdir(parents=True)
+    here = process_log(job)
+    assert here.error is None and here.written and here.placed and here.parquet == b""
+    assert (building / "paved-1" / "plots.js").read_bytes() == elsewhere.page.script
+    assert (out / "estimates" / f"{job.stem}.parquet").is_file() and (out / "cache" / f"{job.stem}.pickle").is_file()
+    assert here.pieces == elsewhere.pieces

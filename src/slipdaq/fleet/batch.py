@@ -1,18 +1,21 @@
 """`slipdaq batch`: many logs on Dask, one task per log; this module only orchestrates.
 
 A task (fleet_task.process_log) re-runs one log two-pass and summarizes it, lays out its page's plots, with `--png`
-draws its PNGs, and writes its estimates as Parquet; it returns its summary (and, where it cannot write DIR itself,
-its outputs as bytes), or the error text. Who writes a log's Parquet and cache files: on the local cluster (workers on
-this machine) the task itself, into DIR; on a cluster of --scheduler this process, from the bytes the task returned
-(only the logs need to be readable by the workers, at the same path, not DIR); with DIR an fsspec URL
-(fleet_storage) the task, through fsspec. A task copies a log at a URL into a local temporary file first.
+draws its PNGs, encodes its share of the report's tables, and writes its estimates as Parquet; it returns its summary
+(and, where it cannot write DIR itself, its outputs as bytes), or the error text. Who writes a log's Parquet and cache
+files and its page data: the task itself, into DIR, where its worker sees DIR (every worker of the local cluster; a
+worker of --scheduler that finds the report's build directory, made here under a random name, at the same path)
+and may write it; else this process, from the bytes the task returned (only the logs need to be readable by the
+workers, at the same path, not DIR); with DIR an fsspec URL (fleet_storage) the task, through fsspec. A task copies a
+log at a URL into a local temporary file first.
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
-worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: on the
-local cluster each task writes its page data where the report is being built (fleet_task.place_page), elsewhere
-each log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
-while the report's tire files are fitted on the cluster, one task per label group and wheel (fleet_task.fit_tire),
-the most points first. Where the time went is in BatchResult.client (ClientTime).
+worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: a task
+that writes DIR writes its page data where the report is being built (fleet_task.place_page), elsewhere each log's
+page data is placed from its result as it comes; each task encodes its log's share of the tables (LogResult.pieces),
+which the report joins after the last, with the comparison and the index, while the report's tire files are fitted
+on the cluster, one task per label group and wheel (fleet_task.fit_tire), the most points first. Where the time went
+is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -357,8 +360,8 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Callable[[], Path],
                scheduler: str | None, workers: int | None, stream: TextIO, ok: Callable[[LogResult], None],
                bad: Callable[[LogResult], None], clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
-    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); on the
-    local cluster a task writes its files in DIR and its page data in page_dir(); each result handed to `ok` (saved
+    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); a task
+    whose worker sees DIR writes its files there and its page data in page_dir(); each result handed to `ok` (saved
     first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
     files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
     clock."""
@@ -374,7 +377,7 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
         if scheduler and not client.scheduler_info().get("workers"):
             print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
                   file=stream, flush=True)
-        if isinstance(out, Path) and not scheduler:  # the local cluster's workers share DIR: they write it
+        if isinstance(out, Path):  # a worker that sees DIR writes it (every one of the local cluster)
             for d in (ESTIMATES, CACHE):
                 (out / d).mkdir(parents=True, exist_ok=True)
             mine = tuple(os.path.abspath(i) for i in inputs)

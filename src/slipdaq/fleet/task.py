@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import hashlib
 import io
 import json
@@ -157,20 +158,33 @@ def process_log(job: Job) -> LogResult:
         r = LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0,
                       plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()),
                       pieces=_pieces(job, summary, page, pngs))
-        if job.out is not None:
-            if is_url(job.out):
-                save_to(UrlStore(job.out), r)
-            else:
-                save(Path(job.out), r, job.inputs)
+        if job.out is not None and _writes_out(job, r):
             placed = job.page_dir is not None
-            if job.page_dir is not None:
-                place_page(Path(job.page_dir) / job.name, r, job.png, sync=True)
             r = dataclasses.replace(r, parquet=b"", page=dataclasses.replace(page, script=b"") if placed else None,
                                     pngs={k: {s: (f, b"") for s, (f, _) in v.items()} for k, v in pngs.items()}
                                     if placed else {}, written=True, placed=placed)
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=error_text(e))
     return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def _writes_out(job: Job, r: LogResult) -> bool:
+    """The log's Parquet and cache files written in job.out, and its page data in job.page_dir; False where this
+    worker does not see DIR (a worker of --scheduler on another machine: job.page_dir, made by the batch under a
+    random name, is not there) or may not write it (then the batch writes them from the result)."""
+    if is_url(job.out or ""):
+        save_to(UrlStore(str(job.out)), r)
+        return True
+    if job.page_dir is None or not os.path.isdir(job.page_dir):
+        return False
+    try:
+        save(Path(str(job.out)), r, job.inputs)
+        place_page(Path(job.page_dir) / job.name, r, job.png, sync=True)
+    except OSError as e:
+        if isinstance(e, PermissionError) or e.errno == errno.EROFS:
+            return False
+        raise
+    return True
 
 
 def _pieces(job: Job, summary: LogSummary, page: PagePlots, pngs: PlotBytes) -> LogPieces:
