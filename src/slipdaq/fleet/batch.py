@@ -29,6 +29,7 @@ import contextlib
 import dataclasses
 import gc
 import os
+import pickle
 import shutil
 import sys
 import tempfile
@@ -55,6 +56,7 @@ from slipdaq.fleet.task import (
     output_where,
     place_page,
     process_log,
+    read_cache,
     save,
 )
 from slipdaq.outputs import refuse_inputs
@@ -133,16 +135,20 @@ class BatchResult:
         return f"{self.out_dir}/{ESTIMATES}" if isinstance(self.out_dir, str) else str(Path(self.out_dir) / ESTIMATES)
 
 
-def _placer(results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
+def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
     """report.build.PlotMaker: a log's page data (and with png its PNGs) as its task made them, where its task wrote
-    them itself (LogResult.placed), else from its result as it comes (not kept in memory afterwards)."""
+    them itself (LogResult.placed), else from its result as it comes (not kept in memory afterwards), or read back
+    from its cache file where its task wrote that at a URL and returned neither."""
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
         r = results[log.name]
-        assert r.page is not None  # load_cached and the tasks make sure
         if r.placed:
+            assert r.page is not None  # the task makes sure
             return Placed(r.page, {k: {s: out_dir / f for s, (f, _) in v.items()} for k, v in r.pngs.items()}
                           if png else {})
+        if r.page is None:
+            r = pickle.loads(read_cache(out, r))
+            assert r.page is not None  # the tasks make sure
         return Placed(r.page, place_page(out_dir, r, png))
     return place
 
@@ -223,7 +229,7 @@ class _Report:
 
     def __init__(self, out: Out, results: dict[str, LogResult], png: bool, inputs: Sequence[str]) -> None:
         self.out, self.png, self.inputs = out, png, inputs
-        self.place = _placer(results, png)
+        self.place = _placer(out, results, png)
         self.stack = contextlib.ExitStack()
         self.build: ReportBuild | None = None
 
