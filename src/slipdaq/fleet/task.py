@@ -36,9 +36,9 @@ import slipdaq
 from slipdaq.fleet.storage import UrlStore, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output
 from slipdaq.report.page_data import LOG_SCRIPT, PagePlots
-from slipdaq.report.summary import LogSummary
+from slipdaq.report.summary import LogSummary, group_of
 from slipdaq.report.tires import TireJob, TireResult
-from slipdaq.report.write import LogPieces
+from slipdaq.report.write import LogPieces, log_pieces
 
 CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
@@ -64,8 +64,8 @@ class Job:
     size_bytes: int = 0
     """The log's size: the longest logs go first."""
     page_dir: str | None = None
-    """On the local cluster: the directory where the report is being built; the task writes its page data there
-    (place_page) and returns only its plots' names."""
+    """With a local `out`: the directory where the report is being built; a task whose worker sees it writes its page
+    data there (place_page) and returns only its plots' names (elsewhere it returns everything: _writes_out)."""
     group_by: tuple[str, ...] | None = None
     """`batch --group-by`: the log's group in the report (its share of the tables is made for it, LogResult.pieces)."""
 
@@ -190,9 +190,6 @@ def _writes_out(job: Job, r: LogResult) -> bool:
 def _pieces(job: Job, summary: LogSummary, page: PagePlots, pngs: PlotBytes) -> LogPieces:
     """The log's share of the report's tables, made for its path, its group (job.group_by) and its plots' and PNGs'
     names in the report (DIR/report/<name>/<file>, place_page)."""
-    from slipdaq.report.summary import group_of
-    from slipdaq.report.write import log_pieces
-
     log = dataclasses.replace(summary, path=job.path, group=group_of(summary.labels, job.group_by))
     links = {k: {s: f"{job.name}/{f}" for s, (f, _) in v.items()} for k, v in pngs.items()} if job.png else {}
     return log_pieces(log, page.plots, links, page.overview)
