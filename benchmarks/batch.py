@@ -90,21 +90,23 @@ def batch(logs: list[Path], out: Path, *extra: str) -> None:
 
 
 @contextlib.contextmanager
-def cluster(workers: int, work: Path) -> Iterator[str]:
-    """A `dask scheduler` and `workers` `dask worker` processes on localhost; its address; all stopped at the end."""
+def cluster(workers: int, work: Path, env: dict[str, str] | None = None) -> Iterator[str]:
+    """A `dask scheduler` and `workers` `dask worker` processes on localhost (env: theirs, default this process's);
+    its address; all stopped at the end."""
     info = work / "scheduler.json"
     info.unlink(missing_ok=True)
     dask_cli = [sys.executable, "-m", "dask"]
     procs = [subprocess.Popen([*dask_cli, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                                "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)]
     try:
         deadline = time.monotonic() + 60
         while not info.is_file() and time.monotonic() < deadline:
             time.sleep(0.1)
         address = json.loads(info.read_text())["address"]
         procs += [subprocess.Popen([*dask_cli, "worker", address, "--nthreads", "1", "--no-dashboard"],
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for _ in range(workers)]
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+                  for _ in range(workers)]
         with distributed.Client(address) as c:
             c.wait_for_workers(workers, timeout=60)
         yield address

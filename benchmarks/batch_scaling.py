@@ -13,15 +13,20 @@ exit: the process's wall time less run_batch's), the cluster's start (workers wa
 the report, the cluster's stop. The serial part is all of that; its share of the 1-worker run (serial / (serial +
 tasks)) gives Amdahl's speed-up at 16 and 64 workers, a projection. With --base REV (a source tree, or a git
 revision unpacked by base_revision), the same runs of that revision for the worker counts of --base-workers,
-interleaved with this tree's (a base without that last line has no serial columns).
+interleaved with this tree's (a base without that last line has no serial columns). With --scheduler, each count
+also as `slipdaq batch LOGS -o DIR --scheduler ADDRESS` against a `dask scheduler` and N `dask worker` processes (one
+thread each) started before it and warmed by a batch over two logs, neither timed: the rows of a cluster kept running
+(its workers' start is not the batch's; the batch process writes each log's Parquet and cache files from the bytes
+its task returned).
 
     python -m benchmarks.batch_scaling [--logs 128] [--seconds 15] [--workers 1,2,4,8,16] [--base DIR|REV]
-                                       [--base-workers 16] [--write]
+                                       [--base-workers 16] [--scheduler] [--write]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import os
 import re
@@ -30,6 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -75,15 +81,15 @@ def python_path(src: Path) -> str:
     return os.pathsep.join([str(src), *filter(None, [os.environ.get("PYTHONPATH")])])
 
 
-def run_batch(src: Path, logs: list[Path], out: Path, workers: int) -> dict[str, float]:
-    """One `slipdaq batch` process: wall time, first log finished, after the last log finished (seconds); with the
-    client's line: the tasks summed, the serial part and its parts (PARTS)."""
+def run_batch(src: Path, logs: list[Path], out: Path, workers: int, scheduler: str | None = None) -> dict[str, float]:
+    """One `slipdaq batch` process (`--workers N`, or `--scheduler ADDRESS`): wall time, first log finished, after the
+    last log finished (seconds); with the client's line: the tasks summed, the serial part and its parts (PARTS)."""
     shutil.rmtree(out, ignore_errors=True)
     env = dict(os.environ, PYTHONPATH=python_path(src), PYTHONUNBUFFERED="1")
+    where = ["--scheduler", scheduler] if scheduler else ["--workers", str(workers)]
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "slipdaq", "batch", *map(str, logs), "-o", str(out),
-                             "--workers", str(workers)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
-                            text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "slipdaq", "batch", *map(str, logs), "-o", str(out), *where],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True)
     assert proc.stderr is not None
     done: list[float] = []
     tail: list[str] = []
@@ -96,7 +102,7 @@ def run_batch(src: Path, logs: list[Path], out: Path, workers: int) -> dict[str,
     rc = proc.wait()
     wall = time.perf_counter() - t0
     if rc != 0 or len(done) != len(logs):
-        raise SystemExit(f"batch --workers {workers} ({src}) exit {rc}, {len(done)} of {len(logs)} logs:\n"
+        raise SystemExit(f"batch {' '.join(where)} ({src}) exit {rc}, {len(done)} of {len(logs)} logs:\n"
                          + "".join(tail))
     r = {"wall": wall, "first": done[0], "after_last": wall - done[-1]}
     if client:
@@ -114,7 +120,7 @@ def table(runs: dict[tuple[str, int], dict[str, float]], n: int) -> str:
     lines = ["| tree | workers | wall time | logs/s | × 1 worker (same tree) | efficiency | first log done | "
              "after the last log | tasks summed | serial part | serial / tasks | "
              + " | ".join(PARTS) + " |", "|---|" + "---:|" * (11 + len(PARTS))]
-    for (tree, w), r in sorted(runs.items(), key=lambda kv: (kv[0][0] != "this tree", kv[0][1])):
+    for (tree, w), r in sorted(runs.items(), key=lambda kv: (not kv[0][0].startswith("this tree"), kv[0])):
         one = runs.get((tree, 1))
         speedup = f"{one['wall'] / r['wall']:.2f}×" if one else "–"
         eff = f"{one['wall'] / r['wall'] / w:.2f}" if one else "–"
@@ -129,7 +135,7 @@ def projection(runs: dict[tuple[str, int], dict[str, float]]) -> str:
     """Amdahl's speed-up at 16 and 64 workers from each tree's 1-worker run: serial share = serial / (serial +
     tasks)."""
     out = []
-    for (tree, w), r in sorted(runs.items(), key=lambda kv: kv[0][0] != "this tree"):
+    for (tree, w), r in sorted(runs.items(), key=lambda kv: (not kv[0][0].startswith("this tree"), kv[0])):
         if w != 1 or "tasks" not in r:
             continue
         f = r["serial"] / (r["serial"] + r["tasks"])
@@ -139,6 +145,24 @@ def projection(runs: dict[tuple[str, int], dict[str, float]]) -> str:
     return "\n".join(out)
 
 
+def say(tree: str, w: int, r: dict[str, float]) -> dict[str, float]:
+    print(f"{tree}, {w} workers: {r['wall']:.1f} s (first log {r['first']:.1f} s, after the last "
+          f"{r['after_last']:.1f} s" + (f", tasks {r['tasks']:.1f} s, serial {r['serial']:.2f} s: "
+          + ", ".join(f"{p} {r[p]:.2f} s" for p in PARTS) if "tasks" in r else "") + ")", flush=True)
+    return r
+
+
+@contextlib.contextmanager
+def warm_cluster(src: Path, warm_logs: list[Path], work: Path, workers: int) -> Iterator[str]:
+    """A `dask scheduler` and `workers` `dask worker` processes of the tree at src (benchmarks.batch.cluster), warmed
+    by one batch over warm_logs (the workers' imports and kernels loaded); its address."""
+    from benchmarks.batch import cluster
+
+    with cluster(workers, work, dict(os.environ, PYTHONPATH=python_path(src))) as address:
+        run_batch(src, warm_logs, work / "out", workers, address)
+        yield address
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--logs", type=int, default=128)
@@ -146,6 +170,9 @@ def main() -> int:
     ap.add_argument("--workers", default="1,2,4,8,16", help="worker counts (default 1,2,4,8,16)")
     ap.add_argument("--base", default=None, help="a base tree's src directory, or a git revision")
     ap.add_argument("--base-workers", default="16", help="worker counts run for the base (default 16)")
+    ap.add_argument("--scheduler", action="store_true",
+                    help="also each count as `batch --scheduler` against a `dask scheduler` and N `dask worker` "
+                         "processes started first and warmed by one batch over two logs (neither timed)")
     ap.add_argument("--write", action="store_true", help=f"put the table into {DOC.name}")
     ap.add_argument("--make-logs", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -187,15 +214,17 @@ def main() -> int:
             for tree, src in trees.items():
                 if tree != "this tree" and w not in base_counts:
                     continue
-                runs[(tree, w)] = r = run_batch(src, logs, work / "out", w)
-                print(f"{tree}, {w} workers: {r['wall']:.1f} s (first log {r['first']:.1f} s, after the last "
-                      f"{r['after_last']:.1f} s" + (f", tasks {r['tasks']:.1f} s, serial {r['serial']:.2f} s: "
-                      + ", ".join(f"{p} {r[p]:.2f} s" for p in PARTS) if "tasks" in r else "") + ")", flush=True)
+                runs[(tree, w)] = say(tree, w, run_batch(src, logs, work / "out", w))
+                if a.scheduler:
+                    with warm_cluster(src, logs[:2], work, w) as address:
+                        runs[(f"{tree}, --scheduler", w)] = say(f"{tree}, --scheduler", w,
+                                                                run_batch(src, logs, work / "out", w, address))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     block = (f"**Run.** `python -m benchmarks.batch_scaling --logs {a.logs} --seconds {a.seconds:g} --workers "
              f"{a.workers}" + (f" --base {a.base} --base-workers {a.base_workers}" if a.base else "")
+             + (" --scheduler" if a.scheduler else "")
              + f"` — {(time.monotonic() - started) / 60:.1f} min, {when}. {a.logs} logs of {a.seconds:g} s "
              f"({size / 1e6:.0f} MB); {machine(*DASK)}.\n\n" + table(runs, a.logs) + "\n\n" + projection(runs))
     print(block)

@@ -175,9 +175,30 @@ def _process(args: list[str], log: Path) -> Iterator[subprocess.Popen[bytes]]:
                 proc.wait(timeout=10)
 
 
+def _unshared_dir_works(d: Path) -> bool:
+    """A process can be started with an empty tmpfs over d (a mount namespace of its own: root, unshare)."""
+    d.mkdir(parents=True, exist_ok=True)
+    try:
+        return subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                               f"mount -t tmpfs none '{d}'"], capture_output=True, timeout=20).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+@pytest.mark.parametrize("worker_sees_dir", [True, False], ids=["worker-sees-dir", "worker-elsewhere"])
 def test_batch_against_a_scheduler_and_a_worker_on_localhost(logs: dict[str, Path], tmp_path: Path,
-                                                             capsys: pytest.CaptureFixture[str]) -> None:
+                                                             capsys: pytest.CaptureFixture[str],
+                                                             worker_sees_dir: bool) -> None:
+    """A worker that sees DIR writes its log's files there itself; one that does not (an empty tmpfs over DIR in its
+    own mount namespace, as on another machine) returns them and the batch writes them: the same outputs."""
     dask = [sys.executable, "-m", "dask"]
+    out = tmp_path / "fleet"
+    elsewhere: list[str] = []
+    if not worker_sees_dir:
+        if not _unshared_dir_works(out):
+            pytest.skip("no mount namespace here (unshare, root)")
+        elsewhere = ["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                     f"mount -t tmpfs none '{out}' && exec \"$@\"", "worker"]
     info = tmp_path / "scheduler.json"
     with _process([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                    "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info)], tmp_path / "scheduler.log"):
@@ -186,12 +207,11 @@ def test_batch_against_a_scheduler_and_a_worker_on_localhost(logs: dict[str, Pat
             time.sleep(0.1)
         assert info.is_file(), (tmp_path / "scheduler.log").read_text()
         address = json.loads(info.read_text())["address"]
-        with _process([*dask, "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
+        with _process([*elsewhere, *dask, "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
                        "--death-timeout", "30"], tmp_path / "worker.log"):
             with distributed.Client(address, timeout=START_TIMEOUT_S) as client:
                 client.wait_for_workers(1, timeout=START_TIMEOUT_S)  # else batch would wait for one
             good = ["paved-1", "sand-1"]
-            out = tmp_path / "fleet"
             rc, err, stdout = _batch([*(str(logs[n]) for n in good), "-o", str(out), "--scheduler", address], capsys)
     assert rc == 0, err
     assert "2 processed, 0 up to date, 0 failed" in stdout

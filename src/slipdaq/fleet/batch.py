@@ -1,18 +1,21 @@
 """`slipdaq batch`: many logs on Dask, one task per log; this module only orchestrates.
 
 A task (fleet_task.process_log) re-runs one log two-pass and summarizes it, lays out its page's plots, with `--png`
-draws its PNGs, and writes its estimates as Parquet; it returns its summary (and, where it cannot write DIR itself,
-its outputs as bytes), or the error text. Who writes a log's Parquet and cache files: on the local cluster (workers on
-this machine) the task itself, into DIR; on a cluster of --scheduler this process, from the bytes the task returned
-(only the logs need to be readable by the workers, at the same path, not DIR); with DIR an fsspec URL
-(fleet_storage) the task, through fsspec. A task copies a log at a URL into a local temporary file first.
+draws its PNGs, encodes its share of the report's tables, and writes its estimates as Parquet; it returns its summary
+(and, where it cannot write DIR itself, its outputs as bytes), or the error text. Who writes a log's Parquet and cache
+files and its page data: the task itself, into DIR, where its worker sees DIR (every worker of the local cluster; a
+worker of --scheduler that finds the report's build directory, made here under a random name, at the same path)
+and may write it; else this process, from the bytes the task returned (only the logs need to be readable by the
+workers, at the same path, not DIR); with DIR an fsspec URL (fleet_storage) the task, through fsspec. A task copies a
+log at a URL into a local temporary file first.
 
 The tasks are submitted longest log first (by size); the workers are warm before their first task and a task whose
-worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: on the
-local cluster each task writes its page data where the report is being built (fleet_task.place_page), elsewhere
-each log's plots are placed from its cache file as it comes; the comparison, the tables and the index follow the last,
-while the report's tire files are fitted on the cluster, one task per label group and wheel (fleet_task.fit_tire),
-the most points first. Where the time went is in BatchResult.client (ClientTime).
+worker died is retried once (fleet_cluster). The report (report.build.ReportBuild) is built as the tasks end: a task
+that writes DIR writes its page data where the report is being built (fleet_task.place_page), elsewhere each log's
+page data is placed from its result as it comes; each task encodes its log's share of the tables (LogResult.pieces),
+which the report joins after the last, with the comparison and the index, while the report's tire files are fitted
+on the cluster, one task per label group and wheel (fleet_task.fit_tire), the most points first. Where the time went
+is in BatchResult.client (ClientTime).
 
 Output layout in DIR: estimates/ and cache/ (fleet_task), and
     report/                          one page (index.html: every log's maneuvers in one table, the comparison, each
@@ -60,6 +63,7 @@ from slipdaq.outputs import refuse_inputs
 from slipdaq.report.build import Placed, ReportBuild
 from slipdaq.report.summary import LogSummary
 from slipdaq.report.tires import TireFitter
+from slipdaq.report.write import LogPieces
 
 T = TypeVar("T")
 
@@ -133,7 +137,8 @@ class BatchResult:
 
 def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[LogSummary, Path], Placed]:
     """report.build.PlotMaker: a log's page data (and with png its PNGs) as its task made them, where its task wrote
-    them itself (LogResult.placed), else read back from its cache file (they are not kept in memory meanwhile)."""
+    them itself (LogResult.placed), else from its result as it comes (not kept in memory afterwards), or read back
+    from its cache file where its task wrote that at a URL and returned neither."""
 
     def place(log: LogSummary, out_dir: Path) -> Placed:
         r = results[log.name]
@@ -141,9 +146,10 @@ def _placer(out: Out, results: dict[str, LogResult], png: bool) -> Callable[[Log
             assert r.page is not None  # the task makes sure
             return Placed(r.page, {k: {s: out_dir / f for s, (f, _) in v.items()} for k, v in r.pngs.items()}
                           if png else {})
-        cached: LogResult = pickle.loads(read_cache(out, r))
-        assert cached.page is not None  # load_cached and the tasks make sure
-        return Placed(cached.page, place_page(out_dir, cached, png))
+        if r.page is None:
+            r = pickle.loads(read_cache(out, r))
+            assert r.page is not None  # the tasks make sure
+        return Placed(r.page, place_page(out_dir, r, png))
     return place
 
 
@@ -188,7 +194,8 @@ def _ident(log: str | Path) -> str | Path:
     return str(log) if is_url(log) else Path(log).resolve()
 
 
-def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None) -> tuple[list[Job], list[LogResult]]:
+def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None,
+          group_by: Sequence[str] | None = None) -> tuple[list[Job], list[LogResult]]:
     """A job per log (duplicates dropped), and the failures of logs whose key cannot be made (not readable)."""
     from slipdaq.report.build import unique_name
 
@@ -204,7 +211,8 @@ def _jobs(logs: Sequence[str | Path], png: bool = False, out: str | None = None)
         try:
             file = str(log) if is_url(log) else os.path.abspath(log)
             key, size = log_identity(log, name)
-            jobs.append(Job(str(log), name, key, file, png, out, size_bytes=size))
+            jobs.append(Job(str(log), name, key, file, png, out, size_bytes=size,
+                            group_by=tuple(group_by) if group_by else None))
         except Exception as e:
             failed.append(LogResult(str(log), name, "", error=error_text(e)))
     return jobs, failed
@@ -250,8 +258,8 @@ class _Report:
         """Where the report is being built: a log's page data goes in <it>/<name>/."""
         return self._open().build
 
-    def add(self, log: LogSummary) -> None:
-        self._open().add(log)
+    def add(self, log: LogSummary, pieces: LogPieces | None = None) -> None:
+        self._open().add(log, pieces)
 
     def finish(self, logs: Sequence[LogSummary], fit_tires: TireFitter | None = None) -> Path | str | None:
         """index.html's path (or URL) once it is in place; None without a log (the report's directory removed).
@@ -303,12 +311,17 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         report = stack.enter_context(_Report(out, results, png, inputs))
 
         def succeeded(r: LogResult, cached: bool) -> None:
-            results[r.name] = r if r.placed else dataclasses.replace(r, parquet=b"", page=None, pngs={})
-            progress.line(_ok_line(r, out, cached=cached))
+            if r.summary is not None:  # the path as given now, the group of --group-by
+                r = dataclasses.replace(r, summary=dataclasses.replace(r.summary, path=r.path,
+                                                                       group=group_of(r.summary.labels, group_by)))
+            results[r.name] = r
             if r.summary is not None:
-                report.add(r.summary)  # its plots by its name; its path and group are the tables' (at the end)
+                report.add(r.summary, r.pieces)  # its plots placed by its name, its share of the tables
+            if not r.placed:  # its page data and PNGs are in the report now, its Parquet in DIR
+                results[r.name] = dataclasses.replace(r, parquet=b"", page=None, pngs={})
+            progress.line(_ok_line(r, out, cached=cached))
 
-        jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None)
+        jobs, failed = _jobs(logs, png, out.url if isinstance(out, UrlStore) else None, group_by)
         for r in failed:
             progress.line(f"FAILED {failure(r)}")
         todo: list[Job] = []
@@ -324,8 +337,7 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
         def finish(fit_tires: TireFitter | None = None) -> Path | str | None:  # the report over every log that succeeded
             waited = clock.waiting_s
             with clock.timing("report_s"):
-                summaries = [dataclasses.replace(s, path=results[n].path, group=group_of(s.labels, group_by))
-                             for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
+                summaries = [s for j in jobs if (n := j.name) in results and (s := results[n].summary) is not None]
                 index = report.finish(summaries, fit_tires)
             clock.report_s -= clock.waiting_s - waited
             return index
@@ -354,8 +366,8 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, *, scheduler: str
 def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Callable[[], Path],
                scheduler: str | None, workers: int | None, stream: TextIO, ok: Callable[[LogResult], None],
                bad: Callable[[LogResult], None], clock: ClientTime, then: Callable[[TireFitter], T]) -> tuple[list[LogResult], T]:
-    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); on the
-    local cluster a task writes its files in DIR and its page data in page_dir(); each result handed to `ok` (saved
+    """The jobs as Dask tasks, longest log first, as many out as the cluster has threads (fleet_feed.Feed); a task
+    whose worker sees DIR writes its files there and its page data in page_dir(); each result handed to `ok` (saved
     first where the task could not write DIR) or `bad` as it comes; after the last, `then` (the report), its tire
     files fitted on the cluster. Returns the failures and what `then` returned. Each step's time goes to the
     clock."""
@@ -371,7 +383,7 @@ def _run_tasks(todo: list[Job], out: Out, inputs: Sequence[str], page_dir: Calla
         if scheduler and not client.scheduler_info().get("workers"):
             print(f"batch: no worker at {scheduler} yet; the tasks wait for one (`dask worker {scheduler}`)",
                   file=stream, flush=True)
-        if isinstance(out, Path) and not scheduler:  # the local cluster's workers share DIR: they write it
+        if isinstance(out, Path):  # a worker that sees DIR writes it (every one of the local cluster)
             for d in (ESTIMATES, CACHE):
                 (out / d).mkdir(parents=True, exist_ok=True)
             mine = tuple(os.path.abspath(i) for i in inputs)

@@ -99,12 +99,13 @@ def _warm_here() -> None:
 
 class WarmUp(WorkerPlugin):
     """A Dask worker plugin: the worker imports the task's modules and loads the compiled kernels when it joins
-    (slipdaq.fleet.warm), not in its first task."""
+    (slipdaq.fleet.warm), not in its first task; with the garbage collector paused, then frozen, as in this process
+    before it forks the local workers (_warm_here)."""
 
     idempotent = True
 
     def setup(self, worker: Any) -> None:
-        import slipdaq.fleet.warm  # noqa: F401
+        _warm_here()
 
     def teardown(self, worker: Any) -> None:
         pass

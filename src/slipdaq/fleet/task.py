@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import hashlib
 import io
 import json
@@ -35,8 +36,9 @@ import slipdaq
 from slipdaq.fleet.storage import UrlStore, is_url, local_copy, url_identity
 from slipdaq.outputs import atomic_output
 from slipdaq.report.page_data import LOG_SCRIPT, PagePlots
-from slipdaq.report.summary import LogSummary
+from slipdaq.report.summary import LogSummary, group_of
 from slipdaq.report.tires import TireJob, TireResult
+from slipdaq.report.write import LogPieces, log_pieces
 
 CACHE_FORMAT = 2
 """Part of the key: a change of the cache file's contents makes every output stale."""
@@ -62,8 +64,10 @@ class Job:
     size_bytes: int = 0
     """The log's size: the longest logs go first."""
     page_dir: str | None = None
-    """On the local cluster: the directory where the report is being built; the task writes its page data there
-    (place_page) and returns only its plots' names."""
+    """With a local `out`: the directory where the report is being built; a task whose worker sees it writes its page
+    data there (place_page) and returns only its plots' names (elsewhere it returns everything: _writes_out)."""
+    group_by: tuple[str, ...] | None = None
+    """`batch --group-by`: the log's group in the report (its share of the tables is made for it, LogResult.pieces)."""
 
     @property
     def stem(self) -> str:
@@ -95,6 +99,8 @@ class LogResult:
     placed: bool = False
     """The task wrote its page data where the report is built (Job.page_dir): `page` has no script, `pngs` no
     bytes."""
+    pieces: LogPieces | None = None
+    """Its share of the report's tables, encoded (report.write.log_pieces): joined by the report, not made there."""
 
 
 def log_identity(path: str | Path, name: str) -> tuple[str, int]:
@@ -150,21 +156,43 @@ def process_log(job: Job) -> LogResult:
             n = write_parquet(data.rows, pq, log_name=job.name, labels=labels)
             blob = pq.read_bytes()
         r = LogResult(job.path, job.name, job.key, summary, page, pngs, job.png, blob, n, time.perf_counter() - t0,
-                      plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()))
-        if job.out is not None:
-            if is_url(job.out):
-                save_to(UrlStore(job.out), r)
-            else:
-                save(Path(job.out), r, job.inputs)
+                      plots=sum(len(v) for v in page.plots.values()), png_files=sum(len(v) for v in pngs.values()),
+                      pieces=_pieces(job, summary, page, pngs))
+        if job.out is not None and _writes_out(job, r):
             placed = job.page_dir is not None
-            if job.page_dir is not None:
-                place_page(Path(job.page_dir) / job.name, r, job.png, sync=True)
             r = dataclasses.replace(r, parquet=b"", page=dataclasses.replace(page, script=b"") if placed else None,
                                     pngs={k: {s: (f, b"") for s, (f, _) in v.items()} for k, v in pngs.items()}
                                     if placed else {}, written=True, placed=placed)
     except Exception as e:  # reported with its log; the other logs go on
         return LogResult(job.path, job.name, job.key, seconds=time.perf_counter() - t0, error=error_text(e))
     return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def _writes_out(job: Job, r: LogResult) -> bool:
+    """The log's Parquet and cache files written in job.out, and its page data in job.page_dir; False where this
+    worker does not see DIR (a worker of --scheduler on another machine: job.page_dir, made by the batch under a
+    random name, is not there) or may not write it (then the batch writes them from the result)."""
+    if is_url(job.out or ""):
+        save_to(UrlStore(str(job.out)), r)
+        return True
+    if job.page_dir is None or not os.path.isdir(job.page_dir):
+        return False
+    try:
+        save(Path(str(job.out)), r, job.inputs)
+        place_page(Path(job.page_dir) / job.name, r, job.png, sync=True)
+    except OSError as e:
+        if isinstance(e, PermissionError) or e.errno == errno.EROFS:
+            return False
+        raise
+    return True
+
+
+def _pieces(job: Job, summary: LogSummary, page: PagePlots, pngs: PlotBytes) -> LogPieces:
+    """The log's share of the report's tables, made for its path, its group (job.group_by) and its plots' and PNGs'
+    names in the report (DIR/report/<name>/<file>, place_page)."""
+    log = dataclasses.replace(summary, path=job.path, group=group_of(summary.labels, job.group_by))
+    links = {k: {s: f"{job.name}/{f}" for s, (f, _) in v.items()} for k, v in pngs.items()} if job.png else {}
+    return log_pieces(log, page.plots, links, page.overview)
 
 
 def place_page(out_dir: Path, r: LogResult, png: bool, sync: bool = False) -> dict[str, dict[str, Path]]:

@@ -26,8 +26,9 @@ from slipdaq.outputs import atomic_tree, refuse_inputs
 from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
 from slipdaq.report.page_data import COMPARE_SCRIPT, LOG_SCRIPT, PAGE_JS, PLOTLY_JS, PagePlots, log_page
-from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log, table_rows
+from slipdaq.report.summary import Comparison, LogSummary, compare, summarize_log
 from slipdaq.report.tires import TIRES_DIR, ThreadFits, TireFitter, fit_here, start_tires, write_tires
+from slipdaq.report.write import LogPieces
 from slipdaq.sources.read_errors import guarded
 
 TABLES = ("summary.csv", "summary.json", "index.html")
@@ -187,12 +188,17 @@ class ReportBuild:
         self.plot: PlotMaker = plot or (lambda log, d: place_log(log, d, log_page(log), png, say))
         self.links: dict[str, LogLinks] = {}
         self.pngs: list[Path] = []
+        self.pieces: dict[str, LogPieces] = {}
 
-    def add(self, log: LogSummary) -> None:
+    def add(self, log: LogSummary, pieces: LogPieces | None = None) -> None:
+        """A log's plots placed; pieces: its share of the tables made already (write.log_pieces), used where made
+        for what the report has of it (its path, group, plots, PNGs)."""
         placed = self.plot(log, self.build / log.name)
         rel = {k: {s: p.relative_to(self.build).as_posix() for s, p in v.items()} for k, v in placed.pngs.items()}
         self.links[log.name] = LogLinks(placed.page, rel)
         self.pngs += (self.out / p for v in rel.values() for p in v.values())
+        if pieces is not None:
+            self.pieces[log.name] = pieces
 
     def finish(self, logs: Sequence[LogSummary]) -> ReportResult:
         """The comparison (two or more logs), the tables and index.html over `logs` (each one added before); the tire
@@ -214,16 +220,15 @@ class ReportBuild:
                 self.pngs.append(self.out / compare_pngs[c.phase])
             self.say(f"comparison {c.phase}: {', '.join(g.group for g in c.groups)}")
         page_data.write_assets(build)
-        rows = table_rows(logs)
         groups = sets.group_sets(logs)
         group_records = {g.group: g.sets.records() for g in groups}
         diffs = sets.differences(groups)
         cs, js, index = (build / name for name in TABLES)
-        write.write_csv(rows, cs)
-        write.write_json(logs, comparisons, rows, {n.name: links[n.name].page.plots for n in logs},
-                         {n.name: links[n.name].pngs for n in logs}, compare_pngs, js,
-                         overviews={n.name: links[n.name].page.overview for n in logs},
-                         group_sets=group_records, differences=diffs)
+        pieces = write.pieces_of(logs, {n.name: links[n.name].page.plots for n in logs},
+                                 {n.name: links[n.name].pngs for n in logs},
+                                 {n.name: links[n.name].page.overview for n in logs}, self.pieces)
+        write.write_csv(pieces, cs)
+        write.write_json(logs, comparisons, pieces, compare_pngs, js, group_sets=group_records, differences=diffs)
         tire_groups = tires()
         tire_links = {g: {w: f"{TIRES_DIR}/{rel}" for w, rel in files.items()}
                       for g, files in write_tires(build / TIRES_DIR, tire_groups).items()}
