@@ -3,11 +3,13 @@ progress; the first pass of a two-pass run."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import sys
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -19,6 +21,7 @@ from slipdaq.config import Config
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
+from slipdaq.offline.summaries import SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
     CanFrame,
@@ -132,17 +135,19 @@ def process(
     description: str = "",
     maneuvers: bool = True,
     fast_slip: bool = True,
+    summaries: Executor | None = None,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
     progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
     whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own). fast_slip=False:
-    no /slip/fast rows (the first pass).
+    no /slip/fast rows (the first pass). summaries: where the maneuvers' summaries are computed (a SummaryProcess),
+    the sinks' calls after each held back until it is in: the same calls as without.
 
     records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
     pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
-                        maneuvers=maneuvers, fast_slip=fast_slip)
+                        maneuvers=maneuvers, fast_slip=fast_slip, maneuver_executor=summaries, hold_output=True)
     compiled.prepare()
     if stream.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -181,14 +186,17 @@ def process_to_log(
 ) -> Pipeline:
     """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
     calibration it started from is stored in the log's metadata (calibration_toml), so that a replay of the log
-    starts from it too."""
+    starts from it too. A run of a known total of at least summaries.MIN_RAW_RECORDS records summarizes its
+    maneuvers in a second process (forked before the log's writer starts its thread), the same bytes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
-    sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
-    try:
-        return process(config, records, [sink], **({"description": mode} | options))
-    finally:
-        sink.close()
+    beside = options.get("maneuvers", True) and worth_a_process(options.get("total"))
+    with SummaryProcess() if beside else contextlib.nullcontext() as summaries:
+        sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
+        try:
+            return process(config, records, [sink], **({"description": mode, "summaries": summaries} | options))
+        finally:
+            sink.close()
 
 
 class _FirstPassSink(Sink):
