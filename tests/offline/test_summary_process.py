@@ -5,8 +5,10 @@ KeyboardInterrupt; a live run forks none."""
 from __future__ import annotations
 
 import io
+import json
 import multiprocessing
 import os
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -169,3 +171,36 @@ def test_a_live_run_forks_no_summary_process(tmp_path: Path) -> None:
     before = len(_forks)
     assert run_demo(3.0, "cycle", "paved", tmp_path, out=io.StringIO(), no_calibration=True) == 0
     assert _forks[before:] == []
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    """Every file of a report by its path; summary.json and index.html without their time of generation."""
+    files = {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    js = json.loads(files["summary.json"])
+    js.pop("generated_utc")
+    files["summary.json"] = json.dumps(js).encode()
+    files["index.html"] = re.sub(rb", \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00\. Tables", b". Tables", files["index.html"])
+    return files
+
+
+def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
+        drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`slipdaq report` of a log's raw records two-pass: its maneuvers decided as the second pass makes the rows and
+    summarized in the second process (DetectorFeed) give the same report, file for file, as decided afterwards."""
+    from slipdaq.offline import summaries
+    from slipdaq.report.build import make_report, read_log
+
+    cfg, records = drive
+    log = tmp_path / "drive.mcap"
+    process_to_log(cfg, records, log, "import", stream=io.StringIO())
+    monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 10**9)  # every log short: no second process
+    before = len(_forks)
+    after = make_report([log], tmp_path / "after", two_pass=True)
+    assert read_log(log, two_pass=True, maneuvers=True).maneuvers is None
+    assert _forks[before:] == []
+    monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 1)
+    beside = make_report([log], tmp_path / "beside", two_pass=True)
+    assert _forks[before:] == [os.getpid()]
+    assert [len(x.logs[0].maneuvers) for x in (after, beside)] == [len(after.logs[0].maneuvers)] * 2
+    assert len(after.logs[0].maneuvers) >= 8  # accelerate, cruise and brake
+    assert _tree(tmp_path / "beside") == _tree(tmp_path / "after")

@@ -21,7 +21,8 @@ from slipdaq.config import Config
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
-from slipdaq.offline.summaries import SummaryProcess, worth_a_process
+from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.offline.summaries import DetectorFeed, SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
     CanFrame,
@@ -309,30 +310,43 @@ def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration 
 
 class Rows(Sink):
     """The estimates as the log's rows, the high-rate slip rows, the sensor samples (as the log's JSON), and the last
-    diagnostics."""
+    diagnostics; feed: each also to a DetectorFeed (its maneuvers decided as the rows come)."""
 
-    def __init__(self) -> None:
+    def __init__(self, feed: DetectorFeed | None = None) -> None:
         self.rows: list[dict[str, Any]] = []
         self.fast: list[dict[str, Any]] = []
         self.sensors: list[dict[str, Any]] = []
         self.diagnostics: dict[str, Any] | None = None
+        self.feed = feed
+        self.maneuvers: list[ManeuverSummary] | None = None
+        """The feed's maneuvers (report.summary.detect_maneuvers over the rows), once the pass is over."""
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
-        self.rows.append(estimate.as_row())
+        self.rows.append(row := estimate.as_row())
+        if self.feed is not None:
+            self.feed.estimate(row)
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self.fast.append(row.as_row())
+        self.fast.append(fast := row.as_row())
+        if self.feed is not None:
+            self.feed.fast(fast)
 
     def on_sensor(self, sample: SensorSample) -> None:
-        self.sensors.append(dataclasses.asdict(sample))
+        self.sensors.append(d := dataclasses.asdict(sample))
+        if self.feed is not None:
+            self.feed.sensor(d)
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics = diagnostics
+        if self.feed is not None:
+            self.feed.log_time(log_time_s)
 
 
-def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | None:
+def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: bool = False) -> Rows | None:
     """A log's estimates (and high-rate slip) post-processed two-pass (as `replay --two-pass`, in memory), as its
-    /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records."""
+    /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
+    maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
+    beside the second pass (DetectorFeed; Rows.maneuvers)."""
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.sources.read_errors import guarded
 
@@ -341,10 +355,13 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | No
     total = raw_record_count(log)
     if total == 0:
         return None
-    first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
-    rows = Rows()
-    p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream, maneuvers=False,
-                **first.second_pass())
-    if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
-        return None
+    with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
+        first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
+        rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
+        p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
+                    maneuvers=False, **first.second_pass())
+        if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
+            return None
+        if rows.feed is not None:
+            rows.maneuvers, rows.feed = rows.feed.finish(), None
     return rows

@@ -10,10 +10,12 @@ run's process dies (the pipe closes)."""
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import signal
 import threading
 import traceback
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
 from multiprocessing import get_context
@@ -21,8 +23,14 @@ from multiprocessing.connection import Connection
 from types import TracebackType
 from typing import Any
 
-MIN_RAW_RECORDS = 1
-"""A run of fewer raw records summarizes at once: the second process costs more than it gives (docs/performance.md)."""
+from slipdaq.config import Config
+from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
+from slipdaq.maneuver.events import PHASES
+from slipdaq.maneuver.figures import ManeuverSummary
+
+MIN_RAW_RECORDS = 2_000
+"""A run of fewer raw records (about 25 s of 4 WPT messages and 20 Hz NMEA logged offline: a maneuver or two)
+summarizes at once: starting the second process (13–20 ms) would cost about what it gives (docs/performance.md)."""
 
 
 class SummaryProcessError(RuntimeError):
@@ -148,3 +156,62 @@ class SummaryProcess(Executor):
             self.shutdown(wait=True)
         else:
             self.terminate()
+
+
+SENSOR_WAIT_S = 5.0
+"""A row or high-rate row goes to the detector once the pass's log time is this far past it: the brake samples and
+time marks of its time have come by then (a time mark comes with a later UBX frame)."""
+
+
+class DetectorFeed:
+    """The maneuvers of a pass's rows decided as the pass makes them, in the order `report.summary.detect_maneuvers`
+    feeds the finished rows (estimate and high-rate rows merged by time, an estimate before a high-rate row of the
+    same time, as heapq.merge; the brake samples before the rows they precede), each summary computed on `executor`
+    meanwhile: the same summaries, in the same order, as detect_maneuvers over the rows afterwards."""
+
+    def __init__(self, config: Config | None, executor: Executor) -> None:
+        self.detector = ManeuverDetector(config, phases=PHASES)
+        self._executor = executor
+        self._rows: deque[dict[str, Any]] = deque()
+        self._fast: deque[dict[str, Any]] = deque()
+        self._until_s = -math.inf
+        self._found: list[Future[ManeuverSummary]] = []
+
+    def estimate(self, row: dict[str, Any]) -> None:
+        self._rows.append(row)
+
+    def fast(self, row: dict[str, Any]) -> None:
+        self._fast.append(row)
+
+    def sensor(self, sample: dict[str, Any]) -> None:
+        if sample.get("kind") == "brake":
+            self.detector.add_brake(sample["time_s"], sample["value"])
+        elif sample.get("kind") == BRAKE_MARK:
+            self.detector.add_brake_mark(sample["time_s"])
+
+    def log_time(self, log_time_s: float) -> None:
+        """The pass has come this far: the rows SENSOR_WAIT_S before it, in merged order, to the detector."""
+        self._until_s = log_time_s - SENSOR_WAIT_S
+        self._merge(self._until_s)
+
+    def _merge(self, until_s: float, final: bool = False) -> None:
+        rows, fast, det = self._rows, self._fast, self.detector
+        while rows or fast:
+            if not (rows and fast) and not final:  # the other's next row may come first
+                return
+            take_row = bool(rows) and (not fast or rows[0]["time_s"] <= fast[0]["time_s"])
+            head = rows[0] if take_row else fast[0]
+            if not final and head["time_s"] >= until_s:
+                return
+            if take_row:
+                jobs = det.add_estimate(rows.popleft())
+            else:
+                fast.popleft()
+                jobs = det.add_fast([(head["time_s"], head)])
+            self._found += [self._executor.submit(job) for job in jobs]
+
+    def finish(self) -> list[ManeuverSummary]:
+        """Every row to the detector and the last maneuvers decided (here): all the summaries, in the order decided."""
+        self._merge(math.inf, final=True)
+        last = [job() for job in self.detector.finish()]
+        return [f.result() for f in self._found] + last
