@@ -9,6 +9,7 @@ run's process dies (the pipe closes)."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import os
@@ -24,7 +25,7 @@ from types import TracebackType
 from typing import Any
 
 from slipdaq.config import Config
-from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
+from slipdaq.maneuver.detector import BRAKE_MARK, Job, ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 
@@ -175,7 +176,7 @@ class DetectorFeed:
         self._rows: deque[dict[str, Any]] = deque()
         self._fast: deque[dict[str, Any]] = deque()
         self._until_s = -math.inf
-        self._found: list[Future[ManeuverSummary]] = []
+        self._found: list[tuple[Job, Future[ManeuverSummary]]] = []
 
     def estimate(self, row: dict[str, Any]) -> None:
         self._rows.append(row)
@@ -208,10 +209,15 @@ class DetectorFeed:
             else:
                 fast.popleft()
                 jobs = det.add_fast([(head["time_s"], head)])
-            self._found += [self._executor.submit(job) for job in jobs]
+            self._found += [(job, self._executor.submit(_summary_apart, job)) for job in jobs]
 
     def finish(self) -> list[ManeuverSummary]:
         """Every row to the detector and the last maneuvers decided (here): all the summaries, in the order decided."""
         self._merge(math.inf, final=True)
         last = [job() for job in self.detector.finish()]
-        return [f.result() for f in self._found] + last
+        return [dataclasses.replace(f.result(), rows=tuple(job.rows)) for job, f in self._found] + last
+
+
+def _summary_apart(job: Job) -> ManeuverSummary:
+    """A job's summary without its rows (the run has them: they are not sent back)."""
+    return dataclasses.replace(job(), rows=())
