@@ -13,6 +13,7 @@ with the length of the run.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -56,7 +57,7 @@ class Job:
 
     phase: str
     rows: list[dict[str, Any]]
-    anchors: list[dict[str, Any]]
+    anchors: Anchors
     fast: FastSpan
     """The high-rate rows over its span, as columns (they pickle as a few arrays)."""
     brake: list[tuple[float, float]]
@@ -72,7 +73,7 @@ class Job:
     def __call__(self) -> ManeuverSummary:
         return summarize_maneuver(
             self.phase, self.rows, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
-            anchors=self.anchors, fast=self.fast, brake=self.brake, vehicle=self.vehicle,
+            anchors=self.anchors.rows(), fast=self.fast, brake=self.brake, vehicle=self.vehicle,
             lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test, marks=self.marks)
 
     def record(self, index: int) -> Maneuver:
@@ -105,10 +106,30 @@ class AnchorRing:
         self.added += 1
 
     def rows(self) -> list[dict[str, Any]]:
+        return self.snapshot().rows()
+
+    def snapshot(self) -> Anchors:
+        """The rows as they are now, as arrays (copies)."""
         n = len(self)
         order = np.arange(self.added - n, self.added) % len(self.values)
+        return Anchors(self.values[order], self.present[order])
+
+
+@dataclass(frozen=True, slots=True)
+class Anchors:
+    """A maneuver's anchors: the ring's rows as arrays (oldest first) and the cruise rows after it; rows() gives them
+    as rows (made where the summary is computed, not where the maneuver is decided)."""
+
+    values: np.ndarray
+    present: np.ndarray
+    after: tuple[dict[str, Any], ...] = ()
+
+    def rows(self) -> list[dict[str, Any]]:
         return [{k: v if p else None for k, v, p in zip(ANCHOR_KEYS, vs, ps)}
-                for vs, ps in zip(self.values[order].tolist(), self.present[order].tolist())]
+                for vs, ps in zip(self.values.tolist(), self.present.tolist())] + list(self.after)
+
+
+NO_ANCHORS = Anchors(np.zeros((0, len(ANCHOR_KEYS))), np.zeros((0, len(ANCHOR_KEYS)), dtype=bool))
 
 
 def _has_slip(rows: list[dict[str, Any]]) -> bool:
@@ -143,7 +164,7 @@ class ManeuverDetector:
         self._await_seal = False
         """An open accelerate or brake event long enough for a maneuver: a cruise after it closes it in time."""
         self._anchors = AnchorRing()
-        self._queue: deque[tuple[str, list[dict[str, Any]], list[dict[str, Any]], float, float]] = deque()
+        self._queue: deque[tuple[str, list[dict[str, Any]], Anchors, float, float]] = deque()
         """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
         self._fast: deque[tuple[float, Any]] = deque()
         self._fast_last_s = float("-inf")
@@ -208,7 +229,7 @@ class ManeuverDetector:
             if p in self.phases and len(ev) >= MIN_MANEUVER_ROWS and _has_slip(ev):
                 t_from, t_to = span_s(str(p), ev)
                 after = [_anchor(rows[i]) for q, later in found[k + 1:] if q == "cruise" for i in later]
-                anchors = [*self._anchors.rows(), *after] if p != "cruise" else []
+                anchors = dataclasses.replace(self._anchors.snapshot(), after=tuple(after)) if p != "cruise" else NO_ANCHORS
                 self._queue.append((str(p), ev, anchors, t_from, t_to))
         last = found[closed - 1][1][-1] + 1
         del self._rows[:last], self._phase[:last], self._times[:last]
