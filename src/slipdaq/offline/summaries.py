@@ -13,6 +13,7 @@ import dataclasses
 import itertools
 import math
 import os
+import queue
 import signal
 import threading
 import traceback
@@ -21,6 +22,7 @@ from collections.abc import Callable
 from concurrent.futures import Executor, Future
 from multiprocessing import get_context
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import ForkingPickler
 from types import TracebackType
 from typing import Any
 
@@ -69,7 +71,9 @@ def _serve(jobs: Connection, results: Connection, parent_ends: tuple[Connection,
 
 
 class SummaryProcess(Executor):
-    """One forked process that runs the jobs submitted, in order (concurrent.futures' Executor)."""
+    """One forked process that runs the jobs submitted, in order (concurrent.futures' Executor). A job is pickled
+    where it is submitted and written to the pipe by a thread (a job larger than the pipe's buffer never holds up the
+    run while the process is busy with the one before); another thread takes the results back."""
 
     def __init__(self) -> None:
         ctx = get_context("fork")
@@ -84,7 +88,12 @@ class SummaryProcess(Executor):
         self._lock = threading.Lock()
         self._keys = itertools.count()
         self._closed = False
+        self._ended = False
+        """The process has ended: no result comes any more."""
+        self._outbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self._sender = threading.Thread(target=self._send, name="slipdaq-summary-jobs", daemon=True)
         self._reader = threading.Thread(target=self._read, name="slipdaq-summary-results", daemon=True)
+        self._sender.start()
         self._reader.start()
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
@@ -93,18 +102,22 @@ class SummaryProcess(Executor):
         if self._closed:
             raise RuntimeError("the summary process is shut down")
         key = next(self._keys)
+        job = ForkingPickler.dumps((key, fn, args))
         future: Future[Any] = Future()
         with self._lock:
+            if self._ended:
+                raise SummaryProcessError("the summary process has ended")
             self._futures[key] = future
-        try:
-            self._jobs.send((key, fn, args))
-        except BaseException as e:
-            with self._lock:
-                self._futures.pop(key, None)
-            if isinstance(e, OSError):  # the process is gone
-                raise SummaryProcessError("the summary process has ended") from e
-            raise
+        self._outbox.put(bytes(job))
         return future
+
+    def _send(self) -> None:
+        """The jobs, in turn, to the process (until told to stop, or it has gone)."""
+        while (job := self._outbox.get()) is not None:
+            try:
+                self._jobs.send_bytes(job)
+            except OSError:
+                return
 
     def _read(self) -> None:
         """The results, as they come, into their futures; once the process ends, the rest fail."""
@@ -117,6 +130,7 @@ class SummaryProcess(Executor):
                 future = self._futures.pop(key)
             future.set_result(value) if ok else future.set_exception(value)
         with self._lock:
+            self._ended = True
             left, self._futures = list(self._futures.values()), {}
         for future in left:
             future.set_exception(SummaryProcessError("the summary process ended before the summary was in"))
@@ -128,27 +142,27 @@ class SummaryProcess(Executor):
             return
         if not self._closed:
             self._closed = True
-            try:
-                self._jobs.send(None)
-            except OSError:
-                pass
+            self._outbox.put(bytes(ForkingPickler.dumps(None)))
+            self._outbox.put(None)
         if wait:
             self.process.join()
-            self._reader.join()
-            self._close_pipes()
+            self._end_threads()
 
     def terminate(self) -> None:
         """The process ended now (SIGTERM), whatever it was doing; the summaries not in fail."""
         self._closed = True
+        self._outbox.put(None)
         if self.process.is_alive():
             self.process.terminate()
         self.process.join()
-        self._reader.join()
-        self._close_pipes()
+        self._end_threads()
 
-    def _close_pipes(self) -> None:
-        self._jobs.close()
+    def _end_threads(self) -> None:
+        """After the process: the reader (its pipe at its end) and the sender (told to stop, or the pipe broken)."""
+        self._reader.join()
         self._results.close()
+        self._sender.join()
+        self._jobs.close()
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  tb: TracebackType | None) -> None:
