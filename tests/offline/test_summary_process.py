@@ -11,6 +11,7 @@ import os
 import re
 import time
 from collections.abc import Iterator
+from concurrent.futures import Executor, Future
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,7 @@ class _Maneuvers(Sink):
         self.last_s = log_time_s
 
 
-def _log(cfg: Config, records: list[Any], path: Path, summaries: SummaryProcess | None) -> _Maneuvers:
+def _log(cfg: Config, records: list[Any], path: Path, summaries: Executor | None) -> _Maneuvers:
     seen = _Maneuvers()
     sink = McapLogSink(path, cfg, mode="replay", metadata=FIXED_META)
     try:
@@ -94,6 +95,45 @@ def test_coasts_in_order_with_the_summaries_in_a_second_process(tmp_path: Path) 
                                                               wind_mps=3.0))
     seen = _same_log_both_ways(cfg, [e.record for e in events if e.record is not None], tmp_path)
     assert len(seen.times) >= 2
+
+
+class _Asked(Future[Any]):
+    """Done only once its result is asked for: the job runs then."""
+
+    def __init__(self, fn: Any, args: tuple[Any, ...]) -> None:
+        super().__init__()
+        self._job = fn, args
+
+    def result(self, timeout: float | None = None) -> Any:
+        if not self.done():
+            try:
+                self.set_result(self._job[0](*self._job[1]))
+            except Exception as e:
+                self.set_exception(e)
+        return super().result(timeout)
+
+
+class _Latest(Executor):
+    """Every summary as late as it can come: never done until waited for (past HOLD_MAX_CALLS held calls, or at the
+    log's end)."""
+
+    def submit(self, fn: Any, /, *args: Any, **kwargs: Any) -> Future[Any]:
+        return _Asked(fn, args)
+
+
+@pytest.mark.parametrize("most_held", [None, 64])
+def test_the_same_bytes_when_every_summary_comes_as_late_as_it_can(
+        drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, most_held: int | None) -> None:
+    """Held to the log's end (the drive's at most 2,375 calls), or waited for past 64 held calls."""
+    from slipdaq import pipeline
+
+    if most_held is not None:
+        monkeypatch.setattr(pipeline, "HOLD_MAX_CALLS", most_held)
+    cfg, records = drive
+    at_once = _log(cfg, records, tmp_path / "at-once.mcap", None)
+    latest = _log(cfg, records, tmp_path / "latest.mcap", _Latest())
+    assert latest.times == at_once.times
+    assert (tmp_path / "latest.mcap").read_bytes() == (tmp_path / "at-once.mcap").read_bytes()
 
 
 def _raising_summary(*args: Any, **kwargs: Any) -> Any:
