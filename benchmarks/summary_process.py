@@ -62,7 +62,7 @@ def main() -> int:
             _cpu(resource.RUSAGE_CHILDREN)
         if a.report:
             summaries.MIN_RAW_RECORDS = least if beside else 10**12
-            make_report([a.raw], path.with_suffix(""), two_pass=True)
+            make_report([a.raw], path.with_suffix(""), two_pass=True, summaries_beside=True)
         else:
             with SummaryProcess() if beside else _Nothing() as process_:
                 sink = McapLogSink(path, config, mode="replay", metadata=meta)

@@ -235,12 +235,15 @@ def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
     process_to_log(cfg, records, log, "import", stream=io.StringIO())
     monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 10**9)  # every log short: no second process
     before = len(_forks)
-    after = make_report([log], tmp_path / "after", two_pass=True)
+    after = make_report([log], tmp_path / "after", two_pass=True, summaries_beside=True)
     assert read_log(log, two_pass=True, maneuvers=True).maneuvers is None
     assert _forks[before:] == []
     monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 1)
-    beside = make_report([log], tmp_path / "beside", two_pass=True)
+    beside = make_report([log], tmp_path / "beside", two_pass=True, summaries_beside=True)
     assert _forks[before:] == [os.getpid()]
     assert [len(x.logs[0].maneuvers) for x in (after, beside)] == [len(after.logs[0].maneuvers)] * 2
     assert len(after.logs[0].maneuvers) >= 8  # accelerate, cruise and brake
     assert _tree(tmp_path / "beside") == _tree(tmp_path / "after")
+    before = len(_forks)
+    make_report([log], tmp_path / "default", two_pass=True)  # `slipdaq report`: summaries after the pass
+    assert _forks[before:] == []

@@ -10,6 +10,7 @@ run's process dies (the pipe closes)."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 import itertools
 import math
 import os
@@ -26,6 +27,7 @@ from multiprocessing.reduction import ForkingPickler
 from types import TracebackType
 from typing import Any
 
+from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.maneuver.detector import BRAKE_MARK, Job, ManeuverDetector
 from slipdaq.maneuver.events import PHASES
@@ -49,6 +51,7 @@ def _serve(jobs: Connection, results: Connection, parent_ends: tuple[Connection,
     """The second process: each job's result (or the error it raised) back, in turn, until told to stop or the run's
     end of the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
+    gc.freeze()  # what the run made before the fork: never walked here by the collector (nor copied for it)
     for end in parent_ends:
         end.close()
     while True:
@@ -76,6 +79,7 @@ class SummaryProcess(Executor):
     run while the process is busy with the one before); another thread takes the results back."""
 
     def __init__(self) -> None:
+        compiled.prepare()  # the kernels loaded once, before the fork: the process has them too
         ctx = get_context("fork")
         jobs_in, self._jobs = ctx.Pipe(duplex=False)
         self._results, results_out = ctx.Pipe(duplex=False)
