@@ -19,6 +19,7 @@ import argparse
 import io
 import json
 import resource
+import shutil
 import statistics
 import sys
 import tempfile
@@ -102,6 +103,7 @@ def main() -> int:
     print(f"\nthe {'reports' if a.report else 'logs'} the same: {same}")
     print(f"second process started, one job, stopped: {1e3 * statistics.median(w for w, _ in starts):.1f} ms wall, "
           f"{1e3 * statistics.median(c for _, c in starts):.1f} ms CPU (medians of 7)")
+    shutil.rmtree(out)
     return 0 if same else 1
 
 
