@@ -3,8 +3,9 @@ summaries (the fits, their bootstraps) no longer hold up the replay. The pipelin
 until each summary is in (Pipeline's hold_output), so the output is the same bytes as with the summaries at once.
 
 The process is forked once, before the run's sinks start threads of their own, and gets each job (a picklable
-callable and its arguments: `detector.Job.record` and the maneuver's number) through a pipe; a thread of the run
-takes the results back. It ends when the run ends, on an error and on KeyboardInterrupt (terminated), and when the
+callable and its arguments: `detector.Job.record` and the maneuver's number) through a pipe that a thread of the
+run writes; another thread takes the results back. DetectorFeed decides the report's maneuvers as a pass makes its
+rows and summarizes them there too. It ends when the run ends, on an error and on KeyboardInterrupt (terminated), and when the
 run's process dies (the pipe closes)."""
 
 from __future__ import annotations
