@@ -30,8 +30,7 @@ from slipdaq.estimator import EstimatorParams, SlipEstimator
 from slipdaq.estimator.force import RoadLoads
 from slipdaq.maneuver.coast import CoastDetector, CoastRun
 from slipdaq.maneuver.detector import BRAKE_MARK, Job, ManeuverDetector
-from slipdaq.maneuver.figures import ManeuverSummary
-from slipdaq.maneuver.record import MANEUVER_KINDS, coast_record, maneuver_record
+from slipdaq.maneuver.record import MANEUVER_KINDS, Maneuver, coast_record
 from slipdaq.maneuver.test_set import TestSets
 from slipdaq.records import (
     FLAG_ERROR,
@@ -49,6 +48,7 @@ from slipdaq.records import (
     XbusBytes,
 )
 from slipdaq.sinks import Sink, SinkFanout
+from slipdaq.sinks.held import HOLD_MAX_CALLS, HeldCalls, ready
 
 DIAGNOSTICS_PERIOD_S = 1.0
 COURSE_MIN_SPEED_MPS = 2.0
@@ -111,19 +111,21 @@ class _Parts:
 class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
                  frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True,
-                 maneuver_executor: Executor | None = None, fast_slip: bool = True) -> None:
+                 maneuver_executor: Executor | None = None, hold_output: bool = False, fast_slip: bool = True) -> None:
         """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
         gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
         pass's smoothed speeds); the sinks get the fixes as decoded. maneuvers=False: no maneuver is summarized (a
         pass whose sinks take no /maneuver record: the maneuver detector gets nothing). maneuver_executor: where a decided
         maneuver's summary is computed (a live run: a thread, so that its fits never hold up reading); its record goes
         to the sinks, in order, with the first record processed after it is ready (its log time then); without one,
-        at once (replay, import: the log time of the record that decided it). fast_slip=False: no /slip/fast rows
-        (a pass that keeps none: the first; SlipEstimator's fast_rows)."""
+        at once (replay, import: the log time of the record that decided it). hold_output (an executor in another
+        process): its record goes to the sinks as it would at once, their later calls held until it is in (sinks.held).
+        fast_slip=False: no /slip/fast rows (a pass that keeps none: the first; SlipEstimator's fast_rows)."""
         self.config = config
         self.sinks = list(sinks)
-        self._out = SinkFanout(self.sinks)
-        """Every sink, called once per record (the one dispatch)."""
+        self._out: Sink = SinkFanout(self.sinks)
+        self._fanout = self._out
+        """Every sink, called once per record (the one dispatch); _out: it or, behind a maneuver not in yet, _hold."""
         self.wheels = WheelDecoder(config)
         self.nmea = NmeaDecoder()
         self.ubx = UbxDecoder()
@@ -147,8 +149,9 @@ class Pipeline:
         self.test_sets = TestSets(config.test)
         """The test's procedures' sets, fed each /maneuver record; sinks get a set's /test_set record after each."""
         self._executor = maneuver_executor
-        self._summaries: deque[Future[ManeuverSummary | CoastRun]] = deque()
-        """Maneuvers being summarized on the executor, in the order they were decided."""
+        self._summaries: deque[Future[Maneuver]] = deque()
+        """Maneuvers being summarized on the executor (no hold_output), in the order they were decided."""
+        self._hold = HeldCalls(self._fanout) if hold_output and maneuver_executor is not None else None
         self._gps_speeds = gps_speeds
         self.fixes = 0
         self.valid_fixes = 0
@@ -392,45 +395,46 @@ class Pipeline:
             self.estimator.road_loads_measured(RoadLoads(*run.loads), run.runs_paired)
         if not self._coast_records:
             return
-        if self._executor is not None:
-            self._summaries.append(self._executor.submit(lambda: run))
-            return
-        self._deliver_maneuver(run, log_time_s)
-
-    def _maneuvers(self, jobs: list[Job], log_time_s: float, final: bool = False) -> None:
-        """The maneuvers decided now, as /maneuver records, to every sink at this log time (with an executor: their
-        summaries started there; final: every one, waited for)."""
-        if not jobs and not final:
-            return
-        if self._executor is not None and not final:
-            self._summaries.extend(self._executor.submit(job) for job in jobs)
-            return
-        while self._summaries:
-            self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
-        for job in jobs:
-            self._deliver_maneuver(job(), log_time_s)
-
-    def _summarized(self, log_time_s: float) -> None:
-        """The maneuvers whose summaries the executor has finished, in order, at this log time."""
-        while self._summaries and self._summaries[0].done():
-            self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
-
-    def _deliver_maneuver(self, m: ManeuverSummary | CoastRun, log_time_s: float) -> None:
         self.maneuver_count += 1
-        if isinstance(m, CoastRun):
-            record = coast_record(m, self.maneuver_count, self.maneuvers.t0_s or 0.0, WHEELS,
-                                  self.config.test)
+        record = coast_record(run, self.maneuver_count, self.maneuvers.t0_s or 0.0, WHEELS, self.config.test)
+        self._pending(ready(record), log_time_s) if self._executor else self._deliver_maneuver(record, log_time_s)
+
+    def _maneuvers(self, jobs: list[Job], log_time_s: float, at_once: bool = False) -> None:
+        """The maneuvers decided now, numbered in turn, to every sink at this log time (an executor's: _pending)."""
+        for job in jobs:
+            self.maneuver_count += 1
+            if self._executor is None or at_once:
+                self._deliver_maneuver(job.record(self.maneuver_count), log_time_s)
+            else:
+                self._pending(self._executor.submit(job.record, self.maneuver_count), log_time_s)
+
+    def _pending(self, record: Future[Maneuver], log_time_s: float) -> None:
+        """A maneuver's record on its way: delivered here with hold_output (later calls held till then), else when in."""
+        if self._hold is None:
+            self._summaries.append(record)
+        elif self._out is self._fanout and record.done():
+            self._deliver_maneuver(record.result(), log_time_s)
         else:
-            record = maneuver_record(m, self.maneuver_count, self.config.test, WHEELS)
-        self._out.on_maneuver(record, log_time_s)
+            self._out = self._hold
+            self._hold.mark(record, lambda m: self._deliver_maneuver(m, log_time_s))
+
+    def _summarized(self, log_time_s: float, wait: bool = False) -> None:
+        """The maneuvers whose summaries the executor has finished (wait: all), in order, at this log time."""
+        while self._summaries and (wait or self._summaries[0].done()):
+            self._deliver_maneuver(self._summaries.popleft().result(), log_time_s)
+
+    def _deliver_maneuver(self, record: Maneuver, log_time_s: float) -> None:
+        self._fanout.on_maneuver(record, log_time_s)
         test_set = self.test_sets.add(record)
         if test_set is not None:
-            self._out.on_test_set(test_set, log_time_s)
+            self._fanout.on_test_set(test_set, log_time_s)
 
     def _tick(self, t: float) -> None:
         """The newest record's time: a diagnostics snapshot every DIAGNOSTICS_PERIOD_S of log time."""
         self.last_time_s = t
-        if self._summaries:
+        if self._out is self._hold and self._hold.release(len(self._hold) > HOLD_MAX_CALLS):
+            self._out = self._fanout  # the calls held behind maneuvers now in (over HOLD_MAX_CALLS: waited for)
+        elif self._summaries:
             self._summarized(t)
         if self._next_diag_s is None:
             self._next_diag_s = t + DIAGNOSTICS_PERIOD_S
@@ -461,9 +465,14 @@ class Pipeline:
     def finish(self) -> None:
         """The maneuver still open decided, and a last diagnostics snapshot, so that the log ends with the final
         counters."""
-        if self.last_time_s is not None:
-            self._maneuvers(self.maneuvers.finish() if self._detect else [], self.last_time_s, final=True)
-            self.emit_diagnostics()
+        if (t := self.last_time_s) is None:
+            return
+        self._summarized(t, wait=True)  # on a thread: those in flight, then the last ones at once
+        self._maneuvers(self.maneuvers.finish() if self._detect else [], t, at_once=self._hold is None)
+        if self._hold is not None:
+            self._hold.release_all()
+            self._out = self._fanout
+        self.emit_diagnostics()
 
     def diagnostics(self) -> Diagnostics:
         return Diagnostics(

@@ -13,9 +13,10 @@ with the length of the run.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping
-from functools import partial
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,8 +24,16 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config, TestConfig, TireConfig, VehicleConfig
 from slipdaq.maneuver.events import MIN_MANEUVER_ROWS, MIN_RUN_ROWS, close_events
-from slipdaq.maneuver.figures import BRAKE_SIGNAL_BEFORE_S, SPAN_BEFORE_S, ManeuverSummary, span_s, summarize_maneuver
+from slipdaq.maneuver.figures import (
+    BRAKE_SIGNAL_BEFORE_S,
+    SPAN_BEFORE_S,
+    FastSpan,
+    ManeuverSummary,
+    span_s,
+    summarize_maneuver,
+)
 from slipdaq.maneuver.linearity import LinearityRule
+from slipdaq.maneuver.record import Maneuver, maneuver_record
 
 ANCHOR_KEYS = ("speed_mps",) + tuple(k for w in WHEELS for k in (f"slip_{w}", f"force_{w}_n"))
 """What the linearity rule takes of a cruise row."""
@@ -40,8 +49,37 @@ KEEP_S = SPAN_BEFORE_S + BRAKE_SIGNAL_BEFORE_S + 15.0
 """High-rate rows and brake samples are kept this long before the oldest open row (a window is at most 10 s)."""
 
 
-Job = Callable[[], ManeuverSummary]
-"""A decided maneuver: the computation of its summary."""
+@dataclass(frozen=True, slots=True)
+class Job:
+    """A decided maneuver as data (rows, anchors, high-rate rows and brake samples of its own, the rule and config it
+    is judged by): calling it computes its summary (`summarize_maneuver`). It pickles, so it may run in another
+    process as well as on another thread."""
+
+    phase: str
+    rows: list[dict[str, Any]]
+    anchors: Anchors
+    fast: FastSpan
+    """The high-rate rows over its span, as columns (they pickle as a few arrays)."""
+    brake: list[tuple[float, float]]
+    marks: list[float]
+    t0_s: float
+    cfg_latency_s: float | None
+    rule: LinearityRule
+    vehicle: VehicleConfig
+    lost_frames: dict[str, int]
+    mu_max: float
+    test: TestConfig
+
+    def __call__(self) -> ManeuverSummary:
+        return summarize_maneuver(
+            self.phase, self.rows, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
+            anchors=self.anchors.rows(), fast=self.fast, brake=self.brake, vehicle=self.vehicle,
+            lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test, marks=self.marks)
+
+    def record(self, index: int) -> Maneuver:
+        """Its /maneuver record, the log's maneuver number `index`."""
+        return maneuver_record(self(), index, self.test, WHEELS)
+
 
 def _anchor(row: dict[str, Any]) -> dict[str, Any]:
     return {k: row.get(k) for k in ANCHOR_KEYS}
@@ -68,10 +106,30 @@ class AnchorRing:
         self.added += 1
 
     def rows(self) -> list[dict[str, Any]]:
+        return self.snapshot().rows()
+
+    def snapshot(self) -> Anchors:
+        """The rows as they are now, as arrays (copies)."""
         n = len(self)
         order = np.arange(self.added - n, self.added) % len(self.values)
+        return Anchors(self.values[order], self.present[order])
+
+
+@dataclass(frozen=True, slots=True)
+class Anchors:
+    """A maneuver's anchors: the ring's rows as arrays (oldest first) and the cruise rows after it; rows() gives them
+    as rows (made where the summary is computed, not where the maneuver is decided)."""
+
+    values: np.ndarray
+    present: np.ndarray
+    after: tuple[dict[str, Any], ...] = ()
+
+    def rows(self) -> list[dict[str, Any]]:
         return [{k: v if p else None for k, v, p in zip(ANCHOR_KEYS, vs, ps)}
-                for vs, ps in zip(self.values[order].tolist(), self.present[order].tolist())]
+                for vs, ps in zip(self.values.tolist(), self.present.tolist())] + list(self.after)
+
+
+NO_ANCHORS = Anchors(np.zeros((0, len(ANCHOR_KEYS))), np.zeros((0, len(ANCHOR_KEYS)), dtype=bool))
 
 
 def _has_slip(rows: list[dict[str, Any]]) -> bool:
@@ -106,7 +164,7 @@ class ManeuverDetector:
         self._await_seal = False
         """An open accelerate or brake event long enough for a maneuver: a cruise after it closes it in time."""
         self._anchors = AnchorRing()
-        self._queue: deque[tuple[str, list[dict[str, Any]], list[dict[str, Any]], float, float]] = deque()
+        self._queue: deque[tuple[str, list[dict[str, Any]], Anchors, float, float]] = deque()
         """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
         self._fast: deque[tuple[float, Any]] = deque()
         self._fast_last_s = float("-inf")
@@ -171,7 +229,7 @@ class ManeuverDetector:
             if p in self.phases and len(ev) >= MIN_MANEUVER_ROWS and _has_slip(ev):
                 t_from, t_to = span_s(str(p), ev)
                 after = [_anchor(rows[i]) for q, later in found[k + 1:] if q == "cruise" for i in later]
-                anchors = [*self._anchors.rows(), *after] if p != "cruise" else []
+                anchors = dataclasses.replace(self._anchors.snapshot(), after=tuple(after)) if p != "cruise" else NO_ANCHORS
                 self._queue.append((str(p), ev, anchors, t_from, t_to))
         last = found[closed - 1][1][-1] + 1
         del self._rows[:last], self._phase[:last], self._times[:last]
@@ -180,15 +238,12 @@ class ManeuverDetector:
         last_s = self._fast_last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
         while self._queue and (final or last_s > self._queue[0][4]):
             p, ev, anchors, t_from, t_to = self._queue.popleft()
-            fast = [r for t, r in self._fast if t_from <= t <= t_to]
+            fast = FastSpan.of([r for t, r in self._fast if t_from <= t <= t_to])
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
             marks = [t for t in self._marks if t_from <= t <= t_to]
             assert self.t0_s is not None
-            self._decided.append(partial(
-                summarize_maneuver, p, ev, t0_s=self.t0_s, cfg_latency_s=self.cfg_latency_s, rule=self.rule,
-                anchors=anchors, fast=fast, brake=brake,
-                vehicle=self.vehicle, lost_frames=self.lost_frames, mu_max=self.mu_max, test=self.test,
-                marks=marks))
+            self._decided.append(Job(p, ev, anchors, fast, brake, marks, self.t0_s, self.cfg_latency_s, self.rule,
+                                     self.vehicle, self.lost_frames, self.mu_max, self.test))
         self._prune()
         out, self._decided = self._decided, []
         return out

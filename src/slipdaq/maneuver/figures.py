@@ -159,8 +159,10 @@ class FastSpan:
         return len(self.time_s)
 
     @classmethod
-    def of(cls, rows: Sequence[Any]) -> FastSpan:
+    def of(cls, rows: Sequence[Any] | FastSpan) -> FastSpan:
         """From /slip/fast rows (dicts, as a log gives them) or FastSlip records (as the estimator gives them)."""
+        if isinstance(rows, FastSpan):
+            return rows
         if rows and not isinstance(rows[0], dict):
             return cls(np.array([r.time_s for r in rows], dtype=np.float64),
                        np.array([r.speed_mps for r in rows], dtype=np.float64),
@@ -183,16 +185,16 @@ def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
 
 def summarize_maneuver(
     phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
-    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] = (),
+    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] | FastSpan = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
     lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max, test: TestConfig | None = None,
     marks: Sequence[float] = (),
 ) -> ManeuverSummary:
     """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
-    fast: the high-rate rows over its span (`span_s`; /slip/fast dicts or FastSlip records); brake: (time, value) of
-    the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max (tire_limit); test:
-    its procedures (a brake's MFDD over its procedure's window); marks: the times of the brake's press by the
-    receiver's time mark, on the host's clock."""
+    fast: the high-rate rows over its span (`span_s`; /slip/fast dicts, FastSlip records or their FastSpan); brake:
+    (time, value) of the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max
+    (tire_limit); test: its procedures (a brake's MFDD over its procedure's window); marks: the times of the brake's
+    press by the receiver's time mark, on the host's clock."""
     prow = tuple(rows)
     title, v_from, v_to = maneuver_title(phase, [r["speed_mps"] for r in prow])
     lat = [r["gps_latency_s"] for r in prow if r.get("gps_latency_s") is not None]

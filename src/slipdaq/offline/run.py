@@ -3,11 +3,13 @@ progress; the first pass of a two-pass run."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import sys
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -19,6 +21,8 @@ from slipdaq.config import Config
 from slipdaq.config.calibration import Calibration, Learned, merged, parse_calibration, to_toml
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
+from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.offline.summaries import DetectorFeed, SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
     CanFrame,
@@ -132,17 +136,19 @@ def process(
     description: str = "",
     maneuvers: bool = True,
     fast_slip: bool = True,
+    summaries: Executor | None = None,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
     progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
     whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own). fast_slip=False:
-    no /slip/fast rows (the first pass).
+    no /slip/fast rows (the first pass). summaries: where the maneuvers' summaries are computed (a SummaryProcess),
+    the sinks' calls after each held back until it is in: the same calls as without.
 
     records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
     pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
-                        maneuvers=maneuvers, fast_slip=fast_slip)
+                        maneuvers=maneuvers, fast_slip=fast_slip, maneuver_executor=summaries, hold_output=True)
     compiled.prepare()
     if stream.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -181,14 +187,17 @@ def process_to_log(
 ) -> Pipeline:
     """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
     calibration it started from is stored in the log's metadata (calibration_toml), so that a replay of the log
-    starts from it too."""
+    starts from it too. A run of a known total of at least summaries.MIN_RAW_RECORDS records summarizes its
+    maneuvers in a second process (forked before the log's writer starts its thread), the same bytes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
-    sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
-    try:
-        return process(config, records, [sink], **({"description": mode} | options))
-    finally:
-        sink.close()
+    beside = options.get("maneuvers", True) and worth_a_process(options.get("total"))
+    with SummaryProcess() if beside else contextlib.nullcontext() as summaries:
+        sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
+        try:
+            return process(config, records, [sink], **({"description": mode, "summaries": summaries} | options))
+        finally:
+            sink.close()
 
 
 class _FirstPassSink(Sink):
@@ -301,30 +310,43 @@ def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration 
 
 class Rows(Sink):
     """The estimates as the log's rows, the high-rate slip rows, the sensor samples (as the log's JSON), and the last
-    diagnostics."""
+    diagnostics; feed: each also to a DetectorFeed (its maneuvers decided as the rows come)."""
 
-    def __init__(self) -> None:
+    def __init__(self, feed: DetectorFeed | None = None) -> None:
         self.rows: list[dict[str, Any]] = []
         self.fast: list[dict[str, Any]] = []
         self.sensors: list[dict[str, Any]] = []
         self.diagnostics: dict[str, Any] | None = None
+        self.feed = feed
+        self.maneuvers: list[ManeuverSummary] | None = None
+        """The feed's maneuvers (report.summary.detect_maneuvers over the rows), once the pass is over."""
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
-        self.rows.append(estimate.as_row())
+        self.rows.append(row := estimate.as_row())
+        if self.feed is not None:
+            self.feed.estimate(row)
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self.fast.append(row.as_row())
+        self.fast.append(fast := row.as_row())
+        if self.feed is not None:
+            self.feed.fast(fast)
 
     def on_sensor(self, sample: SensorSample) -> None:
-        self.sensors.append(dataclasses.asdict(sample))
+        self.sensors.append(d := dataclasses.asdict(sample))
+        if self.feed is not None:
+            self.feed.sensor(d)
 
     def on_diagnostics(self, diagnostics: dict[str, object], log_time_s: float) -> None:
         self.diagnostics = diagnostics
+        if self.feed is not None:
+            self.feed.log_time(log_time_s)
 
 
-def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | None:
+def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: bool = False) -> Rows | None:
     """A log's estimates (and high-rate slip) post-processed two-pass (as `replay --two-pass`, in memory), as its
-    /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records."""
+    /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
+    maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
+    beside the second pass (DetectorFeed; Rows.maneuvers)."""
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.sources.read_errors import guarded
 
@@ -333,10 +355,13 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None) -> Rows | No
     total = raw_record_count(log)
     if total == 0:
         return None
-    first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
-    rows = Rows()
-    p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream, maneuvers=False,
-                **first.second_pass())
-    if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
-        return None
+    with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
+        first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
+        rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
+        p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
+                    maneuvers=False, **first.second_pass())
+        if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
+            return None
+        if rows.feed is not None:
+            rows.maneuvers, rows.feed = rows.feed.finish(), None
     return rows

@@ -22,6 +22,7 @@ from typing import Any, TextIO
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_topic, read_metadata
 from slipdaq.logformat.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATE, TOPIC_FAST_SLIP, TOPIC_SENSORS
+from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.outputs import atomic_tree, refuse_inputs
 from slipdaq.report.labels import labels_of
 from slipdaq.report.page import LogLinks
@@ -47,6 +48,8 @@ class LogData:
     """/slip/fast rows."""
     sensors: list[dict[str, Any]] = field(default_factory=list)
     """/can/sensors samples."""
+    maneuvers: list[ManeuverSummary] | None = None
+    """Its maneuvers, decided beside the two-pass replay (None: to be decided from the rows)."""
 
 
 @dataclass
@@ -61,10 +64,12 @@ class ReportResult:
     summary_csv: Path
 
 
-def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None = None) -> LogData:
+def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None = None,
+             maneuvers: bool = False) -> LogData:
     """Metadata, estimate rows and the last diagnostics of a slipdaq log; LogError or InputError (one line)
     otherwise. two_pass: the estimates post-processed two-pass from the log's raw records (offline.two_pass_rows),
-    the logged ones when it has none."""
+    the logged ones when it has none; maneuvers: with two_pass, a long log's maneuvers summarized in a second
+    process beside the second pass (LogData.maneuvers)."""
     path = Path(path)
     if not path.is_file():
         raise LogError(f"{path}: no such file")
@@ -72,10 +77,10 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
     if two_pass:
         from slipdaq.offline.run import two_pass_rows
 
-        got = two_pass_rows(path, stream=progress)
+        got = two_pass_rows(path, stream=progress, maneuvers=maneuvers)
         if got is not None:
             return LogData(path, metadata | {"report_estimates": "two-pass"}, got.rows, got.diagnostics, got.fast,
-                           got.sensors)
+                           got.sensors, got.maneuvers)
     data = LogData(path, metadata | {"report_estimates": "logged"}, [], None)
     topics = (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS, TOPIC_FAST_SLIP, TOPIC_SENSORS)
     for topic, _t, d in guarded(path, iter_topic(path, topics)):
@@ -155,20 +160,24 @@ def make_report(
     progress: TextIO | None = None,
     two_pass: bool = False,
     png: bool = False,
+    summaries_beside: bool = False,
 ) -> ReportResult:
     """Every log read first (a bad one fails before anything is written), summarized and its plots laid out (with
     every high-rate row of its maneuvers), then written (write_report), the tire files fitted on threads
-    (tires.ThreadFits); png: the PNGs too."""
+    (tires.ThreadFits); png: the PNGs too. summaries_beside (two_pass): a long log's maneuvers summarized in a second
+    process beside its second pass (read_log's maneuvers; the same report; off: it costs about as much CPU as it takes
+    off the main thread, docs/performance.md)."""
     say = _sayer(progress)
     refuse_report_inputs(out_dir, log_paths)
     data = []
     for p in log_paths:
-        d = read_log(p, two_pass)
+        d = read_log(p, two_pass, maneuvers=summaries_beside)
         say(f"read {p}: {len(d.rows)} estimates ({d.metadata['report_estimates']})")
         data.append(d)
     taken: set[str] = set()
     logs = [summarize_log(d.rows, d.metadata, d.diagnostics, path=str(d.path), name=unique_name(d.path.stem, taken),
-                          labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors)
+                          labels=labels_of(d.metadata), group_by=group_by, fast=d.fast, sensors=d.sensors,
+                          found=d.maneuvers)
             for d in data]
     pages = {log.name: log_page(log, d.fast) for log, d in zip(logs, data)}
     del data

@@ -115,15 +115,21 @@ def summarize_log(
     rule: LinearityRule | None = None,
     fast: Sequence[dict[str, Any]] = (),
     sensors: Sequence[dict[str, Any]] = (),
+    found: Sequence[ManeuverSummary] | None = None,
 ) -> LogSummary:
     """Every maneuver of one log, per wheel; fast: its /slip/fast rows, sensors: its /can/sensors samples (the
-    brake signal), both in time order."""
+    brake signal), both in time order; found: its maneuvers as detect_maneuvers gives them, decided already (beside
+    the replay that made the rows, offline.summaries.DetectorFeed: the lost frames filled in here)."""
     cfg = log_config(metadata)
     diag = diagnostics or {}
     lost = {w: int(v) for w, v in (diag.get("lost_frames") or {}).items()}
     have_phase = any(r.get("phase") is not None for r in rows)
-    found = detect_maneuvers(rows, cfg, phases=None if have_phase else fallback.derive_phases(rows), fast=fast,
-                             sensors=sensors, rule=rule, lost_frames=lost)
+    if found is not None and have_phase and rule is None:
+        found = [dataclasses.replace(m, wheels={w: dataclasses.replace(s, lost_frames=lost.get(w))
+                                                for w, s in m.wheels.items()}) for m in found]
+    else:
+        found = detect_maneuvers(rows, cfg, phases=None if have_phase else fallback.derive_phases(rows), fast=fast,
+                                 sensors=sensors, rule=rule, lost_frames=lost)
     test = cfg.test if cfg is not None else TestConfig()
     records = [maneuver_record(m, k, test, WHEELS)
                for k, m in enumerate((m for m in found if m.phase != "cruise"), start=1)]
