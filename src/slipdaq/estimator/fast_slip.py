@@ -23,7 +23,7 @@ from slipdaq.compiled import kernel
 from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
 from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
-from slipdaq.records import FastSlip, FastWheel
+from slipdaq.records.fast_rows import FastSlipBatch
 
 FAST_LINE_HALF = 5
 WHEEL_WAIT_S = 0.5
@@ -35,13 +35,13 @@ class FastSlipRows:
         self.min_speed_mps = min_speed_mps
         self._pending: deque[tuple[float, float, float]] = deque()
 
-    def release(self, rings: Sequence[SeriesRing], r0_m: Sequence[float], now_s: float) -> list[FastSlip]:
-        """The grid instants that are ready (see the module docstring), as FastSlip rows; now_s: the newest reference
-        fix's time."""
+    def release(self, rings: Sequence[SeriesRing], r0_m: Sequence[float], now_s: float) -> FastSlipBatch | None:
+        """The grid instants that are ready (see the module docstring), as columns (None: none ready); now_s: the
+        newest reference fix's time."""
         pending = self._pending
         pending.extend(self.speed.take_rows())
         if not pending:
-            return []
+            return None
         need = FAST_LINE_HALF + 1
         # an instant t has `need` samples of a ring at or after it when t <= the need-th last sample's time
         ready_until = min((float(r.times[-need]) if len(r) >= need else -math.inf for r in rings if len(r)),
@@ -52,32 +52,39 @@ class FastSlipRows:
                 break
             n += 1
         if n == 0:
-            return []
-        rows = [pending.popleft() for _ in range(n)]
-        times = np.array([r[0] for r in rows])
-        wheel_speeds = [self._wheel_speeds(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
-        source = "imu" if self.speed.has_imu else "gps"
-        out = []
-        for k, (t, v, a) in enumerate(rows):
-            wheels = {}
-            for w, speeds in zip(WHEELS, wheel_speeds):
-                ws = speeds[k]
-                slip = (ws - v) / v if ws is not None and v >= self.min_speed_mps and math.isfinite(ws) else None
-                wheels[w] = FastWheel(slip, ws)
-            out.append(FastSlip(t, v, a, source, wheels))
-        return out
+            return None
+        rows = np.array([pending.popleft() for _ in range(n)], dtype=np.float64).reshape(n, 3)
+        times, v = rows[:, 0].copy(), rows[:, 1].copy()
+        fast_enough = v >= self.min_speed_mps
+        slips, slip_ok, speeds, speed_ok = {}, {}, {}, {}
+        for w, ring, r0 in zip(WHEELS, rings, r0_m):
+            ws, ok = self._wheel_columns(ring, r0, times)
+            good = ok & fast_enough & np.isfinite(ws)
+            with np.errstate(all="ignore"):
+                slips[w] = np.where(good, (ws - v) / v, np.nan)
+            slip_ok[w], speeds[w], speed_ok[w] = good, ws, ok
+        return FastSlipBatch(times, v, rows[:, 2].copy(), np.full(n, self.speed.has_imu), WHEELS, slips, slip_ok,
+                             speeds, speed_ok)
 
     @staticmethod
-    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
-        """omega*r0 at each time: 2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
-        or after it, without the line's samples before it, or with a gap in them (windows.py's rule)."""
+    def _wheel_columns(ring: SeriesRing, r0_m: float, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """omega*r0 at each time (NaN where undefined) and whether it is defined: 2*pi*r0 * the slope of its local
+        line; undefined without FAST_LINE_HALF + 1 samples at or after it, without the line's samples before it, or
+        with a gap in them (windows.py's rule)."""
         half = FAST_LINE_HALF
         if len(ring) < 2 * half + 1:
-            return [None] * len(times)
+            return np.full(len(times), np.nan), np.zeros(len(times), dtype=np.bool_)
         speeds = np.empty(len(times))
         ok = np.empty(len(times), dtype=np.bool_)
         line_speeds()(ring.times, ring.values, times, half, max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()),
                       TWO_PI * r0_m, speeds, ok)
+        speeds[~ok] = np.nan
+        return speeds, ok
+
+    @staticmethod
+    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+        """_wheel_columns as floats, None where undefined."""
+        speeds, ok = FastSlipRows._wheel_columns(ring, r0_m, times)
         return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 
 

@@ -30,6 +30,7 @@ from slipdaq.records import (
     SensorSample,
     WheelSampleBatch,
 )
+from slipdaq.records.fast_rows import FastRows, FastSlipBatch
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 
@@ -300,12 +301,12 @@ def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration 
 
 
 class Rows(Sink):
-    """The estimates as the log's rows, the high-rate slip rows, the sensor samples (as the log's JSON), and the last
-    diagnostics."""
+    """The estimates as the log's rows, the high-rate slip rows (as columns: a sequence of the log's rows), the sensor
+    samples (as the log's JSON), and the last diagnostics."""
 
     def __init__(self) -> None:
         self.rows: list[dict[str, Any]] = []
-        self.fast: list[dict[str, Any]] = []
+        self.fast = FastRows()
         self.sensors: list[dict[str, Any]] = []
         self.diagnostics: dict[str, Any] | None = None
 
@@ -313,7 +314,10 @@ class Rows(Sink):
         self.rows.append(estimate.as_row())
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self.fast.append(row.as_row())
+        self.fast.add(FastSlipBatch.of_rows([row], tuple(row.wheels)))
+
+    def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
+        self.fast.add(rows if isinstance(rows, FastSlipBatch) else FastSlipBatch.of_rows(rows, WHEELS))
 
     def on_sensor(self, sample: SensorSample) -> None:
         self.sensors.append(dataclasses.asdict(sample))
