@@ -175,9 +175,10 @@ def test_released_columns_are_the_rows_made_one_by_one(cfg, drive, monkeypatch) 
     speed or where omega*r0 is undefined or not finite."""
     from collections import deque
 
+    from tests.logformat.test_epoch_json import exact
+
     from slipdaq.estimator.fast_slip import FastSlipRows
     from slipdaq.records import FastSlip, FastWheel
-    from tests.logformat.test_epoch_json import exact
 
     release = FastSlipRows.release
     pairs: list[tuple[FastSlip, FastSlip]] = []

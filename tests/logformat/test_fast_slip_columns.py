@@ -57,4 +57,6 @@ def test_run_of_batches_reads_back_as_the_rows(rows: list[FastSlip], cuts: list[
     assert _exact(list(held)) == want
     assert _exact([held[i] for i in range(-len(rows), len(rows))]) == want + want
     assert _exact(held[1::2]) == want[1::2]
-    assert _exact(FastSlipBatch.concat([held.batch()]).dicts()) == want
+    assert _exact(held.columns().dicts()) == want
+    halves = [FastSlipBatch.of_rows(rows[:1], WHEELS), FastSlipBatch.of_rows(rows[1:], WHEELS)]
+    assert _exact(FastSlipBatch.concat(halves).dicts()) == want

@@ -1,15 +1,18 @@
 """The report's high-rate slip rows held as columns (offline.run.Rows: records.fast_rows.FastRows): they read back as
 the rows a two-pass replay logs, and the report's consumers (the maneuver summaries, the page's data) give from them
-what they give from the rows as dicts, byte for byte."""
+what they give from the rows as dicts, byte for byte; the page's script made figure by figure is that of them all."""
 
 from __future__ import annotations
 
 import contextlib
 import io
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from tests.logformat.test_epoch_json import exact
 
 from slipdaq.cli import main
@@ -20,7 +23,7 @@ from slipdaq.offline.run import two_pass_rows
 from slipdaq.pipeline import Pipeline
 from slipdaq.records.fast_rows import FastRows
 from slipdaq.report.labels import labels_metadata
-from slipdaq.report.page_data import log_page
+from slipdaq.report.page_data import _Script, log_page, script
 from slipdaq.report.summary import summarize_log
 from slipdaq.report.traces import HighRate
 from slipdaq.sim.emit import SimSettings, generate
@@ -70,3 +73,18 @@ def test_consumers_give_from_columns_what_they_give_from_dicts(log: Path) -> Non
     assert len(from_columns[0]) >= 2 and b"high-rate" in from_columns[1]
     assert from_columns == from_dicts
     assert np.isfinite(a.time_s).all()
+
+
+@given(st.lists(st.tuples(st.sampled_from(["a/b", "a/overview", "ä/μ", "c"]),
+                          st.recursive(st.one_of(st.none(), st.floats(allow_nan=True), st.text(max_size=4),
+                                                 st.integers(-(2**40), 2**40)),
+                                       lambda inner: st.one_of(st.lists(inner, max_size=3),
+                                                               st.dictionaries(st.text(max_size=3), inner, max_size=3)),
+                                       max_leaves=8)), max_size=6))
+def test_page_script_made_figure_by_figure_is_the_script_of_them_all(figures: list[tuple[str, Any]]) -> None:
+    """Each figure encoded as it is made (page_data._Script): the bytes of script() of the dict of them (a name given
+    again: its new figure in the first one's place)."""
+    out = _Script()
+    for name, figure in figures:
+        out.add(name, figure)
+    assert out.bytes() == script(dict(figures))

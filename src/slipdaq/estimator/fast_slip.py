@@ -53,38 +53,30 @@ class FastSlipRows:
             n += 1
         if n == 0:
             return None
-        rows = np.array([pending.popleft() for _ in range(n)], dtype=np.float64).reshape(n, 3)
-        times, v = rows[:, 0].copy(), rows[:, 1].copy()
-        fast_enough = v >= self.min_speed_mps
-        slips, slip_ok, speeds, speed_ok = {}, {}, {}, {}
+        rows = [pending.popleft() for _ in range(n)]
+        times = [r[0] for r in rows]
+        speeds = [r[1] for r in rows]
+        grid = np.array(times)
+        low = self.min_speed_mps
+        slips, wheel_speeds = {}, {}
         for w, ring, r0 in zip(WHEELS, rings, r0_m):
-            ws, ok = self._wheel_columns(ring, r0, times)
-            good = ok & fast_enough & np.isfinite(ws)
-            with np.errstate(all="ignore"):
-                slips[w] = np.where(good, (ws - v) / v, np.nan)
-            slip_ok[w], speeds[w], speed_ok[w] = good, ws, ok
-        return FastSlipBatch(times, v, rows[:, 2].copy(), np.full(n, self.speed.has_imu), WHEELS, slips, slip_ok,
-                             speeds, speed_ok)
+            ws_all = wheel_speeds[w] = self._wheel_speeds(ring, r0, grid)
+            slips[w] = [(ws - v) / v if ws is not None and v >= low and math.isfinite(ws) else None
+                        for ws, v in zip(ws_all, speeds)]
+        return FastSlipBatch(times, speeds, [r[2] for r in rows], ["imu" if self.speed.has_imu else "gps"] * n, WHEELS,
+                             slips, wheel_speeds)
 
     @staticmethod
-    def _wheel_columns(ring: SeriesRing, r0_m: float, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """omega*r0 at each time (NaN where undefined) and whether it is defined: 2*pi*r0 * the slope of its local
-        line; undefined without FAST_LINE_HALF + 1 samples at or after it, without the line's samples before it, or
-        with a gap in them (windows.py's rule)."""
+    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+        """omega*r0 at each time: 2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
+        or after it, without the line's samples before it, or with a gap in them (windows.py's rule)."""
         half = FAST_LINE_HALF
         if len(ring) < 2 * half + 1:
-            return np.full(len(times), np.nan), np.zeros(len(times), dtype=np.bool_)
+            return [None] * len(times)
         speeds = np.empty(len(times))
         ok = np.empty(len(times), dtype=np.bool_)
         line_speeds()(ring.times, ring.values, times, half, max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()),
                       TWO_PI * r0_m, speeds, ok)
-        speeds[~ok] = np.nan
-        return speeds, ok
-
-    @staticmethod
-    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
-        """_wheel_columns as floats, None where undefined."""
-        speeds, ok = FastSlipRows._wheel_columns(ring, r0_m, times)
         return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 
 

@@ -1,6 +1,7 @@
-"""High-rate slip rows as columns: the rows one fix released (FastSlipBatch, what the estimator hands the sinks) and
-the rows of a whole run (FastRows, what a report holds), one numpy array per field in place of an object or a dict
-per row. Their values are FastSlip's, field for field; a dict or a FastSlip is made only where a reader asks for one.
+"""High-rate slip rows as columns in place of an object or a dict per row: the rows one fix released (FastSlipBatch,
+what the estimator hands the sinks: a list per field, a few rows each) and the rows of a whole run (FastRows, what a
+report holds: numpy arrays per field, FastColumns). Their values are FastSlip's, field for field; a FastSlip or a
+dict is made only where a reader asks for one.
 """
 
 from __future__ import annotations
@@ -14,32 +15,46 @@ import numpy as np
 from slipdaq.records import FastSlip, FastWheel
 from slipdaq.records.columns import FAST_ACCEL_SOURCES, FAST_SLIP_COLUMNS
 
+Maybe = list[float | None]
+"""A column whose value may be undefined (None)."""
 
-def _values(x: np.ndarray, defined: np.ndarray) -> list[float | None]:
-    """x as floats, None where not defined."""
-    out: list[float | None] = x.tolist()
-    if not defined.all():
-        out = [v if ok else None for v, ok in zip(out, defined.tolist())]
+
+def _columns(time_s: list[float], speed_mps: list[float], accel_mps2: list[float], accel_source: list[str],
+             wheels: Sequence[str], slip: dict[str, Maybe], wheel_speed_mps: dict[str, Maybe]) -> dict[str, list[Any]]:
+    """The rows' values by column name, in FAST_SLIP_COLUMNS' order (FastSlip.as_row's keys)."""
+    by_attribute: dict[str, list[Any]] = {"time_s": time_s, "speed_mps": speed_mps, "accel_mps2": accel_mps2,
+                                          "accel_source": accel_source}
+    per_wheel = {"slip": slip, "speed_mps": wheel_speed_mps}
+    out: dict[str, list[Any]] = {}
+    for group in FAST_SLIP_COLUMNS:
+        for w in wheels if group.per_wheel else ("",):
+            for c in group.columns:
+                if group.per_wheel:
+                    out[c.key(w)] = per_wheel[c.attribute][w]
+                else:
+                    out[c.name] = by_attribute[c.attribute]
     return out
+
+
+def _dicts(columns: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    keys = list(columns)
+    return [dict(zip(keys, values)) for values in zip(*columns.values())]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class FastSlipBatch(Sequence[FastSlip]):
-    """High-rate slip rows in time order as columns (one entry per row), every wheel of `wheels` in each; as a
+    """High-rate slip rows in time order as columns (lists, one entry per row), every wheel of `wheels` in each; as a
     sequence, its rows as FastSlip records (made when asked for)."""
 
-    time_s: np.ndarray
-    speed_mps: np.ndarray
-    accel_mps2: np.ndarray
-    accel_imu: np.ndarray
-    """bool: accel_source 'imu' (else 'gps')."""
+    time_s: list[float]
+    speed_mps: list[float]
+    accel_mps2: list[float]
+    accel_source: list[str]
     wheels: tuple[str, ...]
-    slip: dict[str, np.ndarray]
-    """Per wheel, FastWheel.slip (NaN where slip_defined is false: None)."""
-    slip_defined: dict[str, np.ndarray]
-    wheel_speed_mps: dict[str, np.ndarray]
-    """Per wheel, FastWheel.speed_mps (NaN where speed_defined is false: None)."""
-    speed_defined: dict[str, np.ndarray]
+    slip: dict[str, Maybe]
+    """Per wheel, FastWheel.slip."""
+    wheel_speed_mps: dict[str, Maybe]
+    """Per wheel, FastWheel.speed_mps."""
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -49,59 +64,27 @@ class FastSlipBatch(Sequence[FastSlip]):
     @overload
     def __getitem__(self, i: slice) -> list[FastSlip]: ...
     def __getitem__(self, i: int | slice) -> FastSlip | list[FastSlip]:
-        if isinstance(i, slice):
-            return self.records()[i]
-        if not -len(self) <= i < len(self):
-            raise IndexError(i)
-        i %= len(self)
-        return self.slice(i, i + 1).records()[0]
+        return self.records()[i]
 
     def __iter__(self) -> Iterator[FastSlip]:
         return iter(self.records())
 
-    def slice(self, start: int, stop: int) -> FastSlipBatch:
-        """Rows start..stop."""
-        def part(by_wheel: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-            return {w: x[start:stop] for w, x in by_wheel.items()}
-
-        return FastSlipBatch(self.time_s[start:stop], self.speed_mps[start:stop], self.accel_mps2[start:stop],
-                             self.accel_imu[start:stop], self.wheels, part(self.slip), part(self.slip_defined),
-                             part(self.wheel_speed_mps), part(self.speed_defined))
-
     def columns(self) -> dict[str, list[Any]]:
         """The rows' values by column name (FAST_SLIP_COLUMNS, in order; None: undefined): FastSlip.as_row's."""
-        by_attribute: dict[str, Any] = {
-            "time_s": self.time_s.tolist(), "speed_mps": self.speed_mps.tolist(),
-            "accel_mps2": self.accel_mps2.tolist(),
-            "accel_source": [FAST_ACCEL_SOURCES[0] if imu else FAST_ACCEL_SOURCES[1] for imu in self.accel_imu.tolist()],
-        }
-        per_wheel = {"slip": (self.slip, self.slip_defined), "speed_mps": (self.wheel_speed_mps, self.speed_defined)}
-        out: dict[str, list[Any]] = {}
-        for group in FAST_SLIP_COLUMNS:
-            for w in self.wheels if group.per_wheel else ("",):
-                for c in group.columns:
-                    if group.per_wheel:
-                        values, defined = per_wheel[c.attribute]
-                        out[c.key(w)] = _values(values[w], defined[w])
-                    else:
-                        out[c.name] = by_attribute[c.attribute]
-        return out
+        return _columns(self.time_s, self.speed_mps, self.accel_mps2, self.accel_source, self.wheels, self.slip,
+                        self.wheel_speed_mps)
 
     def dicts(self) -> list[dict[str, Any]]:
         """Each row as FastSlip.as_row gives it."""
-        columns = self.columns()
-        keys = list(columns)
-        return [dict(zip(keys, values)) for values in zip(*columns.values())]
+        return _dicts(self.columns())
 
     def records(self) -> list[FastSlip]:
         """Each row as a FastSlip record."""
-        wheels = [list(zip(_values(self.slip[w], self.slip_defined[w]),
-                           _values(self.wheel_speed_mps[w], self.speed_defined[w]))) for w in self.wheels]
         names = self.wheels
-        return [FastSlip(t, v, a, FAST_ACCEL_SOURCES[0] if imu else FAST_ACCEL_SOURCES[1],
-                         {w: FastWheel(*ws) for w, ws in zip(names, per)})
-                for t, v, a, imu, *per in zip(self.time_s.tolist(), self.speed_mps.tolist(),
-                                              self.accel_mps2.tolist(), self.accel_imu.tolist(), *wheels)]
+        wheels = [list(zip(self.slip[w], self.wheel_speed_mps[w])) for w in names]
+        return [FastSlip(t, v, a, src, {w: FastWheel(*ws) for w, ws in zip(names, per)})
+                for t, v, a, src, *per in zip(self.time_s, self.speed_mps, self.accel_mps2, self.accel_source,
+                                              *wheels)]
 
     @classmethod
     def concat(cls, parts: Sequence[FastSlipBatch]) -> FastSlipBatch:
@@ -111,66 +94,124 @@ class FastSlipBatch(Sequence[FastSlip]):
         wheels = parts[0].wheels if parts else ()
         if any(p.wheels != wheels for p in parts):
             raise ValueError("batches of high-rate rows with other wheels")
-
-        def cat(arrays: list[np.ndarray], dtype: Any = np.float64) -> np.ndarray:
-            return np.concatenate(arrays) if arrays else np.empty(0, dtype=dtype)
-
-        def per_wheel(field: str, dtype: Any = np.float64) -> dict[str, np.ndarray]:
-            return {w: cat([getattr(p, field)[w] for p in parts], dtype) for w in wheels}
-
-        return cls(cat([p.time_s for p in parts]), cat([p.speed_mps for p in parts]),
-                   cat([p.accel_mps2 for p in parts]), cat([p.accel_imu for p in parts], np.bool_), wheels,
-                   per_wheel("slip"), per_wheel("slip_defined", np.bool_), per_wheel("wheel_speed_mps"),
-                   per_wheel("speed_defined", np.bool_))
+        return cls([x for p in parts for x in p.time_s], [x for p in parts for x in p.speed_mps],
+                   [x for p in parts for x in p.accel_mps2], [x for p in parts for x in p.accel_source], wheels,
+                   {w: [x for p in parts for x in p.slip[w]] for w in wheels},
+                   {w: [x for p in parts for x in p.wheel_speed_mps[w]] for w in wheels})
 
     @classmethod
     def of_rows(cls, rows: Sequence[FastSlip], wheels: Sequence[str]) -> FastSlipBatch:
         """FastSlip records (each with every wheel of `wheels`) as columns."""
-        def col(get: Any) -> np.ndarray:
-            return np.array([get(r) for r in rows], dtype=np.float64)
+        return cls([r.time_s for r in rows], [r.speed_mps for r in rows], [r.accel_mps2 for r in rows],
+                   [r.accel_source for r in rows], tuple(wheels), {w: [r.wheels[w].slip for r in rows] for w in wheels},
+                   {w: [r.wheels[w].speed_mps for r in rows] for w in wheels})
 
-        def maybe(values: list[float | None]) -> tuple[np.ndarray, np.ndarray]:
-            defined = np.array([v is not None for v in values], dtype=np.bool_)
-            return np.array([np.nan if v is None else v for v in values], dtype=np.float64), defined
 
-        slips = {w: maybe([r.wheels[w].slip for r in rows]) for w in wheels}
-        speeds = {w: maybe([r.wheels[w].speed_mps for r in rows]) for w in wheels}
-        return cls(col(lambda r: r.time_s), col(lambda r: r.speed_mps), col(lambda r: r.accel_mps2),
-                   np.array([r.accel_source == FAST_ACCEL_SOURCES[0] for r in rows], dtype=np.bool_), tuple(wheels),
+def _array(values: Maybe) -> tuple[np.ndarray, np.ndarray]:
+    """values as float64 (NaN where None) and where they are defined."""
+    defined = np.array([v is not None for v in values], dtype=np.bool_)
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64), defined
+
+
+def _values(x: np.ndarray, defined: np.ndarray) -> Maybe:
+    """x as floats, None where not defined."""
+    out: Maybe = x.tolist()
+    if not defined.all():
+        out = [v if ok else None for v, ok in zip(out, defined.tolist())]
+    return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FastColumns:
+    """High-rate slip rows as numpy arrays, one entry per row (a run's: FastRows)."""
+
+    time_s: np.ndarray
+    speed_mps: np.ndarray
+    accel_mps2: np.ndarray
+    accel_imu: np.ndarray
+    """bool: accel_source 'imu' (else 'gps')."""
+    wheels: tuple[str, ...]
+    slip: dict[str, np.ndarray]
+    """Per wheel, FastWheel.slip; NaN where slip_defined is false (None)."""
+    slip_defined: dict[str, np.ndarray]
+    wheel_speed_mps: dict[str, np.ndarray]
+    """Per wheel, FastWheel.speed_mps; NaN where speed_defined is false (None)."""
+    speed_defined: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @classmethod
+    def of(cls, batches: Sequence[FastSlipBatch]) -> FastColumns:
+        """The batches' rows (the same wheels in each) as arrays."""
+        b = FastSlipBatch.concat(batches) if batches else FastSlipBatch([], [], [], [], (), {}, {})
+        slips = {w: _array(b.slip[w]) for w in b.wheels}
+        speeds = {w: _array(b.wheel_speed_mps[w]) for w in b.wheels}
+        return cls(np.array(b.time_s, dtype=np.float64), np.array(b.speed_mps, dtype=np.float64),
+                   np.array(b.accel_mps2, dtype=np.float64),
+                   np.array([s == FAST_ACCEL_SOURCES[0] for s in b.accel_source], dtype=np.bool_), b.wheels,
                    {w: s[0] for w, s in slips.items()}, {w: s[1] for w, s in slips.items()},
                    {w: s[0] for w, s in speeds.items()}, {w: s[1] for w, s in speeds.items()})
 
+    @classmethod
+    def concat(cls, parts: Sequence[FastColumns]) -> FastColumns:
+        """The parts' rows in order (the same wheels in each)."""
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return cls.of([])
+        wheels = parts[0].wheels
+        if any(p.wheels != wheels for p in parts):
+            raise ValueError("high-rate rows with other wheels")
+
+        def cat(field: str) -> np.ndarray:
+            return np.concatenate([getattr(p, field) for p in parts])
+
+        def per_wheel(field: str) -> dict[str, np.ndarray]:
+            return {w: np.concatenate([getattr(p, field)[w] for p in parts]) for w in wheels}
+
+        return cls(cat("time_s"), cat("speed_mps"), cat("accel_mps2"), cat("accel_imu"), wheels, per_wheel("slip"),
+                   per_wheel("slip_defined"), per_wheel("wheel_speed_mps"), per_wheel("speed_defined"))
+
+    def dicts(self, start: int = 0, stop: int | None = None) -> list[dict[str, Any]]:
+        """Rows start..stop as FastSlip.as_row gives them."""
+        part = slice(start, stop)
+        imu, gps = FAST_ACCEL_SOURCES[:2]
+        return _dicts(_columns(
+            self.time_s[part].tolist(), self.speed_mps[part].tolist(), self.accel_mps2[part].tolist(),
+            [imu if x else gps for x in self.accel_imu[part].tolist()], self.wheels,
+            {w: _values(self.slip[w][part], self.slip_defined[w][part]) for w in self.wheels},
+            {w: _values(self.wheel_speed_mps[w][part], self.speed_defined[w][part]) for w in self.wheels}))
+
 
 class FastRows(Sequence[dict[str, Any]]):
-    """The high-rate slip rows of a run as they come (FastSlipBatch by FastSlipBatch), held as columns; as a
+    """The high-rate slip rows of a run as they come (FastSlipBatch by FastSlipBatch), held as numpy columns; as a
     sequence, its rows as dicts (FastSlip.as_row's, made when asked for)."""
 
     CHUNK = 4096
     """Rows made into dicts at a time by iteration."""
     JOIN_EVERY = 1024
-    """Batches held apart before they are joined into one (each array has its own overhead)."""
+    """Batches held as they came before they are made arrays."""
 
     def __init__(self) -> None:
-        self._parts: list[FastSlipBatch] = []
-        self._joined: list[FastSlipBatch] = []
+        self._batches: list[FastSlipBatch] = []
+        self._arrays: list[FastColumns] = []
         self._n = 0
 
     def add(self, batch: FastSlipBatch) -> None:
         if not len(batch):
             return
-        self._parts.append(batch)
+        self._batches.append(batch)
         self._n += len(batch)
-        if len(self._parts) >= self.JOIN_EVERY:
-            self._joined.append(FastSlipBatch.concat(self._parts))
-            self._parts = []
+        if len(self._batches) >= self.JOIN_EVERY:
+            self._arrays.append(FastColumns.of(self._batches))
+            self._batches = []
 
-    def batch(self) -> FastSlipBatch:
-        """Every row so far as one batch of columns."""
-        parts = self._joined + self._parts
-        if not parts:
-            return FastSlipBatch.concat([])
-        one = FastSlipBatch.concat(parts)
-        self._joined, self._parts = [one], []
+    def columns(self) -> FastColumns:
+        """Every row so far as arrays."""
+        parts = self._arrays + ([FastColumns.of(self._batches)] if self._batches else [])
+        one = FastColumns.concat(parts)
+        self._arrays, self._batches = [one], []
         return one
 
     def __len__(self) -> int:
@@ -186,10 +227,10 @@ class FastRows(Sequence[dict[str, Any]]):
         if not -self._n <= i < self._n:
             raise IndexError(i)
         i %= self._n
-        return self.batch().slice(i, i + 1).dicts()[0]
+        return self.columns().dicts(i, i + 1)[0]
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
-        """The rows as dicts, made a chunk at a time."""
-        b = self.batch()
-        for start in range(0, len(b), self.CHUNK):
-            yield from b.slice(start, start + self.CHUNK).dicts()
+        """The rows as dicts, made CHUNK at a time."""
+        c = self.columns()
+        for start in range(0, len(c), self.CHUNK):
+            yield from c.dicts(start, start + self.CHUNK)

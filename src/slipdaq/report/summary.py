@@ -96,7 +96,7 @@ def detect_maneuvers(
             det.add_brake_mark(d["time_s"])
     out: list[ManeuverSummary] = []
     # the high-rate rows' times from their columns where they are held so, each row made a dict as it is fed
-    fast_s = fast.batch().time_s.tolist() if isinstance(fast, FastRows) else [r["time_s"] for r in fast]
+    fast_s = fast.columns().time_s.tolist() if isinstance(fast, FastRows) else [r["time_s"] for r in fast]
     fast_rows = iter(fast)
     stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)), ((t, 1, i) for i, t in enumerate(fast_s)))
     for _t, kind, i in stream:

@@ -110,7 +110,7 @@ class HighRate:
     def of(cls, rows: Sequence[dict[str, Any]]) -> HighRate:
         """From the rows as dicts (a log's), or as columns (FastRows: read as they are)."""
         if isinstance(rows, FastRows):
-            b = rows.batch()
+            b = rows.columns()
             nan = np.full(len(b), np.nan)
             t, speed = b.time_s, b.speed_mps
             slips = {w: b.slip.get(w, nan) for w in WHEELS}
