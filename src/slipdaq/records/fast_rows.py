@@ -109,8 +109,11 @@ class FastSlipBatch(Sequence[FastSlip]):
 
 def _array(values: Maybe) -> tuple[np.ndarray, np.ndarray]:
     """values as float64 (NaN where None) and where they are defined."""
-    defined = np.array([v is not None for v in values], dtype=np.bool_)
-    return np.array([np.nan if v is None else v for v in values], dtype=np.float64), defined
+    x = np.array(values, dtype=np.float64)  # None: NaN
+    defined = np.ones(len(x), dtype=np.bool_)
+    for i in np.flatnonzero(np.isnan(x)).tolist():
+        defined[i] = values[i] is not None
+    return x, defined
 
 
 def _values(x: np.ndarray, defined: np.ndarray) -> Maybe:
