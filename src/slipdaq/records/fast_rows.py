@@ -80,11 +80,14 @@ class FastSlipBatch(Sequence[FastSlip]):
 
     def records(self) -> list[FastSlip]:
         """Each row as a FastSlip record."""
-        names = self.wheels
-        wheels = [list(zip(self.slip[w], self.wheel_speed_mps[w])) for w in names]
-        return [FastSlip(t, v, a, src, {w: FastWheel(*ws) for w, ws in zip(names, per)})
-                for t, v, a, src, *per in zip(self.time_s, self.speed_mps, self.accel_mps2, self.accel_source,
-                                              *wheels)]
+        columns = [(w, self.slip[w], self.wheel_speed_mps[w]) for w in self.wheels]
+        out = []
+        for k, (t, v, a, src) in enumerate(zip(self.time_s, self.speed_mps, self.accel_mps2, self.accel_source)):
+            wheels = {}
+            for w, slip, speed in columns:
+                wheels[w] = FastWheel(slip[k], speed[k])
+            out.append(FastSlip(t, v, a, src, wheels))
+        return out
 
     @classmethod
     def concat(cls, parts: Sequence[FastSlipBatch]) -> FastSlipBatch:
