@@ -167,3 +167,44 @@ def test_the_filter_with_an_imu_follows_a_changing_acceleration_better() -> None
         errors[with_imu] = math.sqrt(sum((v - speed(t)) ** 2 for t, v in late) / len(late))
     assert errors[True] < 0.5 * errors[False], errors
     assert errors[True] < 0.03, errors
+
+
+def test_released_columns_are_the_rows_made_one_by_one(cfg, drive, monkeypatch) -> None:
+    """Each fix's rows as columns (FastSlipRows.release) hold what the rows made one at a time held: per grid instant
+    its speed and acceleration, and per wheel omega*r0 (None where undefined) and its slip, None below the minimum
+    speed or where omega*r0 is undefined or not finite."""
+    from collections import deque
+
+    from tests.logformat.test_epoch_json import exact
+
+    from slipdaq.estimator.fast_slip import FastSlipRows
+    from slipdaq.records import FastSlip, FastWheel
+
+    release = FastSlipRows.release
+    pairs: list[tuple[FastSlip, FastSlip]] = []
+
+    def checked(self: FastSlipRows, rings, r0_m, now_s):
+        pending = list(deque(self._pending)) + list(self.speed.rows)
+        got = release(self, rings, r0_m, now_s)
+        if got is None:
+            return got
+        taken = pending[: len(got)]
+        times = np.array([t for t, _v, _a in taken])
+        speeds = [FastSlipRows._wheel_speeds(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
+        source = "imu" if self.speed.has_imu else "gps"
+        for k, ((t, v, a), row) in enumerate(zip(taken, got)):
+            wheels = {}
+            for w, ws_all in zip(WHEELS, speeds):
+                ws = ws_all[k]
+                slip = (ws - v) / v if ws is not None and v >= self.min_speed_mps and math.isfinite(ws) else None
+                wheels[w] = FastWheel(slip, ws)
+            pairs.append((row, FastSlip(t, v, a, source, wheels)))
+        return got
+
+    monkeypatch.setattr(FastSlipRows, "release", checked)
+    sink = CollectingSink()
+    process(cfg, drive[0][: len(drive[0]) // 2], [sink])
+    assert len(pairs) == len(sink.fast) > 500
+    assert sum(r.wheels["FL"].slip is None for r, _ in pairs) > 10  # standstill and start-up: undefined values too
+    assert [exact(json.dumps(got.as_row()).encode()) for got, _ in pairs] == \
+        [exact(json.dumps(want.as_row()).encode()) for _, want in pairs]

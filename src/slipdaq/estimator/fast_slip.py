@@ -23,7 +23,7 @@ from slipdaq.compiled import kernel
 from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
 from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
-from slipdaq.records import FastSlip, FastWheel
+from slipdaq.records.fast_rows import FastSlipBatch
 
 FAST_LINE_HALF = 5
 WHEEL_WAIT_S = 0.5
@@ -35,13 +35,13 @@ class FastSlipRows:
         self.min_speed_mps = min_speed_mps
         self._pending: deque[tuple[float, float, float]] = deque()
 
-    def release(self, rings: Sequence[SeriesRing], r0_m: Sequence[float], now_s: float) -> list[FastSlip]:
-        """The grid instants that are ready (see the module docstring), as FastSlip rows; now_s: the newest reference
-        fix's time."""
+    def release(self, rings: Sequence[SeriesRing], r0_m: Sequence[float], now_s: float) -> FastSlipBatch | None:
+        """The grid instants that are ready (see the module docstring), as columns (None: none ready); now_s: the
+        newest reference fix's time."""
         pending = self._pending
         pending.extend(self.speed.take_rows())
         if not pending:
-            return []
+            return None
         need = FAST_LINE_HALF + 1
         # an instant t has `need` samples of a ring at or after it when t <= the need-th last sample's time
         ready_until = min((float(r.times[-need]) if len(r) >= need else -math.inf for r in rings if len(r)),
@@ -52,20 +52,19 @@ class FastSlipRows:
                 break
             n += 1
         if n == 0:
-            return []
+            return None
         rows = [pending.popleft() for _ in range(n)]
-        times = np.array([r[0] for r in rows])
-        wheel_speeds = [self._wheel_speeds(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
-        source = "imu" if self.speed.has_imu else "gps"
-        out = []
-        for k, (t, v, a) in enumerate(rows):
-            wheels = {}
-            for w, speeds in zip(WHEELS, wheel_speeds):
-                ws = speeds[k]
-                slip = (ws - v) / v if ws is not None and v >= self.min_speed_mps and math.isfinite(ws) else None
-                wheels[w] = FastWheel(slip, ws)
-            out.append(FastSlip(t, v, a, source, wheels))
-        return out
+        times = [r[0] for r in rows]
+        speeds = [r[1] for r in rows]
+        grid = np.array(times)
+        low = self.min_speed_mps
+        slips, wheel_speeds = {}, {}
+        for w, ring, r0 in zip(WHEELS, rings, r0_m):
+            ws_all = wheel_speeds[w] = self._wheel_speeds(ring, r0, grid)
+            slips[w] = [(ws - v) / v if ws is not None and v >= low and math.isfinite(ws) else None
+                        for ws, v in zip(ws_all, speeds)]
+        return FastSlipBatch(times, speeds, [r[2] for r in rows], ["imu" if self.speed.has_imu else "gps"] * n, WHEELS,
+                             slips, wheel_speeds)
 
     @staticmethod
     def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:

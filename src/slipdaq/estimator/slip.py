@@ -52,7 +52,8 @@ from slipdaq.estimator.run_calibration import RunCalibration, driven_tire_force_
 from slipdaq.estimator.wheel_estimate import wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
 from slipdaq.estimator.window_measure import measure_window
-from slipdaq.records import Estimate, FastSlip, GpsFix, SourceEvent, WheelSample
+from slipdaq.records import Estimate, GpsFix, SourceEvent, WheelSample
+from slipdaq.records.fast_rows import FastSlipBatch
 
 __all__ = ["EstimatorParams", "SlipEstimator", "PHASE_ACCEL_MPS2", "STANDSTILL_SPEED_MPS", "phase_of",
            "integrate_speed_m", "slip_from_distances", "tire_forces"]
@@ -105,7 +106,8 @@ class SlipEstimator:
         self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) \
             if params.fast_rate_hz > 0 and fast_rows else None
         self._fast_skipped = params.fast_rate_hz > 0 and not fast_rows
-        self.fast_rows: list[FastSlip] = []
+        self.fast_rows: list[FastSlipBatch] = []
+        """The high-rate slip rows not yet taken, as the fixes released them."""
         """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
 
     # ---- latency ------------------------------------------------------------------------------------
@@ -182,9 +184,10 @@ class SlipEstimator:
         if kinematic is not None and self._fast is not None:
             self._fast.speed.add_imu(time_s, kinematic)
 
-    def take_fast(self) -> list[FastSlip]:
+    def take_fast(self) -> FastSlipBatch:
+        """The high-rate slip rows not yet taken, as one batch of columns (a sequence of FastSlip)."""
         rows, self.fast_rows = self.fast_rows, []
-        return rows
+        return FastSlipBatch.concat(rows)
 
     def add_gps(self, fix: GpsFix) -> list[Estimate]:
         if not fix.valid or not math.isfinite(fix.speed_mps):
@@ -221,7 +224,9 @@ class SlipEstimator:
         fix_s = smooth_arrival(arrival_s, utc_s, self._utc_offset_s) - self.latency.latency_s
         self._fast.speed.add_speed(fix_s, speed_mps, accuracy_mps if accuracy_mps is not None else math.nan)
         r0 = self._cal.r0_all()
-        self.fast_rows += self._fast.release(self._windows.rings, [r0[w][0] for w in WHEELS], fix_s)
+        rows = self._fast.release(self._windows.rings, [r0[w][0] for w in WHEELS], fix_s)
+        if rows is not None:
+            self.fast_rows.append(rows)
 
     # ---- readiness ----------------------------------------------------------------------------------
     def _head_consts(self) -> tuple[int, float, float]:

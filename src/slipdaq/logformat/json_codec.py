@@ -120,12 +120,12 @@ message)."""
 def fast_slip_row_json(row: Any) -> bytes:
     """/slip/fast/row payload: {"header": {"stamp": {"sec", "nsec"}, "frame_id": ""}} and then the row's columns
     (FAST_SLIP_COLUMNS): the stamp is the row's instant, time_s, to the nanosecond."""
-    return _fast_slip_row(row, *record_values(row, FAST_SLIP_COLUMNS))
+    return _fast_slip_row(row.time_s, *record_values(row, FAST_SLIP_COLUMNS))
 
 
-def _fast_slip_row(row: Any, keys: list[str], values: list[Any]) -> bytes:
-    """fast_slip_row_json of the row's record_values."""
-    ns = round(row.time_s * 1e9)
+def _fast_slip_row(time_s: float, keys: list[str], values: Sequence[Any]) -> bytes:
+    """fast_slip_row_json of the row at time_s, of its record_values."""
+    ns = round(time_s * 1e9)
     payload: dict[str, Any] = {"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
                                           "frame_id": ""}}
     payload.update(zip(keys, values))  # as dict(zip(keys, values)): a name twice keeps its last value
@@ -152,7 +152,18 @@ def fast_slip_messages(rows: Sequence[Any]) -> tuple[list[bytes], list[bytes]]:
             k += 1
         runs.append(ColumnsJson._columns(table[i:k]))
         i = k
-    return runs, [_fast_slip_row(row, keys, values) for row, (keys, values) in zip(rows, table)]
+    return runs, [_fast_slip_row(row.time_s, keys, values) for row, (keys, values) in zip(rows, table)]
+
+
+def fast_slip_batch_messages(batch: Any) -> tuple[list[bytes], list[bytes]]:
+    """fast_slip_messages of a FastSlipBatch's rows (one run: every row has the batch's wheels), from its columns."""
+    if not len(batch):
+        return [], []
+    columns = batch.columns()
+    keys = list(columns)
+    table = list(zip(*columns.values()))
+    run = _dumps_row(columns, [v for values in table for v in values])  # the values row by row, as _columns sums them
+    return [run], [_fast_slip_row(t, keys, values) for t, values in zip(columns["time_s"], table)]
 
 
 def nmea_line_json(line: NmeaLine, can_index: int) -> bytes:

@@ -34,6 +34,7 @@ from slipdaq.records import (
     SensorSample,
     WheelSampleBatch,
 )
+from slipdaq.records.fast_rows import FastRows, FastSlipBatch
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
 
@@ -309,12 +310,13 @@ def start_calibration(metadata: dict[str, str], log: str | Path) -> Calibration 
 
 
 class Rows(Sink):
-    """The estimates as the log's rows, the high-rate slip rows, the sensor samples (as the log's JSON), and the last
-    diagnostics; feed: each also to a DetectorFeed (its maneuvers decided as the rows come)."""
+    """The estimates as the log's rows, the high-rate slip rows (as columns: a sequence of the log's rows), the sensor
+    samples (as the log's JSON), and the last diagnostics; feed: each also to a DetectorFeed (its maneuvers decided as
+    the rows come)."""
 
     def __init__(self, feed: DetectorFeed | None = None) -> None:
         self.rows: list[dict[str, Any]] = []
-        self.fast: list[dict[str, Any]] = []
+        self.fast = FastRows()
         self.sensors: list[dict[str, Any]] = []
         self.diagnostics: dict[str, Any] | None = None
         self.feed = feed
@@ -327,9 +329,14 @@ class Rows(Sink):
             self.feed.estimate(row)
 
     def on_fast_slip(self, row: FastSlip, log_time_s: float) -> None:
-        self.fast.append(fast := row.as_row())
+        self.on_fast_slip_rows(FastSlipBatch.of_rows([row], tuple(row.wheels)), log_time_s)
+
+    def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
+        batch = rows if isinstance(rows, FastSlipBatch) else FastSlipBatch.of_rows(rows, WHEELS)
+        self.fast.add(batch)
         if self.feed is not None:
-            self.feed.fast(fast)
+            for fast in batch.dicts():
+                self.feed.fast(fast)
 
     def on_sensor(self, sample: SensorSample) -> None:
         self.sensors.append(d := dataclasses.asdict(sample))

@@ -414,7 +414,7 @@ class Estimate:
         return record_row(self, ESTIMATE_COLUMNS)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class FastWheel:
     slip: float | None
     """(omega*r0 - V) / V at this instant; None below the minimum speed or without the wheel's samples around it."""
@@ -422,10 +422,10 @@ class FastWheel:
     """Wheel circumferential speed omega*r0."""
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class FastSlip:
     """High-rate slip: each wheel's circumferential speed against the vehicle speed at one instant of a fixed grid
-    (estimator.fast_rate_hz), the vehicle speed fused from the reference speed and the IMU."""
+    (estimator.fast_rate_hz), the vehicle speed fused from the reference speed and the IMU (not frozen: see CanFrame)."""
 
     time_s: float
     speed_mps: float

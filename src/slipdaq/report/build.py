@@ -17,7 +17,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, cast
 
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_topic, read_metadata
@@ -44,8 +44,8 @@ class LogData:
     metadata: dict[str, str]
     rows: list[dict[str, Any]]
     diagnostics: dict[str, Any] | None
-    fast: list[dict[str, Any]] = field(default_factory=list)
-    """/slip/fast rows."""
+    fast: Sequence[dict[str, Any]] = field(default_factory=list)
+    """/slip/fast rows (a two-pass run's: offline.run.Rows's columns)."""
     sensors: list[dict[str, Any]] = field(default_factory=list)
     """/can/sensors samples."""
     maneuvers: list[ManeuverSummary] | None = None
@@ -87,7 +87,7 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
         if topic == TOPIC_ESTIMATE:
             data.rows.append(d)
         elif topic == TOPIC_FAST_SLIP:
-            data.fast.append(d)
+            cast(list, data.fast).append(d)
         elif topic == TOPIC_SENSORS:
             data.sensors.append(d)
         else:

@@ -70,23 +70,44 @@ def maneuver_figures(log: LogSummary, m: Any, hr: HighRate) -> dict[str, Figure]
     }
 
 
+class _Script:
+    """script() of figures given one at a time, each encoded as it comes (its lists then let go): the bytes of
+    script() of the dict of them (a name given again: its new figure in the first one's place)."""
+
+    def __init__(self) -> None:
+        self._parts: list[bytes] = []
+        self._at: dict[str, int] = {}
+
+    def add(self, name: str, figure: Figure) -> None:
+        entry = orjson.dumps(name) + b":" + orjson.dumps(figure, option=orjson.OPT_SERIALIZE_NUMPY)
+        if name in self._at:
+            self._parts[self._at[name]] = entry
+        else:
+            self._at[name] = len(self._parts)
+            self._parts.append(entry)
+
+    def bytes(self) -> bytes:
+        return b"slipdaqReport.add({" + b",".join(self._parts) + b"});\n"
+
+
 def log_page(log: LogSummary, fast: Sequence[dict[str, Any]] = ()) -> PagePlots:
-    """A log's plots on the page, from its summary and its /slip/fast rows (none: no high-rate lines)."""
+    """A log's plots on the page, from its summary and its /slip/fast rows (none: no high-rate lines); each
+    maneuver's figures encoded as they are made."""
     hr = HighRate.of(fast) if fast else EMPTY
-    figures: dict[str, Figure] = {}
+    out = _Script()
     names: dict[str, dict[str, str]] = {}
     over = page_compare.overview(log, hr)
     over_name = f"{log.name}/overview" if over is not None else None
     if over is not None and over_name is not None:
-        figures[over_name] = over
+        out.add(over_name, over)
     for m in log.maneuvers:
         made = maneuver_figures(log, m, hr)
         names[m.key] = {}
         for stem, _ in PAGE_PLOTS:
             name = plot_name(log.name, m.key, stem)
-            figures[name] = made[stem]
+            out.add(name, made[stem])
             names[m.key][stem] = name
-    return PagePlots(names, over_name, script(figures))
+    return PagePlots(names, over_name, out.bytes())
 
 
 def compare_script(comparisons: Sequence[Comparison], logs: Sequence[LogSummary]) -> bytes:

@@ -25,6 +25,7 @@ from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
 from slipdaq.maneuver.record import Z95, Maneuver, determined, maneuver_record
 from slipdaq.maneuver.test_set import sets_of
+from slipdaq.records.fast_rows import FastRows
 from slipdaq.report.labels import format_labels
 
 
@@ -94,11 +95,13 @@ def detect_maneuvers(
         elif d.get("kind") == BRAKE_MARK:
             det.add_brake_mark(d["time_s"])
     out: list[ManeuverSummary] = []
-    stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)),
-                         ((r["time_s"], 1, i) for i, r in enumerate(fast)))
+    # the high-rate rows' times from their columns where they are held so, each row made a dict as it is fed
+    fast_s = fast.columns().time_s.tolist() if isinstance(fast, FastRows) else [r["time_s"] for r in fast]
+    fast_rows = iter(fast)
+    stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)), ((t, 1, i) for i, t in enumerate(fast_s)))
     for _t, kind, i in stream:
         jobs = det.add_estimate(rows[i], None if phases is None else phases[i]) if kind == 0 else \
-            det.add_fast([(fast[i]["time_s"], fast[i])])
+            det.add_fast([(fast_s[i], next(fast_rows))])
         out += [job() for job in jobs]
     return out + [job() for job in det.finish()]
 

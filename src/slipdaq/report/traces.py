@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from slipdaq import WHEELS
+from slipdaq.records.fast_rows import FastRows
 from slipdaq.report.style import WHEEL_STYLE
 
 Figure = dict[str, Any]
@@ -107,13 +108,23 @@ class HighRate:
 
     @classmethod
     def of(cls, rows: Sequence[dict[str, Any]]) -> HighRate:
-        def col(key: str) -> np.ndarray:
-            return np.array([r.get(key) for r in rows], dtype=np.float64)
+        """From the rows as dicts (a log's), or as columns (FastRows: read as they are)."""
+        if isinstance(rows, FastRows):
+            b = rows.columns()
+            nan = np.full(len(b), np.nan)
+            t, speed = b.time_s, b.speed_mps
+            slips = {w: b.slip.get(w, nan) for w in WHEELS}
+            wheel_speeds = {w: b.wheel_speed_mps.get(w, nan) for w in WHEELS}
+        else:
+            def col(key: str) -> np.ndarray:
+                return np.array([r.get(key) for r in rows], dtype=np.float64)
 
-        t = col("time_s")
+            t, speed = col("time_s"), col("speed_mps")
+            slips = {w: col(f"slip_{w}") for w in WHEELS}
+            wheel_speeds = {w: col(f"wheel_speed_{w}_mps") for w in WHEELS}
         order = np.argsort(t, kind="stable") if len(t) > 1 and np.any(np.diff(t) < 0) else slice(None)
-        return cls(t[order], col("speed_mps")[order], {w: col(f"slip_{w}")[order] for w in WHEELS},
-                   {w: col(f"wheel_speed_{w}_mps")[order] for w in WHEELS})
+        return cls(t[order], speed[order], {w: v[order] for w, v in slips.items()},
+                   {w: v[order] for w, v in wheel_speeds.items()})
 
     def between(self, t_from_s: float, t_to_s: float) -> HighRate:
         """The rows with t_from_s <= time_s <= t_to_s: every one of them."""

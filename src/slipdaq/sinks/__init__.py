@@ -60,7 +60,8 @@ class Sink:
         """One high-rate slip row, at the log time of the record that released it."""
 
     def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
-        """The high-rate slip rows one record released, in time order: on_fast_slip for each."""
+        """The high-rate slip rows one record released, in time order (the pipeline's: a FastSlipBatch, whose columns
+        a sink may read as they are): on_fast_slip for each."""
         if type(self).on_fast_slip is Sink.on_fast_slip:
             return
         for row in rows:
