@@ -226,7 +226,8 @@ def _tree(root: Path) -> dict[str, bytes]:
 def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
         drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`slipdaq report` of a log's raw records two-pass: its maneuvers decided as the second pass makes the rows and
-    summarized in the second process (DetectorFeed) give the same report, file for file, as decided afterwards."""
+    summarized in the second process (DetectorFeed, what `slipdaq report` does) give the same report, file for file,
+    as decided afterwards."""
     from slipdaq.offline import summaries
     from slipdaq.report.build import make_report, read_log
 
@@ -245,5 +246,6 @@ def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
     assert len(after.logs[0].maneuvers) >= 8  # accelerate, cruise and brake
     assert _tree(tmp_path / "beside") == _tree(tmp_path / "after")
     before = len(_forks)
-    make_report([log], tmp_path / "default", two_pass=True)  # `slipdaq report`: summaries after the pass
-    assert _forks[before:] == []
+    make_report([log], tmp_path / "default", two_pass=True)  # `slipdaq report`: summaries beside the pass
+    assert _forks[before:] == [os.getpid()]
+    assert _tree(tmp_path / "default") == _tree(tmp_path / "after")
