@@ -207,6 +207,13 @@ class ManeuverDetector:
         """One time mark of the brake's press (the receiver's, on the host's clock)."""
         self._marks.append(time_s)
 
+    def add_sensor_row(self, sample: Mapping[str, Any]) -> None:
+        """A /can/sensors sample as the log's JSON gives it: a brake sample or a brake mark (others: nothing)."""
+        if sample.get("kind") == "brake":
+            self.add_brake(sample["time_s"], sample["value"])
+        elif sample.get("kind") == BRAKE_MARK:
+            self.add_brake_mark(sample["time_s"])
+
     def finish(self) -> list[Job]:
         """Every event still open closed and decided with what has come (the end of a log): the maneuvers, as
         add_estimate returns them."""

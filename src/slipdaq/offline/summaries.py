@@ -30,7 +30,7 @@ from typing import Any
 
 from slipdaq import compiled
 from slipdaq.config import Config
-from slipdaq.maneuver.detector import BRAKE_MARK, Job, ManeuverDetector
+from slipdaq.maneuver.detector import Job, ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 
@@ -204,10 +204,7 @@ class DetectorFeed:
         self._fast.append(row)
 
     def sensor(self, sample: dict[str, Any]) -> None:
-        if sample.get("kind") == "brake":
-            self.detector.add_brake(sample["time_s"], sample["value"])
-        elif sample.get("kind") == BRAKE_MARK:
-            self.detector.add_brake_mark(sample["time_s"])
+        self.detector.add_sensor_row(sample)
 
     def log_time(self, log_time_s: float) -> None:
         """The pass has come this far: the rows SENSOR_WAIT_S before it, in merged order, to the detector."""

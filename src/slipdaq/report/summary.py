@@ -19,7 +19,7 @@ from slipdaq import WHEELS
 from slipdaq.config import Config, ConfigError, TestConfig, parse_logged_config
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_test import BrakeFigures
-from slipdaq.maneuver.detector import BRAKE_MARK, ManeuverDetector
+from slipdaq.maneuver.detector import ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
@@ -90,10 +90,7 @@ def detect_maneuvers(
     rows and brake samples fed as the pipeline feeds them, in time order."""
     det = ManeuverDetector(cfg, phases=PHASES, rule=rule, lost_frames=lost_frames)
     for d in sensors:
-        if d.get("kind") == "brake":
-            det.add_brake(d["time_s"], d["value"])
-        elif d.get("kind") == BRAKE_MARK:
-            det.add_brake_mark(d["time_s"])
+        det.add_sensor_row(d)
     out: list[ManeuverSummary] = []
     # the high-rate rows' times from their columns where they are held so, each row made a dict as it is fed
     fast_s = fast.columns().time_s.tolist() if isinstance(fast, FastRows) else [r["time_s"] for r in fast]
