@@ -27,6 +27,7 @@ from slipdaq.sim.emit import generate
 from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.vehicle import ROADS, TireModel
 from slipdaq.tire_model.files import build_tire, static_load_n
+from slipdaq.tire_model import fit as fit_module
 from slipdaq.tire_model.fit import MF61Fit, fit_mf61
 from slipdaq.tire_model.mf61 import JACOBIAN_NAMES, Fx0Terms, LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
@@ -296,6 +297,30 @@ def _agrees_with_central_differences(fit: MF61Fit | None, oracle: MF61Fit | None
     for fz in (0.7 * fit.model.fnomin, fit.model.fnomin, 1.3 * fit.model.fnomin):
         want = oracle.model.fx0(k, fz)
         assert np.max(np.abs(fit.model.fx0(k, fz) - want)) <= CURVE_OF_PEAK * np.max(np.abs(want))
+
+
+def test_a_coefficient_held_at_its_bound_leaves_the_others_at_the_boxs_optimum() -> None:
+    """Points of the linear range only, PDX1 bounded below above what they want (as the fit bounds it by the friction
+    seen): PDX1 stays at its bound and PKX1 goes where scipy's bounded least squares (trf) puts it, in a few steps
+    (a step that moved PDX1 too, then clipped it, zig-zags PKX1 to the step limit 0.2 % short)."""
+    from scipy.optimize import least_squares
+
+    truth = LongitudinalMF61(fnomin=4000.0, pcx1=1.65, pdx1=1.17, pkx1=16.0)
+    rng = np.random.default_rng(5)
+    k = -rng.uniform(0.0, 0.06, 3000)
+    fz = truth.fnomin * (1.0 + 0.6 * rng.uniform(-0.5, 0.5, k.size))
+    fx = truth.fx0(k, fz) + 0.02 * fz * rng.standard_normal(k.size)
+    start = LongitudinalMF61(fnomin=4000.0, pcx1=1.65, pdx1=1.6, pkx1=30.0)
+    model, _, ssr = fit_module._fit(start, ("pdx1", "pkx1"), k, fx, fz, lower={"pdx1": 1.5})
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        return np.asarray((dataclasses.replace(start, pdx1=x[0], pkx1=x[1]).fx0(k, fz) - fx) / fz)
+
+    box = ([1.5, fit_module.BOUNDS["pkx1"][0]], [fit_module.BOUNDS["pdx1"][1], fit_module.BOUNDS["pkx1"][1]])
+    want = least_squares(residual, [1.6, 30.0], bounds=box, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert model.pdx1 == 1.5 and want.x[0] == pytest.approx(1.5, rel=1e-12)
+    assert model.pkx1 == pytest.approx(want.x[1], rel=1e-8)
+    assert ssr == pytest.approx(2 * want.cost, rel=1e-12)
 
 
 @pytest.mark.parametrize("seed, load_terms", [(1, True), (2, False), (3, True)])

@@ -95,7 +95,9 @@ def _normal(jt: FloatArray) -> FloatArray:
 
 def _lm(evaluate: Callable[[FloatArray], Evaluation], x0: FloatArray, lo: FloatArray, hi: FloatArray,
         iterations: int = 80) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Levenberg-Marquardt within box bounds (steps clipped): (x, residual at x, Jacobian's rows at x)."""
+    """Levenberg-Marquardt within box bounds: (x, residual at x, Jacobian's rows at x). A coefficient at a bound
+    that the gradient pushes past it is held out of the step (the active set), the others solved for alone; the step
+    is then clipped to the box."""
     x = np.clip(x0, lo, hi)
     r, jac = evaluate(x)
     cost = _dot(r, r)
@@ -104,7 +106,12 @@ def _lm(evaluate: Callable[[FloatArray], Evaluation], x0: FloatArray, lo: FloatA
     for _ in range(iterations):
         g = np.array([_dot(row, r) for row in jt])
         a = _normal(jt)
-        step = np.linalg.solve(a + lam * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
+        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        if not free.any():  # every coefficient at a bound it is pushed past: the box's optimum
+            break
+        step = np.zeros_like(x)
+        af = a[np.ix_(free, free)]
+        step[free] = np.linalg.solve(af + lam * np.diag(np.maximum(np.diag(af), 1e-12)), -g[free])
         x_new = np.clip(x + step, lo, hi)
         r_new, jac_new = evaluate(x_new)
         c_new = _dot(r_new, r_new)
