@@ -26,8 +26,8 @@ from slipdaq.report.tires import ThreadFits, fit_here, tire_jobs
 from slipdaq.sim.emit import generate
 from slipdaq.sim.scenarios import limiting_axle
 from slipdaq.sim.vehicle import ROADS, TireModel
-from slipdaq.tire_model.files import build_tire, static_load_n
 from slipdaq.tire_model import fit as fit_module
+from slipdaq.tire_model.files import build_tire, static_load_n
 from slipdaq.tire_model.fit import MF61Fit, fit_mf61
 from slipdaq.tire_model.mf61 import JACOBIAN_NAMES, Fx0Terms, LongitudinalMF61
 from slipdaq.tire_model.tir_file import TireFile, longitudinal_model, parse_tir, read_tir, tir_text, write_tir
