@@ -16,7 +16,7 @@ Sections (in this order; each in its module benchmarks/perf_SECTION.py): ingest,
            `slipdaq replay RAW -o OUT` in this process (slipdaq.cli.main). Frames/s and times real time.
 - latency: run_daemon in this process on python-can's virtual bus, a sender thread at 4 x 1 kHz + NMEA at 20 Hz on
            a pseudo-terminal; see docs/performance.md for the definition. p50/p99.
-- cpu:     `slipdaq run` (slipdaq.cli.main in a child process) reading a loopback-UDP bus that carries SocketCAN
+- cpu:     `slipdaq run` (slipdaq.__main__.main in a child process) reading a loopback-UDP bus that carries SocketCAN
            frames with kernel stamps and that slipdaq reads as it reads SocketCAN (benchmarks/perf_bus.py), the
            sender in another process; the daemon's CPU time from /proc/PID/stat over the run. At 4 x 1 kHz and at
            9,000 frames/s, with the default can.read_interval_s and with 0 (every frame read as it comes); also

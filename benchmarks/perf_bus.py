@@ -11,9 +11,11 @@ can.read_interval_s), one recvmsg per frame straight from the socket (slipdaq.so
 daemon.open_bus asks it for the large SO_RCVBUF as on a car.
 
     python -m benchmarks.perf_bus daemon --config CFG --duration S --log-dir D [--probe OUT.json]
-        registers the interface name `slipdaq_bench_udp`, then runs slipdaq.cli.main(["run", ...]) (the code of
-        `slipdaq run`, unchanged); with --probe it also records time.time() after each estimate is handed to the
-        MCAP writer (20 calls/s: negligible).
+        registers the interface name `slipdaq_bench_udp`, then runs `slipdaq run` through the command's own entry
+        (slipdaq.__main__.main: python-can without asammdf, the allocator's thresholds, the imports frozen out of the
+        garbage collector's reach, OpenBLAS on one thread), so that the process is the one `slipdaq run` makes; with
+        --probe it also records time.time() after each estimate is handed to the MCAP writer (20 calls/s:
+        negligible).
     python -m benchmarks.perf_bus sender --port P --nmea-fd FD --wpt-rate-hz R --gps-rate-hz G --duration S
         generates the simulated drive (sim time 0 = --start-wall), waits for that time, then sends the CAN frames to
         127.0.0.1:P and writes the NMEA lines to the pseudo-terminal's master FD at their times; prints its counts.
@@ -31,7 +33,11 @@ import sys
 import time
 from pathlib import Path
 
-import can
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as slipdaq.__main__ sets it, before numpy is imported here
+from slipdaq.__main__ import import_python_can  # noqa: E402
+
+import_python_can(with_mf4=False)  # python-can as `slipdaq run` has it (slipdaq.__main__)
+import can  # noqa: E402
 
 INTERFACE = "slipdaq_bench_udp"
 FRAME = struct.Struct("=IB3x8s")
@@ -119,13 +125,14 @@ def daemon_main(args: argparse.Namespace) -> int:
             probe.append([time.time(), estimate.time_s])
 
         McapLogSink.on_estimate = on_estimate  # type: ignore[method-assign]
-    from slipdaq.cli import main
+    from slipdaq.__main__ import main
 
     argv = ["run", "--config", args.config, "--log-dir", args.log_dir]
     if args.duration:
         argv += ["--duration", str(args.duration)]
+    sys.argv = ["slipdaq", *argv]
     try:
-        return main(argv)
+        return main()
     finally:
         if args.probe:
             Path(args.probe).write_text(json.dumps(probe))
