@@ -116,14 +116,9 @@ def test_fast_slip_rows_as_columns_read_back_as_the_rows(rows: list[FastSlip]) -
 BIG = st.floats(min_value=1e307, max_value=1.7e308)  # finite values whose sum overflows
 
 
-@given(st.lists(st.builds(FastSlip, st.floats(-1e10, 1e10), st.one_of(FLOAT, BIG), st.one_of(FLOAT, BIG),
-                          st.sampled_from(["imu", "gps"]),
-                          st.one_of(st.tuples(*[FAST_WHEEL] * len(WHEELS)).map(lambda ws: dict(zip(WHEELS, ws))),
-                                    st.tuples(FAST_WHEEL, FAST_WHEEL).map(lambda ws: dict(zip(("RL", "RR"), ws))))),
-                min_size=1, max_size=12))
-def test_fast_slip_messages_are_each_rows_own(rows: list[FastSlip]) -> None:
-    """fast_slip_messages (each row's values taken once) gives the bytes of a message of columns per run of rows with
-    the same wheels and of each row's /slip/fast/row payload, written one by one."""
+def fast_slip_messages_one_by_one(rows: list[FastSlip]) -> tuple[list[bytes], list[bytes]]:
+    """The /slip/fast messages of rows as written record by record: fast_slip_json.columns of each run of rows with
+    the same wheels, and each row's /slip/fast/row payload from its own as_row."""
     runs: list[bytes] = []
     i = 0
     while i < len(rows):
@@ -132,11 +127,22 @@ def test_fast_slip_messages_are_each_rows_own(rows: list[FastSlip]) -> None:
             k += 1
         runs.append(fast_slip_json.columns(rows[i:k]))
         i = k
+    return runs, [row_by_row(r) for r in rows]
 
-    def row_by_row(r: FastSlip) -> bytes:
-        ns = round(r.time_s * 1e9)
-        return dumps({"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": ""}}
-                     | r.as_row())
 
-    assert fast_slip_messages(rows) == (runs, [row_by_row(r) for r in rows])
+def row_by_row(r: FastSlip) -> bytes:
+    ns = round(r.time_s * 1e9)
+    return dumps({"header": {"stamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": ""}}
+                 | r.as_row())
+
+
+@given(st.lists(st.builds(FastSlip, st.floats(-1e10, 1e10), st.one_of(FLOAT, BIG), st.one_of(FLOAT, BIG),
+                          st.sampled_from(["imu", "gps"]),
+                          st.one_of(st.tuples(*[FAST_WHEEL] * len(WHEELS)).map(lambda ws: dict(zip(WHEELS, ws))),
+                                    st.tuples(FAST_WHEEL, FAST_WHEEL).map(lambda ws: dict(zip(("RL", "RR"), ws))))),
+                min_size=1, max_size=12))
+def test_fast_slip_messages_are_each_rows_own(rows: list[FastSlip]) -> None:
+    """fast_slip_messages (each row's values taken once) gives the bytes of a message of columns per run of rows with
+    the same wheels and of each row's /slip/fast/row payload, written one by one."""
+    assert fast_slip_messages(rows) == fast_slip_messages_one_by_one(rows)
     assert [fast_slip_row_json(r) for r in rows] == [row_by_row(r) for r in rows]

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from hypothesis import given
 from hypothesis import strategies as st
-from test_epoch_json import exact
+from test_epoch_json import exact, fast_slip_messages_one_by_one
 
 from slipdaq import WHEELS
-from slipdaq.logformat.json_codec import fast_slip_batch_messages, fast_slip_messages, std_dumps
+from slipdaq.logformat.json_codec import fast_slip_messages, std_dumps
 from slipdaq.records import FastSlip, FastWheel
 from slipdaq.records.fast_rows import FastRows, FastSlipBatch
 
@@ -40,8 +40,9 @@ def test_batch_holds_the_rows_field_for_field(rows: list[FastSlip]) -> None:
 
 @given(ROWS)
 def test_batch_messages_are_the_rows_messages(rows: list[FastSlip]) -> None:
-    """The /slip/fast message and the /slip/fast/row payloads from the columns: the bytes the records give."""
-    assert fast_slip_batch_messages(FastSlipBatch.of_rows(rows, WHEELS)) == fast_slip_messages(rows)
+    """The /slip/fast message and the /slip/fast/row payloads from the columns: the bytes the records give, written
+    one by one."""
+    assert fast_slip_messages(FastSlipBatch.of_rows(rows, WHEELS)) == fast_slip_messages_one_by_one(rows)
 
 
 @given(ROWS, st.lists(st.integers(0, 12), max_size=6), st.integers(1, 3))

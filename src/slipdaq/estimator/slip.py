@@ -107,8 +107,8 @@ class SlipEstimator:
             if params.fast_rate_hz > 0 and fast_rows else None
         self._fast_skipped = params.fast_rate_hz > 0 and not fast_rows
         self.fast_rows: list[FastSlipBatch] = []
-        """The high-rate slip rows not yet taken, as the fixes released them."""
-        """High-rate slip rows released, for /slip/fast (the pipeline takes them)."""
+        """The high-rate slip rows released and not yet taken (take_fast: the pipeline's, for /slip/fast), a batch per
+        fix that released some."""
 
     # ---- latency ------------------------------------------------------------------------------------
     @property

@@ -16,6 +16,7 @@ import orjson
 from slipdaq.logformat.topics import log_time_ns
 from slipdaq.records import CanFrame, GpsFix, NmeaLine, WheelSample
 from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, ColumnGroup, record_values
+from slipdaq.records.fast_rows import FastSlipBatch
 
 
 def can_frame_to_dict(f: CanFrame) -> dict[str, Any]:
@@ -142,21 +143,25 @@ def _fast_slip_row(time_s: float, keys: list[str], values: Sequence[Any]) -> byt
 
 def fast_slip_messages(rows: Sequence[Any]) -> tuple[list[bytes], list[bytes]]:
     """The /slip/fast messages of rows (fast_slip_json.columns of each run of rows with the same wheels) and their
-    /slip/fast/row payloads (fast_slip_row_json), each row's values taken once."""
-    table = [record_values(r, FAST_SLIP_COLUMNS) for r in rows]
+    /slip/fast/row payloads (fast_slip_row_json): FastSlip records, or a FastSlipBatch read as its columns."""
+    if isinstance(rows, FastSlipBatch):
+        return _fast_slip_batch_messages(rows)
     runs: list[bytes] = []
+    each: list[bytes] = []
     i, n = 0, len(rows)
     while i < n:
         wheels, k = tuple(rows[i].wheels), i + 1
         while k < n and tuple(rows[k].wheels) == wheels:
             k += 1
-        runs.append(ColumnsJson._columns(table[i:k]))
+        run, row_payloads = _fast_slip_batch_messages(FastSlipBatch.of_rows(rows[i:k], wheels))
+        runs += run
+        each += row_payloads
         i = k
-    return runs, [_fast_slip_row(row.time_s, keys, values) for row, (keys, values) in zip(rows, table)]
+    return runs, each
 
 
-def fast_slip_batch_messages(batch: Any) -> tuple[list[bytes], list[bytes]]:
-    """fast_slip_messages of a FastSlipBatch's rows (one run: every row has the batch's wheels), from its columns."""
+def _fast_slip_batch_messages(batch: FastSlipBatch) -> tuple[list[bytes], list[bytes]]:
+    """fast_slip_messages of a batch's rows (one run: every row has the batch's wheels), from its columns."""
     if not len(batch):
         return [], []
     columns = batch.columns()

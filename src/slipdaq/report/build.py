@@ -17,7 +17,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO, cast
+from typing import Any, TextIO
 
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_topic, read_metadata
@@ -81,13 +81,14 @@ def read_log(path: str | Path, two_pass: bool = False, progress: TextIO | None =
         if got is not None:
             return LogData(path, metadata | {"report_estimates": "two-pass"}, got.rows, got.diagnostics, got.fast,
                            got.sensors, got.maneuvers)
-    data = LogData(path, metadata | {"report_estimates": "logged"}, [], None)
+    fast: list[dict[str, Any]] = []
+    data = LogData(path, metadata | {"report_estimates": "logged"}, [], None, fast)
     topics = (TOPIC_ESTIMATE, TOPIC_DIAGNOSTICS, TOPIC_FAST_SLIP, TOPIC_SENSORS)
     for topic, _t, d in guarded(path, iter_topic(path, topics)):
         if topic == TOPIC_ESTIMATE:
             data.rows.append(d)
         elif topic == TOPIC_FAST_SLIP:
-            cast(list, data.fast).append(d)
+            fast.append(d)
         elif topic == TOPIC_SENSORS:
             data.sensors.append(d)
         else:

@@ -24,7 +24,6 @@ from slipdaq.logformat import cdr
 from slipdaq.logformat.json_codec import (
     dumps,
     estimate_json,
-    fast_slip_batch_messages,
     fast_slip_messages,
     fix_json,
     location_fix_json,
@@ -72,7 +71,6 @@ from slipdaq.records import (
     WheelSampleBatch,
     XbusBytes,
 )
-from slipdaq.records.fast_rows import FastSlipBatch
 from slipdaq.sinks import Sink
 
 if TYPE_CHECKING:
@@ -453,7 +451,7 @@ class McapLogSink(Sink):
     def on_fast_slip_rows(self, rows: Sequence[FastSlip], log_time_s: float) -> None:
         """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice), then
         each row on /slip/fast/row (at the same log time, stamped with its own)."""
-        runs, each = fast_slip_batch_messages(rows) if isinstance(rows, FastSlipBatch) else fast_slip_messages(rows)
+        runs, each = fast_slip_messages(rows)
         for data in runs:
             self._write(TOPIC_FAST_SLIP, log_time_s, data)
         for data in each:
