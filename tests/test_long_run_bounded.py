@@ -74,7 +74,7 @@ def grown(before: dict[str, tuple[int, bool]], after: dict[str, tuple[int, bool]
             if not bounded and n > 1.25 * before.get(p, (0, True))[0] + slack}
 
 
-def _drive_rows(n: int) -> list[tuple[dict[str, Any], tuple[float, dict[str, float]]]]:
+def _drive_rows(n: int) -> list[tuple[dict[str, Any], dict[str, float]]]:
     """n estimate rows at 10 Hz of a repeating drive (standstill, accelerate, a short cruise with a lone brake and a
     lone accelerate row of noise, cruise, brake), each with a high-rate row at its time."""
     cycle = ["standstill"] * 20 + ["accelerate"] * 60 + ["cruise"] * 7 + ["brake", "accelerate"] + \
@@ -89,7 +89,7 @@ def _drive_rows(n: int) -> list[tuple[dict[str, Any], tuple[float, dict[str, flo
         for w in ("FL", "FR", "RL", "RR"):
             row[f"slip_{w}"] = None if phase == "standstill" else slip
             row[f"force_{w}_n"] = 1500.0 * sign * ((i % 13) + 1) / 13 + 20.0 * ((i * 31) % 7 - 3)
-        out.append((row, (t, {"time_s": t, "speed_mps": row["speed_mps"], "accel_mps2": 3.0 * sign})))
+        out.append((row, {"time_s": t, "speed_mps": row["speed_mps"], "accel_mps2": 3.0 * sign}))
     return out
 
 
@@ -98,9 +98,9 @@ def test_the_detector_keeps_the_same_after_20000_rows_as_after_5000() -> None:
     det = ManeuverDetector(None)
     sizes = []
     decided = 0
-    for i, (row, (t, fast)) in enumerate(rows, 1):
+    for i, (row, fast) in enumerate(rows, 1):
         # what a pipeline does: the decided maneuvers go, the detector keeps none of them
-        decided += len(det.add_estimate(row)) + len(det.add_fast([(t, fast)]))
+        decided += len(det.add_estimate(row)) + len(det.add_fast([fast]))
         if i in (5_000, 20_000):
             sizes.append(container_sizes(det))
     assert decided > 350  # accelerate, cruise, brake of each cycle: every one decided as it ends
@@ -138,9 +138,9 @@ def test_the_detector_holds_as_many_bytes_while_its_anchors_fill_as_once_they_ar
     rows = _drive_rows(20_000)
     det = ManeuverDetector(None)
     held = {}
-    for i, (row, (t, fast)) in enumerate(rows, 1):
+    for i, (row, fast) in enumerate(rows, 1):
         det.add_estimate(row)
-        det.add_fast([(t, fast)])
+        det.add_fast([fast])
         if i in (2_000, 20_000):
             held[i] = (len(det._anchors), retained_bytes(det._anchors), retained_bytes(det))
     assert held[2_000][0] < ANCHOR_WINDOWS // 2 and held[20_000][0] == ANCHOR_WINDOWS

@@ -220,7 +220,7 @@ class Pipeline:
             rows = self.estimator.take_fast()
             self._out.on_fast_slip_rows(rows, log_time_s)
             if self._detect:
-                self._maneuvers(self.maneuvers.add_fast((row.time_s, row) for row in rows), log_time_s)
+                self._maneuvers(self.maneuvers.add_fast(rows), log_time_s)
 
     def _sensor(self, sample: SensorSample) -> None:
         self._out.on_sensor(sample)

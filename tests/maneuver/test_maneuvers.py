@@ -261,7 +261,7 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
     decided = []
     for _ in range(10):  # 1 s of cruise: a gear change could still join the next run
         decided += det.add_estimate(_row(t, "cruise"))
-        decided += det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})])
+        decided += det.add_fast([{"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0}])
         t += 0.1
     assert not decided
     for _ in range(5):  # accelerate again: one event with the first run
@@ -269,7 +269,7 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
         t += 0.1
     for _ in range(25):
         decided += det.add_estimate(_row(t, "cruise"))
-        decided += det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})])
+        decided += det.add_fast([{"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0}])
         t += 0.1
     (m,) = [job() for job in decided]
     assert m.phase == "accelerate" and len(m.rows) == 25
@@ -279,7 +279,7 @@ def test_an_acceleration_is_decided_once_nothing_can_join_it() -> None:
         t += 0.1
     for _ in range(3):
         decided += det.add_estimate(_row(t, "accelerate"))
-        decided += det.add_fast([(t + 5.0, {"time_s": t + 5.0, "speed_mps": 10.0, "accel_mps2": 0.0})])
+        decided += det.add_fast([{"time_s": t + 5.0, "speed_mps": 10.0, "accel_mps2": 0.0}])
         t += 0.1
     (b,) = [job() for job in decided]
     assert b.phase == "brake" and len(b.rows) == 10
@@ -298,7 +298,7 @@ def test_noise_rows_inside_a_short_cruise_do_not_keep_an_acceleration_open() -> 
         nonlocal t
         for _ in range(n):
             decided.extend(det.add_estimate(_row(t, phase)))
-            decided.extend(det.add_fast([(t, {"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0})]))
+            decided.extend(det.add_fast([{"time_s": t, "speed_mps": 10.0, "accel_mps2": 0.0}]))
             t += 0.1
 
     def take() -> list:

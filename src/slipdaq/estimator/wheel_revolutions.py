@@ -45,11 +45,15 @@ class WheelWindows:
             if keep[start]:
                 self.rings[wheel[start]].append(time_s[start], revolutions[start])
             return
-        w, kept = wheel[start:stop], keep[start:stop]
-        for i, ring in enumerate(self.rings):
-            mine = kept & (w == i)
-            if mine.any():
-                ring.extend(time_s[start:stop][mine], revolutions[start:stop][mine])
+        kept = np.flatnonzero(keep[start:stop])
+        w = wheel[start:stop][kept]
+        order = kept[np.argsort(w, kind="stable")]  # by wheel, each wheel's in record order
+        t, revs = time_s[start:stop][order], revolutions[start:stop][order]
+        at = 0
+        for ring, n in zip(self.rings, np.bincount(w, minlength=len(self.rings)).tolist()):
+            if n:
+                ring.extend(t[at : at + n], revs[at : at + n])
+                at += n
 
     def drop_before(self, t: float) -> None:
         for r in self.rings:

@@ -24,16 +24,18 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.config import Config, TestConfig, TireConfig, VehicleConfig
 from slipdaq.maneuver.events import MIN_MANEUVER_ROWS, MIN_RUN_ROWS, close_events
+from slipdaq.maneuver.fast_span import FastRowsHeld, FastSpan
 from slipdaq.maneuver.figures import (
     BRAKE_SIGNAL_BEFORE_S,
     SPAN_BEFORE_S,
-    FastSpan,
     ManeuverSummary,
     span_s,
     summarize_maneuver,
 )
 from slipdaq.maneuver.linearity import LinearityRule
 from slipdaq.maneuver.record import Maneuver, maneuver_record
+from slipdaq.records import FastSlip
+from slipdaq.records.fast_rows import FastSlipBatch
 
 ANCHOR_KEYS = ("speed_mps",) + tuple(k for w in WHEELS for k in (f"slip_{w}", f"force_{w}_n"))
 """What the linearity rule takes of a cruise row."""
@@ -166,8 +168,7 @@ class ManeuverDetector:
         self._anchors = AnchorRing()
         self._queue: deque[tuple[str, list[dict[str, Any]], Anchors, float, float]] = deque()
         """Closed events waiting for their high-rate rows: (phase, rows, anchors, span from, span to)."""
-        self._fast: deque[tuple[float, Any]] = deque()
-        self._fast_last_s = float("-inf")
+        self._fast = FastRowsHeld()
         self._brake: deque[tuple[float, float]] = deque()
         self._marks: deque[float] = deque()
         self._decided: list[Job] = []
@@ -191,12 +192,10 @@ class ManeuverDetector:
             self._close(*close_events(self._phase, self._times))
         return self._decide()
 
-    def add_fast(self, rows: Iterable[tuple[float, Any]]) -> list[Job]:
-        """High-rate rows (FastSlip records, or their rows as dicts), each with its time, in time order. Returns the
-        maneuvers they decided (add_estimate)."""
-        for time_s, row in rows:
-            self._fast.append((time_s, row))
-            self._fast_last_s = time_s
+    def add_fast(self, rows: FastSlipBatch | Iterable[FastSlip | dict[str, Any]]) -> list[Job]:
+        """High-rate rows (the estimator's batch or FastSlip records, or their rows as dicts), in time order. Returns
+        the maneuvers they decided (add_estimate)."""
+        self._fast.add(rows)
         return self._decide()
 
     def add_brake(self, time_s: float, value: float) -> None:
@@ -242,10 +241,10 @@ class ManeuverDetector:
         del self._rows[:last], self._phase[:last], self._times[:last]
 
     def _decide(self, final: bool = False) -> list[Job]:
-        last_s = self._fast_last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
+        last_s = self._fast.last_s if self.fast_rows else (self._times[-1] if self._times else float("-inf"))
         while self._queue and (final or last_s > self._queue[0][4]):
             p, ev, anchors, t_from, t_to = self._queue.popleft()
-            fast = FastSpan.of([r for t, r in self._fast if t_from <= t <= t_to])
+            fast = self._fast.span(t_from, t_to)
             brake = [(t, v) for t, v in self._brake if t_from - BRAKE_SIGNAL_BEFORE_S <= t <= t_to]
             marks = [t for t in self._marks if t_from <= t <= t_to]
             assert self.t0_s is not None
@@ -257,10 +256,9 @@ class ManeuverDetector:
 
     def _prune(self) -> None:
         """High-rate rows and brake samples that no open or queued event's span can reach any more."""
-        oldest = self._queue[0][3] if self._queue else (self._times[0] - 1.0 if self._times else self._fast_last_s)
+        oldest = self._queue[0][3] if self._queue else (self._times[0] - 1.0 if self._times else self._fast.last_s)
         keep_from = oldest - KEEP_S
-        while self._fast and self._fast[0][0] < keep_from:
-            self._fast.popleft()
+        self._fast.drop_before(keep_from)
         while self._brake and self._brake[0][0] < keep_from:
             self._brake.popleft()
         while self._marks and self._marks[0] < keep_from:

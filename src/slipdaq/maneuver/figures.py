@@ -31,7 +31,6 @@ speed <= brake_test.STANDSTILL_MPS) before the span's top speed; a stop ends whe
 from __future__ import annotations
 
 import dataclasses
-import math
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -45,10 +44,12 @@ from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_noise import brake_intervals
 from slipdaq.maneuver.brake_test import STANDSTILL_MPS, BrakeFigures, brake_figures
 from slipdaq.maneuver.events import maneuver_title
+from slipdaq.maneuver.fast_span import FastSpan
 from slipdaq.maneuver.linearity import Linearity, LinearityRule, analyse_linearity, peak_binned
 from slipdaq.maneuver.mu_slip import MuSlipFit
 from slipdaq.maneuver.test_set import mfdd_window_mps, procedure_for
 from slipdaq.maneuver.tire_limit import tire_curves
+from slipdaq.records.fast_rows import FastSlipBatch
 
 SPAN_BEFORE_S = 1.5
 """The high-rate rows of a maneuver start this long before its first window (a brake's onset precedes the first
@@ -146,36 +147,6 @@ def summarize_wheel(
 
 
 
-@dataclass(frozen=True)
-class FastSpan:
-    """The high-rate rows over a maneuver's span, as columns (NaN: an undefined slip)."""
-
-    time_s: np.ndarray
-    speed_mps: np.ndarray
-    accel_mps2: np.ndarray
-    slips: dict[str, np.ndarray]
-
-    def __len__(self) -> int:
-        return len(self.time_s)
-
-    @classmethod
-    def of(cls, rows: Sequence[Any] | FastSpan) -> FastSpan:
-        """From /slip/fast rows (dicts, as a log gives them) or FastSlip records (as the estimator gives them)."""
-        if isinstance(rows, FastSpan):
-            return rows
-        if rows and not isinstance(rows[0], dict):
-            return cls(np.array([r.time_s for r in rows], dtype=np.float64),
-                       np.array([r.speed_mps for r in rows], dtype=np.float64),
-                       np.array([r.accel_mps2 for r in rows], dtype=np.float64),
-                       {w: np.array([math.nan if r.wheels[w].slip is None else r.wheels[w].slip for r in rows],
-                                    dtype=np.float64) for w in WHEELS})
-        return cls(np.array([r["time_s"] for r in rows], dtype=np.float64),
-                   np.array([r["speed_mps"] for r in rows], dtype=np.float64),
-                   np.array([r["accel_mps2"] for r in rows], dtype=np.float64),
-                   {w: np.array([math.nan if r.get(f"slip_{w}") is None else r[f"slip_{w}"] for r in rows],
-                                dtype=np.float64) for w in WHEELS})
-
-
 def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
     """(from, to): the time span of a maneuver's high-rate rows (module docstring)."""
     half = 0.5 * float(rows[0].get("window_s") or 0.5)
@@ -185,13 +156,13 @@ def span_s(phase: str, rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
 
 def summarize_maneuver(
     phase: str, rows: Sequence[dict[str, Any]], *, t0_s: float, cfg_latency_s: float | None, rule: LinearityRule,
-    anchors: Sequence[dict[str, Any]] = (), fast: Sequence[Any] | FastSpan = (),
+    anchors: Sequence[dict[str, Any]] = (), fast: FastSlipBatch | Sequence[Any] | FastSpan = (),
     brake: Sequence[tuple[float, float]] = (), vehicle: VehicleConfig | None = None,
     lost_frames: dict[str, int] | None = None, mu_max: float = TireConfig().mu_max, test: TestConfig | None = None,
     marks: Sequence[float] = (),
 ) -> ManeuverSummary:
     """One event's maneuver. t0_s: the time its times count from; anchors: the cruise rows known when it closed;
-    fast: the high-rate rows over its span (`span_s`; /slip/fast dicts, FastSlip records or their FastSpan); brake:
+    fast: the high-rate rows over its span (`span_s`; /slip/fast dicts, FastSlip records, their batch or their FastSpan); brake:
     (time, value) of the brake signal from BRAKE_SIGNAL_BEFORE_S before the span to its end; mu_max: tire.mu_max
     (tire_limit); test: its procedures (a brake's MFDD over its procedure's window); marks: the times of the brake's
     press by the receiver's time mark, on the host's clock."""

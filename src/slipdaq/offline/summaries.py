@@ -224,7 +224,7 @@ class DetectorFeed:
                 jobs = det.add_estimate(rows.popleft())
             else:
                 fast.popleft()
-                jobs = det.add_fast([(head["time_s"], head)])
+                jobs = det.add_fast([head])
             self._found += [(job, self._executor.submit(_summary_apart, job)) for job in jobs]
 
     def finish(self) -> list[ManeuverSummary]:

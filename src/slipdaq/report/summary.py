@@ -98,7 +98,7 @@ def detect_maneuvers(
     stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)), ((t, 1, i) for i, t in enumerate(fast_s)))
     for _t, kind, i in stream:
         jobs = det.add_estimate(rows[i], None if phases is None else phases[i]) if kind == 0 else \
-            det.add_fast([(fast_s[i], next(fast_rows))])
+            det.add_fast([next(fast_rows)])
         out += [job() for job in jobs]
     return out + [job() for job in det.finish()]
 

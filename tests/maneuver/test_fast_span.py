@@ -1,0 +1,106 @@
+"""The high-rate rows a maneuver takes, as columns: the estimator's batches, its records and a log's dicts give the same
+arrays, bit for bit; a span holds the rows inside its bounds; rows let go are gone."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+
+from slipdaq import WHEELS
+from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.fast_span import FastRowsHeld, FastSpan
+from slipdaq.records.fast_rows import FastSlipBatch
+
+
+def _batches(n_fixes: int, seed: int = 3) -> list[FastSlipBatch]:
+    """n_fixes batches of 1-6 rows, every wheel, some slips undefined."""
+    rng = random.Random(seed)
+    out, t = [], 100.0
+    for _ in range(n_fixes):
+        k = rng.randint(1, 6)
+        times = [t + 0.01 * i + rng.random() * 1e-3 for i in range(k)]
+        t = times[-1] + 0.01
+        out.append(FastSlipBatch(times, [rng.uniform(0, 30) for _ in range(k)], [rng.gauss(0, 3) for _ in range(k)],
+                                 [rng.choice(("imu", "gps")) for _ in range(k)], WHEELS,
+                                 {w: [None if rng.random() < 0.2 else rng.gauss(0, 0.1) for _ in range(k)]
+                                  for w in WHEELS},
+                                 {w: [rng.uniform(0, 30) for _ in range(k)] for w in WHEELS}))
+    return out
+
+
+def _same(a: FastSpan, b: FastSpan) -> None:
+    for x, y in [(a.time_s, b.time_s), (a.speed_mps, b.speed_mps), (a.accel_mps2, b.accel_mps2),
+                 *((a.slips[w], b.slips[w]) for w in WHEELS)]:
+        assert x.dtype == y.dtype == np.float64
+        assert x.tobytes() == y.tobytes()
+
+
+def test_batches_records_and_dicts_make_the_same_columns() -> None:
+    batches = _batches(300)
+    from_batches = FastRowsHeld()
+    for b in batches:
+        from_batches.add(b)
+    records = [r for b in batches for r in b]
+    dicts = [d for b in batches for d in b.dicts()]
+    span = from_batches.span()
+    assert len(span) == len(records) > 900
+    _same(span, FastSpan.of(records))
+    _same(span, FastSpan.of(dicts))
+    # the values, as the records hold them (None: NaN)
+    assert span.time_s.tolist() == [r.time_s for r in records]
+    for w in WHEELS:
+        assert [None if math.isnan(x) else x for x in span.slips[w].tolist()] == [r.wheels[w].slip for r in records]
+    assert np.isnan(span.slips["FL"]).any()
+
+
+def test_a_wheel_a_batch_lacks_is_undefined() -> None:
+    held = FastRowsHeld()
+    held.add(FastSlipBatch([1.0, 2.0], [5.0, 6.0], [0.0, 0.1], ["gps", "gps"], ("FL",), {"FL": [0.01, None]},
+                           {"FL": [5.0, 6.0]}))
+    span = held.span()
+    assert span.slips["FL"][0] == 0.01 and math.isnan(span.slips["FL"][1])
+    assert all(np.isnan(span.slips[w]).all() for w in WHEELS if w != "FL")
+
+
+def test_a_span_holds_the_rows_inside_its_bounds_and_rows_let_go_are_gone() -> None:
+    held = FastRowsHeld()
+    for b in _batches(200):
+        held.add(b)
+    t = held.span().time_s
+    lo, hi = float(t[100]), float(t[400])
+    span = held.span(lo, hi)  # both bounds inside
+    assert span.time_s[0] == lo and span.time_s[-1] == hi and len(span) == 301
+    last = held.last_s
+    held.drop_before(float(t[250]))
+    assert held.span().time_s[0] == t[250] and len(held) == len(t) - 250
+    held.drop_before(math.inf)
+    assert len(held) == 0 and len(held.span()) == 0
+    assert held.last_s == last  # the newest row's time is kept
+
+
+def test_the_detector_decides_the_same_from_batches_as_from_their_rows() -> None:
+    """A detector fed the estimator's batches decides the same maneuvers, with the same high-rate columns, as one fed
+    the same rows as dicts one by one."""
+    batches = _batches(2000, seed=5)
+    by_batch, by_row = ManeuverDetector(None), ManeuverDetector(None)
+    jobs_a, jobs_b = [], []
+    rng = random.Random(1)
+    phases = ["cruise"] * 30 + ["accelerate"] * 40 + ["cruise"] * 30 + ["brake"] * 40
+    for k, b in enumerate(batches):
+        if k % 5 == 0:  # an estimate row at 4 Hz of fixes
+            row = {"time_s": b.time_s[0], "speed_mps": b.speed_mps[0], "phase": phases[(k // 5) % len(phases)],
+                   "window_s": 0.5} | {f"slip_{w}": rng.gauss(0.02, 0.01) for w in WHEELS} \
+                | {f"force_{w}_n": rng.gauss(500, 50) for w in WHEELS}
+            jobs_a += by_batch.add_estimate(row)
+            jobs_b += by_row.add_estimate(dict(row))
+        jobs_a += by_batch.add_fast(b)
+        for d in b.dicts():
+            jobs_b += by_row.add_fast([d])
+    jobs_a += by_batch.finish()
+    jobs_b += by_row.finish()
+    assert len(jobs_a) == len(jobs_b) >= 4
+    for a, b in zip(jobs_a, jobs_b):
+        assert a.phase == b.phase and len(a.fast) > 10
+        _same(a.fast, b.fast)
