@@ -104,3 +104,11 @@ def test_the_detector_decides_the_same_from_batches_as_from_their_rows() -> None
     for a, b in zip(jobs_a, jobs_b):
         assert a.phase == b.phase and len(a.fast) > 10
         _same(a.fast, b.fast)
+
+
+def test_a_part_of_a_batch_is_its_rows() -> None:
+    b = max(_batches(50), key=len)
+    assert len(b) >= 4
+    assert b.part(0, len(b)) is b
+    assert [r.as_row() for r in b.part(1, 3)] == [r.as_row() for r in list(b)[1:3]]
+    assert len(b.part(2, 2)) == 0

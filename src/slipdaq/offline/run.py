@@ -335,8 +335,7 @@ class Rows(Sink):
         batch = rows if isinstance(rows, FastSlipBatch) else FastSlipBatch.of_rows(rows, WHEELS)
         self.fast.add(batch)
         if self.feed is not None:
-            for fast in batch.dicts():
-                self.feed.fast(fast)
+            self.feed.fast(batch)
 
     def on_sensor(self, sample: SensorSample) -> None:
         self.sensors.append(d := dataclasses.asdict(sample))

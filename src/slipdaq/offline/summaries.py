@@ -33,6 +33,7 @@ from slipdaq.config import Config
 from slipdaq.maneuver.detector import Job, ManeuverDetector
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.records.fast_rows import FastSlipBatch
 
 MIN_RAW_RECORDS = 2_000
 """A run of fewer raw records (about 25 s of 4 WPT messages and 20 Hz NMEA logged offline: a maneuver or two)
@@ -193,15 +194,18 @@ class DetectorFeed:
         self.detector = ManeuverDetector(config, phases=PHASES)
         self._executor = executor
         self._rows: deque[dict[str, Any]] = deque()
-        self._fast: deque[dict[str, Any]] = deque()
+        self._fast: deque[FastSlipBatch] = deque()
+        self._fast_at = 0
+        """The rows of the first batch in _fast given to the detector already."""
         self._until_s = -math.inf
         self._found: list[tuple[Job, Future[ManeuverSummary]]] = []
 
     def estimate(self, row: dict[str, Any]) -> None:
         self._rows.append(row)
 
-    def fast(self, row: dict[str, Any]) -> None:
-        self._fast.append(row)
+    def fast(self, rows: FastSlipBatch) -> None:
+        if len(rows):
+            self._fast.append(rows)
 
     def sensor(self, sample: dict[str, Any]) -> None:
         self.detector.add_sensor_row(sample)
@@ -216,15 +220,23 @@ class DetectorFeed:
         while rows or fast:
             if not (rows and fast) and not final:  # the other's next row may come first
                 return
-            take_row = bool(rows) and (not fast or rows[0]["time_s"] <= fast[0]["time_s"])
-            head = rows[0] if take_row else fast[0]
-            if not final and head["time_s"] >= until_s:
+            next_fast_s = fast[0].time_s[self._fast_at] if fast else math.inf
+            take_row = bool(rows) and rows[0]["time_s"] <= next_fast_s
+            if not final and (rows[0]["time_s"] if take_row else next_fast_s) >= until_s:
                 return
             if take_row:
                 jobs = det.add_estimate(rows.popleft())
-            else:
-                fast.popleft()
-                jobs = det.add_fast([head])
+            else:  # the high-rate rows before the next estimate row (and until_s) at once: the same as one by one
+                before_s = min(rows[0]["time_s"] if rows else math.inf, math.inf if final else until_s)
+                times, start = fast[0].time_s, self._fast_at
+                stop = start + 1
+                while stop < len(times) and times[stop] < before_s:
+                    stop += 1
+                jobs = det.add_fast(fast[0].part(start, stop))
+                if stop == len(times):
+                    fast.popleft()
+                    stop = 0
+                self._fast_at = stop
             self._found += [(job, self._executor.submit(_summary_apart, job)) for job in jobs]
 
     def finish(self) -> list[ManeuverSummary]:

@@ -89,6 +89,15 @@ class FastSlipBatch(Sequence[FastSlip]):
             out.append(FastSlip(t, v, a, src, wheels))
         return out
 
+    def part(self, start: int, stop: int) -> FastSlipBatch:
+        """Rows start..stop (this batch where they are all of it)."""
+        if (start, stop) == (0, len(self)):
+            return self
+        return FastSlipBatch(self.time_s[start:stop], self.speed_mps[start:stop], self.accel_mps2[start:stop],
+                             self.accel_source[start:stop], self.wheels,
+                             {w: v[start:stop] for w, v in self.slip.items()},
+                             {w: v[start:stop] for w, v in self.wheel_speed_mps.items()})
+
     @classmethod
     def concat(cls, parts: Sequence[FastSlipBatch]) -> FastSlipBatch:
         """The batches' rows in order (the same wheels in each)."""
