@@ -112,3 +112,48 @@ def test_a_part_of_a_batch_is_its_rows() -> None:
     assert b.part(0, len(b)) is b
     assert [r.as_row() for r in b.part(1, 3)] == [r.as_row() for r in list(b)[1:3]]
     assert len(b.part(2, 2)) == 0
+
+
+def test_the_time_order_feed_decides_the_same_as_it_comes_as_at_the_end() -> None:
+    """Rows given to a TimeOrderFeed as a run makes them, taken at log times along the way, decide the same maneuvers
+    as all of them taken at the end, and as a detector fed them one by one in heapq.merge's order (an estimate row
+    before a high-rate row of the same time)."""
+    import heapq
+
+    from slipdaq.maneuver.detector import TimeOrderFeed
+
+    batches = _batches(2000, seed=7)
+    rng = random.Random(2)
+    phases = ["cruise"] * 30 + ["accelerate"] * 40 + ["cruise"] * 30 + ["brake"] * 40
+    rows = []
+    for k, b in enumerate(batches):
+        if k % 5 == 0:
+            t = b.time_s[2] if len(b) > 2 and k % 10 == 0 else b.time_s[0]  # some on a high-rate row's time
+            rows.append({"time_s": t, "speed_mps": 10.0, "phase": phases[(k // 5) % len(phases)], "window_s": 0.5}
+                        | {f"slip_{w}": rng.gauss(0.02, 0.01) for w in WHEELS}
+                        | {f"force_{w}_n": rng.gauss(500, 50) for w in WHEELS})
+    as_it_comes, at_end = TimeOrderFeed(ManeuverDetector(None)), TimeOrderFeed(ManeuverDetector(None))
+    got_streamed, row_at = [], 0
+    for k, b in enumerate(batches):
+        while row_at < len(rows) and rows[row_at]["time_s"] <= b.time_s[-1]:
+            as_it_comes.estimate(rows[row_at])
+            at_end.estimate(rows[row_at])
+            row_at += 1
+        as_it_comes.fast(b)
+        at_end.fast(b)
+        if k % 37 == 0:
+            got_streamed += as_it_comes.take(b.time_s[-1] - 1.0)
+    got_streamed += as_it_comes.take(final=True) + as_it_comes.detector.finish()
+    got_at_end = at_end.take(final=True) + at_end.detector.finish()
+    one_by_one = ManeuverDetector(None)
+    dicts = [d for b in batches for d in b.dicts()]
+    got_one_by_one = []
+    for _t, kind, i in heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)),
+                                   ((d["time_s"], 1, i) for i, d in enumerate(dicts))):
+        got_one_by_one += one_by_one.add_estimate(rows[i]) if kind == 0 else one_by_one.add_fast([dicts[i]])
+    got_one_by_one += one_by_one.finish()
+    assert len(got_streamed) == len(got_at_end) == len(got_one_by_one) >= 4
+    for a, b, c in zip(got_streamed, got_at_end, got_one_by_one):
+        assert a.phase == b.phase == c.phase and a.rows == b.rows == c.rows
+        _same(a.fast, b.fast)
+        _same(a.fast, c.fast)

@@ -14,6 +14,7 @@ with the length of the run.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -263,3 +264,52 @@ class ManeuverDetector:
             self._brake.popleft()
         while self._marks and self._marks[0] < keep_from:
             self._marks.popleft()
+
+
+class TimeOrderFeed:
+    """Estimate rows and high-rate rows to a detector merged by time, an estimate row before a high-rate row of the
+    same time (the order of `heapq.merge` over the two); the high-rate rows between two estimate rows go at once (the
+    detector decides the same from them as from each in turn). Both kinds may come as a run makes them, each in time
+    order: `take` feeds what the other kind cannot precede any more."""
+
+    def __init__(self, detector: ManeuverDetector) -> None:
+        self.detector = detector
+        self._rows: deque[tuple[dict[str, Any], str | None]] = deque()
+        self._fast: deque[FastSlipBatch] = deque()
+        self._fast_at = 0
+        """The rows of the first batch in _fast given to the detector already."""
+
+    def estimate(self, row: dict[str, Any], phase: str | None = None) -> None:
+        """An estimate row (phase: add_estimate's)."""
+        self._rows.append((row, phase))
+
+    def fast(self, rows: FastSlipBatch) -> None:
+        if len(rows):
+            self._fast.append(rows)
+
+    def take(self, until_s: float = math.inf, final: bool = False) -> list[Job]:
+        """The rows before until_s that no row still to come can precede (final: every row), to the detector; the
+        maneuvers they decided, in order."""
+        rows, fast, det = self._rows, self._fast, self.detector
+        jobs: list[Job] = []
+        while rows or fast:
+            if not (rows and fast) and not final:  # the other's next row may come first
+                break
+            next_fast_s = fast[0].time_s[self._fast_at] if fast else math.inf
+            take_row = bool(rows) and rows[0][0]["time_s"] <= next_fast_s
+            if not final and (rows[0][0]["time_s"] if take_row else next_fast_s) >= until_s:
+                break
+            if take_row:
+                jobs += det.add_estimate(*rows.popleft())
+                continue
+            before_s = min(rows[0][0]["time_s"] if rows else math.inf, math.inf if final else until_s)
+            times, start = fast[0].time_s, self._fast_at
+            stop = start + 1
+            while stop < len(times) and times[stop] < before_s:
+                stop += 1
+            jobs += det.add_fast(fast[0].part(start, stop))
+            if stop == len(times):
+                fast.popleft()
+                stop = 0
+            self._fast_at = stop
+        return jobs

@@ -13,13 +13,11 @@ from __future__ import annotations
 import dataclasses
 import gc
 import itertools
-import math
 import os
 import queue
 import signal
 import threading
 import traceback
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
 from multiprocessing import get_context
@@ -30,7 +28,7 @@ from typing import Any
 
 from slipdaq import compiled
 from slipdaq.config import Config
-from slipdaq.maneuver.detector import Job, ManeuverDetector
+from slipdaq.maneuver.detector import Job, ManeuverDetector, TimeOrderFeed
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.records.fast_rows import FastSlipBatch
@@ -193,55 +191,28 @@ class DetectorFeed:
     def __init__(self, config: Config | None, executor: Executor) -> None:
         self.detector = ManeuverDetector(config, phases=PHASES)
         self._executor = executor
-        self._rows: deque[dict[str, Any]] = deque()
-        self._fast: deque[FastSlipBatch] = deque()
-        self._fast_at = 0
-        """The rows of the first batch in _fast given to the detector already."""
-        self._until_s = -math.inf
+        self._feed = TimeOrderFeed(self.detector)
         self._found: list[tuple[Job, Future[ManeuverSummary]]] = []
 
     def estimate(self, row: dict[str, Any]) -> None:
-        self._rows.append(row)
+        self._feed.estimate(row)
 
     def fast(self, rows: FastSlipBatch) -> None:
-        if len(rows):
-            self._fast.append(rows)
+        self._feed.fast(rows)
 
     def sensor(self, sample: dict[str, Any]) -> None:
         self.detector.add_sensor_row(sample)
 
     def log_time(self, log_time_s: float) -> None:
         """The pass has come this far: the rows SENSOR_WAIT_S before it, in merged order, to the detector."""
-        self._until_s = log_time_s - SENSOR_WAIT_S
-        self._merge(self._until_s)
+        self._submit(self._feed.take(log_time_s - SENSOR_WAIT_S))
 
-    def _merge(self, until_s: float, final: bool = False) -> None:
-        rows, fast, det = self._rows, self._fast, self.detector
-        while rows or fast:
-            if not (rows and fast) and not final:  # the other's next row may come first
-                return
-            next_fast_s = fast[0].time_s[self._fast_at] if fast else math.inf
-            take_row = bool(rows) and rows[0]["time_s"] <= next_fast_s
-            if not final and (rows[0]["time_s"] if take_row else next_fast_s) >= until_s:
-                return
-            if take_row:
-                jobs = det.add_estimate(rows.popleft())
-            else:  # the high-rate rows before the next estimate row (and until_s) at once: the same as one by one
-                before_s = min(rows[0]["time_s"] if rows else math.inf, math.inf if final else until_s)
-                times, start = fast[0].time_s, self._fast_at
-                stop = start + 1
-                while stop < len(times) and times[stop] < before_s:
-                    stop += 1
-                jobs = det.add_fast(fast[0].part(start, stop))
-                if stop == len(times):
-                    fast.popleft()
-                    stop = 0
-                self._fast_at = stop
-            self._found += [(job, self._executor.submit(_summary_apart, job)) for job in jobs]
+    def _submit(self, jobs: list[Job]) -> None:
+        self._found += [(job, self._executor.submit(_summary_apart, job)) for job in jobs]
 
     def finish(self) -> list[ManeuverSummary]:
         """Every row to the detector and the last maneuvers decided (here): all the summaries, in the order decided."""
-        self._merge(math.inf, final=True)
+        self._submit(self._feed.take(final=True))
         last = [job() for job in self.detector.finish()]
         return [dataclasses.replace(f.result(), rows=tuple(job.rows)) for job, f in self._found] + last
 

@@ -6,12 +6,13 @@ dict is made only where a reader asks for one.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, overload
 
 import numpy as np
 
+from slipdaq import WHEELS
 from slipdaq.records import FastSlip, FastWheel
 from slipdaq.records.columns import FAST_ACCEL_SOURCES, FAST_SLIP_COLUMNS
 
@@ -112,6 +113,17 @@ class FastSlipBatch(Sequence[FastSlip]):
                    {w: [x for p in parts for x in p.wheel_speed_mps[w]] for w in wheels})
 
     @classmethod
+    def of_dicts(cls, rows: Sequence[Mapping[str, Any]], wheels: Sequence[str] = WHEELS) -> FastSlipBatch:
+        """Rows as FastSlip.as_row gives them (a /slip/fast row of a log) as columns: a per-wheel or accel_source
+        value a row lacks is None (accel_source: ""); time_s, speed_mps and accel_mps2 it must have."""
+        by_wheel = {c.attribute: c for g in FAST_SLIP_COLUMNS if g.per_wheel for c in g.columns}
+        slip, speed = by_wheel["slip"], by_wheel["speed_mps"]
+        return cls([r["time_s"] for r in rows], [r["speed_mps"] for r in rows], [r["accel_mps2"] for r in rows],
+                   [r.get("accel_source", "") for r in rows], tuple(wheels),
+                   {w: [r.get(slip.key(w)) for r in rows] for w in wheels},
+                   {w: [r.get(speed.key(w)) for r in rows] for w in wheels})
+
+    @classmethod
     def of_rows(cls, rows: Sequence[FastSlip], wheels: Sequence[str]) -> FastSlipBatch:
         """FastSlip records (each with every wheel of `wheels`) as columns."""
         return cls([r.time_s for r in rows], [r.speed_mps for r in rows], [r.accel_mps2 for r in rows],
@@ -188,15 +200,19 @@ class FastColumns:
         return cls(cat("time_s"), cat("speed_mps"), cat("accel_mps2"), cat("accel_imu"), wheels, per_wheel("slip"),
                    per_wheel("slip_defined"), per_wheel("wheel_speed_mps"), per_wheel("speed_defined"))
 
-    def dicts(self, start: int = 0, stop: int | None = None) -> list[dict[str, Any]]:
-        """Rows start..stop as FastSlip.as_row gives them."""
+    def batch(self, start: int = 0, stop: int | None = None) -> FastSlipBatch:
+        """Rows start..stop as lists (None: undefined), FastSlip's values."""
         part = slice(start, stop)
         imu, gps = FAST_ACCEL_SOURCES[:2]
-        return _dicts(_columns(
+        return FastSlipBatch(
             self.time_s[part].tolist(), self.speed_mps[part].tolist(), self.accel_mps2[part].tolist(),
             [imu if x else gps for x in self.accel_imu[part].tolist()], self.wheels,
             {w: _values(self.slip[w][part], self.slip_defined[w][part]) for w in self.wheels},
-            {w: _values(self.wheel_speed_mps[w][part], self.speed_defined[w][part]) for w in self.wheels}))
+            {w: _values(self.wheel_speed_mps[w][part], self.speed_defined[w][part]) for w in self.wheels})
+
+    def dicts(self, start: int = 0, stop: int | None = None) -> list[dict[str, Any]]:
+        """Rows start..stop as FastSlip.as_row gives them."""
+        return self.batch(start, stop).dicts()
 
 
 class FastRows(Sequence[dict[str, Any]]):

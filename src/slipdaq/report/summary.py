@@ -10,7 +10,6 @@ log has several of one phase; `key`: the phase, or "accelerate-2", ..., names it
 from __future__ import annotations
 
 import dataclasses
-import heapq
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,13 +18,13 @@ from slipdaq import WHEELS
 from slipdaq.config import Config, ConfigError, TestConfig, parse_logged_config
 from slipdaq.maneuver import fallback
 from slipdaq.maneuver.brake_test import BrakeFigures
-from slipdaq.maneuver.detector import ManeuverDetector
+from slipdaq.maneuver.detector import ManeuverDetector, TimeOrderFeed
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.maneuver.linearity import LinearityRule
 from slipdaq.maneuver.record import Z95, Maneuver, determined, maneuver_record
 from slipdaq.maneuver.test_set import sets_of
-from slipdaq.records.fast_rows import FastRows
+from slipdaq.records.fast_rows import FastRows, FastSlipBatch
 from slipdaq.report.labels import format_labels
 
 
@@ -91,16 +90,11 @@ def detect_maneuvers(
     det = ManeuverDetector(cfg, phases=PHASES, rule=rule, lost_frames=lost_frames)
     for d in sensors:
         det.add_sensor_row(d)
-    out: list[ManeuverSummary] = []
-    # the high-rate rows' times from their columns where they are held so, each row made a dict as it is fed
-    fast_s = fast.columns().time_s.tolist() if isinstance(fast, FastRows) else [r["time_s"] for r in fast]
-    fast_rows = iter(fast)
-    stream = heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)), ((t, 1, i) for i, t in enumerate(fast_s)))
-    for _t, kind, i in stream:
-        jobs = det.add_estimate(rows[i], None if phases is None else phases[i]) if kind == 0 else \
-            det.add_fast([next(fast_rows)])
-        out += [job() for job in jobs]
-    return out + [job() for job in det.finish()]
+    feed = TimeOrderFeed(det)
+    for i, row in enumerate(rows):
+        feed.estimate(row, None if phases is None else phases[i])
+    feed.fast(fast.columns().batch() if isinstance(fast, FastRows) else FastSlipBatch.of_dicts(fast))
+    return [job() for job in feed.take(final=True)] + [job() for job in det.finish()]
 
 
 def summarize_log(
