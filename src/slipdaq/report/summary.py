@@ -10,7 +10,8 @@ log has several of one phase; `key`: the phase, or "accelerate-2", ..., names it
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,10 +92,30 @@ def detect_maneuvers(
     for d in sensors:
         det.add_sensor_row(d)
     feed = TimeOrderFeed(det)
-    for i, row in enumerate(rows):
+    chunks = _fast_chunks(fast)
+    fast_to_s = -math.inf
+    out: list[ManeuverSummary] = []
+    for i, row in enumerate(rows):  # each maneuver summarized as it is decided, its data let go
+        while fast_to_s <= row["time_s"] and (chunk := next(chunks, None)) is not None:
+            feed.fast(chunk)  # the high-rate rows up to past this row: those before it go first
+            fast_to_s = chunk.time_s[-1]
+        out += [job() for job in feed.take(row["time_s"])]
         feed.estimate(row, None if phases is None else phases[i])
-    feed.fast(fast.columns().batch() if isinstance(fast, FastRows) else FastSlipBatch.of_dicts(fast))
-    return [job() for job in feed.take(final=True)] + [job() for job in det.finish()]
+    for chunk in chunks:
+        feed.fast(chunk)
+    return out + [job() for job in feed.take(final=True)] + [job() for job in det.finish()]
+
+
+def _fast_chunks(fast: Sequence[dict[str, Any]]) -> Iterator[FastSlipBatch]:
+    """High-rate rows (a run's columns, or a log's rows as dicts) as batches of FastRows.CHUNK rows."""
+    step = FastRows.CHUNK
+    if isinstance(fast, FastRows):
+        columns = fast.columns()
+        for start in range(0, len(columns), step):
+            yield columns.batch(start, start + step)
+    else:
+        for start in range(0, len(fast), step):
+            yield FastSlipBatch.of_dicts(fast[start:start + step])
 
 
 def summarize_log(
