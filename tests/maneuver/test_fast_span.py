@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import random
+from typing import Any
 
 import numpy as np
 
@@ -157,3 +158,42 @@ def test_the_time_order_feed_decides_the_same_as_it_comes_as_at_the_end() -> Non
         assert a.phase == b.phase == c.phase and a.rows == b.rows == c.rows
         _same(a.fast, b.fast)
         _same(a.fast, c.fast)
+
+
+def test_detect_maneuvers_over_a_logs_rows_in_chunks_is_the_detector_fed_one_by_one(monkeypatch) -> None:
+    """report.summary.detect_maneuvers feeds the high-rate rows a chunk at a time as the estimate rows need them: the
+    maneuvers are those of a detector fed every row in turn in heapq.merge's order, summarized as decided; for a
+    log's rows (dicts) and for a run's columns (FastRows)."""
+    import heapq
+
+    from slipdaq.config import TestConfig
+    from slipdaq.maneuver.record import maneuver_record
+    from slipdaq.records.fast_rows import FastRows
+    from slipdaq.report import summary
+
+    monkeypatch.setattr(FastRows, "CHUNK", 97)  # many chunks, their ends anywhere between the estimate rows
+    batches = _batches(1200, seed=11)
+    rng = random.Random(4)
+    phases = ["cruise"] * 25 + ["accelerate"] * 30 + ["cruise"] * 25 + ["brake"] * 30
+    rows = [{"time_s": b.time_s[0], "speed_mps": 12.0, "phase": phases[(k // 4) % len(phases)], "window_s": 0.5,
+             "gps_latency_s": 0.05} | {f"slip_{w}": rng.gauss(0.02, 0.01) for w in WHEELS}
+            | {f"force_{w}_n": rng.gauss(500, 50) for w in WHEELS} for k, b in enumerate(batches) if k % 4 == 0]
+    dicts = [d for b in batches for d in b.dicts()]
+    one_by_one = ManeuverDetector(None, phases=summary.PHASES)
+    expected = []
+    for _t, kind, i in heapq.merge(((r["time_s"], 0, i) for i, r in enumerate(rows)),
+                                   ((d["time_s"], 1, i) for i, d in enumerate(dicts))):
+        jobs = one_by_one.add_estimate(rows[i]) if kind == 0 else one_by_one.add_fast([dicts[i]])
+        expected += [job() for job in jobs]
+    expected += [job() for job in one_by_one.finish()]
+    columns = FastRows()
+    for b in batches:
+        columns.add(b)
+
+    def records(found: list[Any]) -> list[Any]:
+        return [(m.phase, m.t_start_s, m.t_end_s) if m.phase == "cruise" else maneuver_record(m, k, TestConfig(), WHEELS)
+                for k, m in enumerate(found, 1)]
+
+    assert len(expected) >= 6
+    assert records(summary.detect_maneuvers(rows, None, fast=dicts)) == records(expected)
+    assert records(summary.detect_maneuvers(rows, None, fast=columns)) == records(expected)

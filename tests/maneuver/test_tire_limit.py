@@ -4,6 +4,8 @@ flags that keep an implausible or undetermined peak from being given; the 95 % i
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -164,3 +166,27 @@ def test_the_force_delay_behind_the_slips_is_found_where_the_force_cycles() -> N
 
     ramp = {w: -0.02 - 0.2 * t / t[-1] for w in WHEELS}
     assert force_lag_s(t, ramp, fz, np.interp(t - 0.012, t, total(ramp)) + rng.normal(0.0, 150.0, n), -1.0) == 0.0
+
+
+def test_the_force_delay_is_a_whole_sample_where_a_neighbour_of_the_best_has_no_fit(monkeypatch) -> None:
+    """The parabola through the best three delays needs the neighbours' fits: where one has none (its error is
+    infinite), the delay is the best whole sample, not NaN."""
+    from slipdaq.maneuver import mu_joint
+
+    n = 600
+    t = np.arange(n) * 0.01
+    phases = {"FL": 0.0, "FR": 0.1, "RL": 0.45, "RR": 0.6}
+    slips = {w: -0.03 - 0.2 * np.abs(2.0 * ((7.0 * t + phases[w]) % 1.0) - 1.0) for w in WHEELS}
+    fz = {w: normal_loads_n(w, np.full(n, -8.0), 1300.0, 0.6, 0.55, 2.6) for w in WHEELS}
+    force = sum(-np.sin(1.9 * np.arctan(10.0 * np.abs(slips[w]))) * fz[w] for w in WHEELS)
+    late = np.interp(t - 0.01, t, force)  # one sample late: the best delay is index k_max + 1 of the search
+    assert abs(force_lag_s(t, slips, fz, late, -1.0) - 0.01) < 0.002
+    k_max = round(mu_joint.LAG_MAX_S / 0.01)
+    fit, calls = mu_joint._fit, []
+
+    def no_fit_after_the_best(*args: Any) -> Any:
+        calls.append(None)
+        return None if len(calls) == k_max + 3 else fit(*args)  # the search's index k_max + 2: the best's right neighbour
+
+    monkeypatch.setattr(mu_joint, "_fit", no_fit_after_the_best)
+    assert force_lag_s(t, slips, fz, late, -1.0) == pytest.approx(0.01, abs=1e-12)

@@ -297,8 +297,8 @@ def force_lag_s(time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n:
     explain it best. The acceleration reaches the force through causal filters (the IMU's, vehicle_speed.py's), the
     slips come from centred lines (fast_slip.py): in an ABS cycle a delay of one 10 ms sample moves the fitted peak by
     1-2 points of slip. Searched over whole samples within ±LAG_MAX_S (the sample pairs shifted by k), refined by the
-    parabola through the best three; 0 with too few samples or no wheel carrying force, with the best at the search's
-    edge, or with a flat minimum (LAG_SHARPNESS): nothing found."""
+    parabola through the best three (where both neighbours of the best have a fit); 0 with too few samples or no
+    wheel carrying force, with the best at the search's edge, or with a flat minimum (LAG_SHARPNESS): nothing found."""
     t = np.asarray(time_s, dtype=float)
     y = sign * np.asarray(force_n, dtype=float)
     active = _active(slips)
@@ -321,7 +321,7 @@ def force_lag_s(time_s: npt.ArrayLike, slips: Mapping[str, npt.ArrayLike], fz_n:
     if not np.isfinite(sse[j]) or not k2 <= j < sse.size - k2 or min(sse[j - k2], sse[j + k2]) < LAG_SHARPNESS * sse[j]:
         return 0.0
     curvature = sse[j - 1] - 2.0 * sse[j] + sse[j + 1]
-    frac = 0.5 * (sse[j - 1] - sse[j + 1]) / curvature if curvature > 0 else 0.0
+    frac = 0.5 * (sse[j - 1] - sse[j + 1]) / curvature if 0 < curvature < np.inf else 0.0  # a neighbour unfit: inf
     return (j - k_max + float(np.clip(frac, -0.5, 0.5))) * dt
 
 
