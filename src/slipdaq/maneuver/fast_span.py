@@ -40,6 +40,17 @@ class FastSpan:
         return held.span()
 
 
+def _batch_of(rows: list[FastSlip | dict[str, Any]]) -> FastSlipBatch:
+    """FastSlip records (each with every wheel) or /slip/fast dicts as one batch of columns."""
+    dicts = [r for r in rows if isinstance(r, dict)]
+    if len(dicts) == len(rows):
+        return FastSlipBatch.of_dicts(dicts)
+    records = [r for r in rows if isinstance(r, FastSlip)]
+    if len(records) != len(rows):
+        raise TypeError("high-rate rows: FastSlip records or /slip/fast dicts, not both")
+    return FastSlipBatch.of_rows(records, WHEELS)
+
+
 def _nan_for_none(values: Sequence[float | None]) -> list[float]:
     return [math.nan if x is None else x for x in values]
 
@@ -60,33 +71,18 @@ class FastRowsHeld:
         return len(self.time_s)
 
     def add(self, rows: FastSlipBatch | Iterable[FastSlip | dict[str, Any]]) -> None:
-        """The estimator's rows (FastSlip records or their batch, whose columns are taken as they are) or /slip/fast
+        """The estimator's rows (their batch, whose columns are taken as they are, or FastSlip records) or /slip/fast
         rows (dicts), in time order."""
-        if isinstance(rows, FastSlipBatch):
-            self.time_s.extend(rows.time_s)
-            self.speed_mps.extend(rows.speed_mps)
-            self.accel_mps2.extend(rows.accel_mps2)
-            for w, column in self.slips.items():
-                slip = rows.slip.get(w)
-                column.extend(_nan_for_none(slip) if slip is not None else [math.nan] * len(rows))
-        else:
-            self._add_rows(rows)
+        if not isinstance(rows, FastSlipBatch):
+            rows = _batch_of(list(rows))
+        self.time_s.extend(rows.time_s)
+        self.speed_mps.extend(rows.speed_mps)
+        self.accel_mps2.extend(rows.accel_mps2)
+        for w, column in self.slips.items():
+            slip = rows.slip.get(w)
+            column.extend(_nan_for_none(slip) if slip is not None else [math.nan] * len(rows))
         if self.time_s:
             self.last_s = self.time_s[-1]
-
-    def _add_rows(self, rows: Iterable[FastSlip | dict[str, Any]]) -> None:
-        for r in rows:
-            if isinstance(r, dict):
-                t, v, a = r["time_s"], r["speed_mps"], r["accel_mps2"]
-                slips = [r.get(f"slip_{w}") for w in WHEELS]
-            else:
-                t, v, a = r.time_s, r.speed_mps, r.accel_mps2
-                slips = [r.wheels[w].slip if w in r.wheels else None for w in WHEELS]
-            self.time_s.append(t)
-            self.speed_mps.append(v)
-            self.accel_mps2.append(a)
-            for column, slip in zip(self.slips.values(), slips):
-                column.append(math.nan if slip is None else slip)
 
     def span(self, t_from_s: float = -math.inf, t_to_s: float = math.inf) -> FastSpan:
         """The rows with t_from_s <= time_s <= t_to_s."""
