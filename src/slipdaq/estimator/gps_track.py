@@ -13,7 +13,9 @@ from bisect import bisect_left, bisect_right
 
 import numpy as np
 
-from slipdaq.estimator.ring import SeriesRing
+from slipdaq.compiled import kernel
+from slipdaq.estimator.numpy_rules import block_sum, interp_into, pairwise_sum, search_with_guess
+from slipdaq.estimator.ring import SeriesRing, first_index
 
 MAX_GPS_GAP_S = 1.0
 """GPS fixes further apart than this do not make a window or a central difference."""
@@ -31,11 +33,31 @@ REFERENCE_SPEED_ACCURACY_MPS = 0.05
 
 def integrate_speed_m(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1: float) -> float:
     """Integral of the piecewise-linear speed over [t0, t1] (trapezoids on the fixes plus both ends)."""
-    i0 = int(np.searchsorted(times_s, t0, side="right"))
-    i1 = int(np.searchsorted(times_s, t1, side="left"))
-    t = np.concatenate(([t0], times_s[i0:i1], [t1]))
-    v = np.interp(t, times_s, speeds_mps)
-    return float(np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5)
+    return float(integrate_speed()(times_s, speeds_mps, t0, t1))
+
+
+def _integrate_speed(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1: float) -> float:
+    """integrate_speed_m with numpy's bits: t = [t0, the fixes strictly inside, t1] (searchsorted's sides),
+    v = np.interp(t, times, speeds), np.sum((t[1:] - t[:-1]) * (v[1:] + v[:-1])) * 0.5."""
+    i0 = first_index(times_s, t0, 0, True)
+    i1 = first_index(times_s, t1, 0, False)
+    inner = max(i1 - i0, 0)
+    t = np.empty(inner + 2)
+    t[0] = t0
+    for k in range(inner):
+        t[k + 1] = times_s[i0 + k]
+    t[inner + 1] = t1
+    v = np.empty(inner + 2)
+    interp_into(t, times_s, speeds_mps, v)
+    parts = np.empty(inner + 1)
+    for k in range(inner + 1):
+        parts[k] = (t[k + 1] - t[k]) * (v[k + 1] + v[k])
+    return pairwise_sum(parts) * 0.5
+
+
+integrate_speed = kernel(_integrate_speed, "float64(float64[:], float64[:], float64, float64)",
+                         uses=(first_index, search_with_guess, interp_into, block_sum, pairwise_sum))
+"""integrate_speed()(times_s, speeds_mps, t0, t1): see _integrate_speed (integrate_speed_m)."""
 
 
 def _div(a: float, b: float) -> float:

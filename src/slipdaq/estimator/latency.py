@@ -26,9 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slipdaq.compiled import kernel
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
-from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.wheel_revolutions import TWO_PI, has_gap
+from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values, longest_gap_of
+from slipdaq.estimator.wheel_revolutions import TWO_PI, gap_limit
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,21 +284,12 @@ class WheelLatencyRows:
         fit = self.fit
         times = arrival_s - fit.taus_s
         first_needed_s = (arrival_s - fit.max_tau_s) - 0.5  # = times[-1] - 0.5
-        arcs: np.ndarray | None = None
-        for ring in rings:
-            if len(ring) < 2 or ring.first_time > first_needed_s or ring.last_t < arrival_s \
-                    or has_gap(ring, times[-1], times[0]):
+        arcs = np.empty(len(times))
+        add = ring_revolutions()
+        for k, ring in enumerate(rings):
+            if not add(ring.times, ring.values, times, first_needed_s, arrival_s, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0):
                 self._prev = None
                 return
-            revs = ring.local_linear(times, LOCAL_FIT_HALF_SAMPLES)
-            if revs is None:
-                self._prev = None
-                return
-            if arcs is None:
-                arcs = revs + 0.0  # as zeros + revs
-            else:
-                arcs += revs
-        assert arcs is not None
         arcs *= TWO_PI / len(rings)
         prev, self._prev = self._prev, (arrival_s, speed_mps, arcs)
         if prev is None:
@@ -331,3 +323,28 @@ class WheelLatencyRows:
             self._queue.append(row)
         while len(self._queue) > LAG_GUARD_ROWS:  # a row counts once the next rows show no braking
             fit.add(*self._queue.popleft())
+
+
+def _ring_revolutions(t: np.ndarray, v: np.ndarray, times: np.ndarray, first_needed_s: float, arrival_s: float,
+                      half: int, arcs: np.ndarray, first: bool) -> bool:
+    """One reference wheel's revolutions at the lagged times (ring.local_linear's lines), into arcs (first: arcs =
+    revs + 0.0, else arcs += revs); False, arcs as they were or partly written, where its samples (times t, values v)
+    do not reach from first_needed_s to arrival_s, have a gap over has_gap's limit between the times, or are fewer
+    than a line takes."""
+    n = len(t)
+    if n < 2 or t[0] > first_needed_s or t[n - 1] < arrival_s:
+        return False
+    if longest_gap_of(t, times[len(times) - 1], times[0]) > gap_limit(t) or n < 2 * half + 1:
+        return False
+    revs = np.empty(len(times))
+    slopes = np.empty(len(times))
+    local_line_values(t, v, times, half, revs, slopes)
+    for q in range(len(times)):
+        arcs[q] = revs[q] + 0.0 if first else arcs[q] + revs[q]
+    return True
+
+
+ring_revolutions = kernel(_ring_revolutions, "boolean(float64[:], float64[:], float64[:], float64, float64, int64, "
+                          "float64[:], boolean)", uses=(first_index, longest_gap_of, gap_limit, local_line_values))
+"""ring_revolutions()(t, v, times, first_needed_s, arrival_s, half, arcs, first): see _ring_revolutions
+(WheelLatencyRows.observe)."""

@@ -188,7 +188,7 @@ local_lines = kernel(local_line_values,
 """local_lines()(t, v, times, half, out, slopes): see local_line_values (SeriesRing.local_lines)."""
 
 
-def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
+def longest_gap_of(t: np.ndarray, t_first: float, t_last: float) -> float:
     """SeriesRing.longest_gap over the times t (in order)."""
     n = len(t)
     i = max(first_index(t, t_first, 0, True) - 1, 0)
@@ -199,5 +199,5 @@ def _longest_gap(t: np.ndarray, t_first: float, t_last: float) -> float:
     return gap
 
 
-longest_gap = kernel(_longest_gap, "float64(float64[:], float64, float64)", uses=(first_index,))
-"""longest_gap()(t, t_first, t_last): see _longest_gap."""
+longest_gap = kernel(longest_gap_of, "float64(float64[:], float64, float64)", uses=(first_index,))
+"""longest_gap()(t, t_first, t_last): see longest_gap_of."""

@@ -61,6 +61,8 @@ class RunCalibration:
         """Stored values the run replaced, for /diagnostics/events."""
         self.road_loads_learned: tuple[float, float, float, int] | None = None
         """A paired coast-down's (F0, F1, F2, runs) measured in this run (SlipEstimator.road_loads_measured)."""
+        self._r0: dict[str, tuple[float, str]] | None = None
+        """r0_all's answer until a radius fit or the stored radii change."""
 
     def latency(self, utc: UtcLatency, lag: WheelLatency, time_s: float) -> LatencyEstimate:
         """The GPS latency to use: fixed, else the run's own (wheels or UTC) or the stored one, whichever is surer;
@@ -117,6 +119,7 @@ class RunCalibration:
                 if carried:
                     self.radius[w].cx_n = self._cx_n(w)
                 self.radius[w].add(d_gps, arc, weight, carried)
+                self._r0 = None
 
     def _cx_n(self, w: str) -> float | None:
         """The tire's Cx for the road loads' slip: the run's fit once confident, else the stored one."""
@@ -132,10 +135,14 @@ class RunCalibration:
         return abs(accel) <= thr or (w in self.reference and accel >= -thr)
 
     def r0_all(self) -> dict[str, tuple[float, str]]:
-        """Per wheel: the radius in use and its source."""
-        p = self.p
-        stored = {w: r for w, (r, _) in self.stored_r0.items()}
-        return r0_per_wheel(self.radius, p.r_ref_m, p.r_ref_configured, p.calibrate_r0, stored, own=not self.frozen)
+        """Per wheel: the radius in use and its source (the same dict until a radius fit or the stored radii
+        change: not to be modified)."""
+        if self._r0 is None:
+            p = self.p
+            stored = {w: r for w, (r, _) in self.stored_r0.items()}
+            self._r0 = r0_per_wheel(self.radius, p.r_ref_m, p.r_ref_configured, p.calibrate_r0, stored,
+                                    own=not self.frozen)
+        return self._r0
 
     def check_stored(self, time_s: float) -> None:
         """Stored radii and stiffnesses that the run's own converged values contradict beyond both uncertainties
@@ -149,6 +156,7 @@ class RunCalibration:
             if own is not None and own_se is not None and cal.converged \
                     and abs(own - radius) > 3.0 * math.hypot(own_se, se) + R0_TOLERANCE_M:
                 del self.stored_r0[w]
+                self._r0 = None
                 self._replaced(time_s, f"r0 {w}: stored {radius * 1000:.2f} mm, this run {own * 1000:.2f} mm "
                                        f"(+- {own_se * 1000:.2f} mm)")
         for w, (cx, conf) in list(self.stored_cx.items()):

@@ -9,7 +9,9 @@ import math
 import numpy as np
 
 from slipdaq import WHEELS
-from slipdaq.estimator.ring import SeriesRing
+from slipdaq.compiled import kernel
+from slipdaq.estimator.numpy_rules import interp_into, search_with_guess
+from slipdaq.estimator.ring import SeriesRing, first_index, longest_gap_of
 
 TWO_PI = 2.0 * math.pi
 MIN_GAP_S = 0.05
@@ -27,6 +29,14 @@ def slip_from_distances(d_wpt_m: float, d_gps_m: float) -> float:
 def has_gap(ring: SeriesRing, t0: float, t1: float) -> bool:
     """The samples spanning [t0, t1] have an interval over max(MIN_GAP_S, GAP_INTERVALS * the mean interval)."""
     return ring.longest_gap(t0, t1) > max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval())
+
+
+def gap_limit(t: np.ndarray) -> float:
+    """has_gap's limit for kernels: max(MIN_GAP_S, GAP_INTERVALS * the mean interval of the times t, at least 2), as
+    Python's max takes it."""
+    n = len(t)
+    limit = GAP_INTERVALS * ((t[n - 1] - t[0]) / (n - 1))
+    return limit if limit > MIN_GAP_S else MIN_GAP_S
 
 
 class WheelWindows:
@@ -69,19 +79,41 @@ class WheelWindows:
     def window(self, t0: float, t1: float) -> tuple[dict[str, float | None], tuple[str, ...]]:
         """arcs_m, and the wheels whose arc is missing for a gap in their samples, or for no samples past t1 after
         samples before t0 (disturbed: a reader stall, frames lost, a wheel that fell silent)."""
-        ends = np.array((t0, t1))
         out: dict[str, float | None] = {}
         gaps: list[str] = []
+        arc_of = window_arc()
         for w, ring in self.by_wheel.items():
-            revs = ring.at(ends, t0, t1)
-            if revs is None:
-                if len(ring) and ring.first_time <= t0 and ring.last_t < t1:  # it was reporting: stalled or silent
-                    gaps.append(w)
-            elif has_gap(ring, t0, t1):
+            code, arc = arc_of(ring.times, ring.values, t0, t1)
+            out[w] = float(arc) if code == ARC else None  # a Python float, as numba gives it
+            if code == ARC_GAP:
                 gaps.append(w)
-                revs = None
-            out[w] = None if revs is None else TWO_PI * (revs[1] - revs[0])
         return out, tuple(gaps)
+
+
+ARC_NONE, ARC_GAP, ARC = 0, 1, 2
+"""window_arc's answers: no arc (no samples around both ends), none for a gap (or a stall), an arc."""
+
+
+def _window_arc(t: np.ndarray, v: np.ndarray, t0: float, t1: float) -> tuple[int, float]:
+    """One wheel's samples (times t, revolutions v) over [t0, t1]: (ARC, 2*pi*(N(t1) - N(t0))) with N interpolated
+    linearly (np.interp); (ARC_GAP, nan) where samples span the window with an interval over has_gap's limit, or
+    stop before t1 after samples before t0; (ARC_NONE, nan) otherwise. SeriesRing.at and has_gap in one call."""
+    n = len(t)
+    if n < 2 or t[0] > t0 or t[n - 1] < t1:
+        stalled = n > 0 and t[0] <= t0 and t[n - 1] < t1
+        return (ARC_GAP if stalled else ARC_NONE), np.nan
+    if longest_gap_of(t, t0, t1) > gap_limit(t):
+        return ARC_GAP, np.nan
+    ends = np.empty(2)
+    ends[0], ends[1] = t0, t1
+    revs = np.empty(2)
+    interp_into(ends, t, v, revs)
+    return ARC, TWO_PI * (revs[1] - revs[0])
+
+
+window_arc = kernel(_window_arc, "Tuple((int64, float64))(float64[:], float64[:], float64, float64)",
+                    uses=(first_index, longest_gap_of, gap_limit, search_with_guess, interp_into))
+"""window_arc()(t, v, t0, t1): see _window_arc (WheelWindows.window)."""
 
 
 def reference_slip(arcs: dict[str, float | None], r0: dict[str, tuple[float, str]], reference: tuple[str, ...],
