@@ -15,7 +15,7 @@ from slipdaq.estimator.gps_track import integrate_speed_m
 from slipdaq.estimator.latency import LOCAL_FIT_HALF_SAMPLES, ring_revolutions
 from slipdaq.estimator.numpy_rules import interp_into, pairwise_sum
 from slipdaq.estimator.ring import SeriesRing
-from slipdaq.estimator.wheel_revolutions import TWO_PI, WheelWindows, has_gap
+from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI, WheelWindows
 from support.paths import kernels
 
 
@@ -99,11 +99,22 @@ def ring_of(times: np.ndarray, values: np.ndarray, drop_before: float) -> Series
     return r
 
 
+def has_gap(ring: SeriesRing, t0: float, t1: float) -> bool:
+    """The samples spanning [t0, t1] have an interval over max(MIN_GAP_S, GAP_INTERVALS * the mean interval), as
+    numpy had it."""
+    t = ring.times
+    i = max(int(t.searchsorted(t0, "right")) - 1, 0)
+    j = min(int(t.searchsorted(t1, "left")) + 1, len(t))
+    longest = float(np.diff(t[i:j]).max()) if j - i >= 2 else 0.0
+    return longest > max(MIN_GAP_S, GAP_INTERVALS * ((ring.last_t - float(t[0])) / (len(t) - 1)))
+
+
 def window_numpy(ring: SeriesRing, t0: float, t1: float) -> tuple[float | None, bool]:
-    """One wheel's (arc, gap) of WheelWindows.window as numpy had it (SeriesRing.at, has_gap)."""
-    revs = ring.at(np.array((t0, t1)), t0, t1)
-    if revs is None:
+    """One wheel's (arc, gap) of WheelWindows.window as numpy had it (np.interp at both ends, then the gap)."""
+    t, v = ring.times, ring.values
+    if len(t) < 2 or t[0] > t0 or ring.last_t < t1:
         return None, bool(len(ring) and ring.first_time <= t0 and ring.last_t < t1)
+    revs = np.interp(np.array((t0, t1)), t, v).tolist()
     if has_gap(ring, t0, t1):
         return None, True
     return TWO_PI * (revs[1] - revs[0]), False

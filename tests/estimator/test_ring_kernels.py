@@ -122,7 +122,7 @@ def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list
     c = np.clip(first, half, n - half - 1)
     k = np.add.outer(c - half, np.arange(2 * half))
     longest = (t[k + 1] - t[k]).max(axis=1)
-    ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()))
+    ok = (n - first >= half + 1) & (first >= half) & (longest <= max(MIN_GAP_S, GAP_INTERVALS * ((t[-1] - t[0]) / (n - 1))))
     speeds = TWO_PI * r0_m * lines[1]
     return [float(x) if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 

@@ -7,7 +7,7 @@ An ABS cycle (5-15 Hz) is resolved: at 500 wheel frames per second the line span
 
 A grid instant is released once every wheel that reports has FAST_LINE_HALF + 1 samples at or after it (so its line
 no longer depends on when it is computed), or WHEEL_WAIT_S of reference time has passed (that wheel: no slip). A line
-whose samples have a gap over max(MIN_GAP_S, GAP_INTERVALS x the mean interval) gives no slip (windows.py's rule).
+whose samples have a gap over wheel_revolutions.gap_limit gives no slip (the windows' rule).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from slipdaq import WHEELS
 from slipdaq.compiled import kernel
 from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
-from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
+from slipdaq.estimator.wheel_revolutions import TWO_PI, gap_limit
 from slipdaq.records.fast_rows import FastSlipBatch
 
 FAST_LINE_HALF = 5
@@ -75,7 +75,7 @@ class FastSlipRows:
             return [None] * len(times)
         speeds = np.empty(len(times))
         ok = np.empty(len(times), dtype=np.bool_)
-        line_speeds()(ring.times, ring.values, times, half, max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval()),
+        line_speeds()(ring.times, ring.values, times, half, gap_limit(ring.times),
                       TWO_PI * r0_m, speeds, ok)
         return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 

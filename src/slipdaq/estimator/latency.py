@@ -329,7 +329,7 @@ def _ring_revolutions(t: np.ndarray, v: np.ndarray, times: np.ndarray, first_nee
                       half: int, arcs: np.ndarray, first: bool) -> bool:
     """One reference wheel's revolutions at the lagged times (ring.local_linear's lines), into arcs (first: arcs =
     revs + 0.0, else arcs += revs); False, arcs as they were or partly written, where its samples (times t, values v)
-    do not reach from first_needed_s to arrival_s, have a gap over has_gap's limit between the times, or are fewer
+    do not reach from first_needed_s to arrival_s, have a gap over gap_limit between the times, or are fewer
     than a line takes."""
     n = len(t)
     if n < 2 or t[0] > first_needed_s or t[n - 1] < arrival_s:

@@ -42,19 +42,6 @@ class SeriesRing:
     def first_time(self) -> float:
         return float(self._t[self._start]) if self._end > self._start else np.inf
 
-    def at(self, times: np.ndarray, t_first: float, t_last: float) -> list[float] | None:
-        """The values interpolated linearly at `times` (from t_first to t_last), or None unless two samples or more
-        span [t_first, t_last]."""
-        s, e = self._start, self._end
-        if e - s < 2 or self._t[s] > t_first or self.last_t < t_last:
-            return None
-        return np.interp(times, self._t[s:e], self._v[s:e]).tolist()
-
-    def mean_interval(self) -> float:
-        """(newest - oldest time) / (samples - 1): a stall followed by a burst of its samples does not change it."""
-        n = self._end - self._start
-        return (self.last_t - float(self._t[self._start])) / (n - 1) if n >= 2 else np.inf
-
     def longest_gap(self, t_first: float, t_last: float) -> float:
         """The longest interval between consecutive samples from the last one at or before t_first to the first one
         at or after t_last (the samples an interpolation over [t_first, t_last] uses); 0 when that is one sample."""

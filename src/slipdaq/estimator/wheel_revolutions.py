@@ -26,14 +26,10 @@ def slip_from_distances(d_wpt_m: float, d_gps_m: float) -> float:
     return (d_wpt_m - d_gps_m) / d_gps_m
 
 
-def has_gap(ring: SeriesRing, t0: float, t1: float) -> bool:
-    """The samples spanning [t0, t1] have an interval over max(MIN_GAP_S, GAP_INTERVALS * the mean interval)."""
-    return ring.longest_gap(t0, t1) > max(MIN_GAP_S, GAP_INTERVALS * ring.mean_interval())
-
-
 def gap_limit(t: np.ndarray) -> float:
-    """has_gap's limit for kernels: max(MIN_GAP_S, GAP_INTERVALS * the mean interval of the times t, at least 2), as
-    Python's max takes it."""
+    """The longest interval a wheel's samples (times t, at least 2) may have across a window or a line:
+    max(MIN_GAP_S, GAP_INTERVALS * their mean interval), as Python's max takes it. The mean interval is (newest -
+    oldest) / (samples - 1): a stall followed by a burst of its samples does not change it."""
     n = len(t)
     limit = GAP_INTERVALS * ((t[n - 1] - t[0]) / (n - 1))
     return limit if limit > MIN_GAP_S else MIN_GAP_S
@@ -96,8 +92,8 @@ ARC_NONE, ARC_GAP, ARC = 0, 1, 2
 
 def _window_arc(t: np.ndarray, v: np.ndarray, t0: float, t1: float) -> tuple[int, float]:
     """One wheel's samples (times t, revolutions v) over [t0, t1]: (ARC, 2*pi*(N(t1) - N(t0))) with N interpolated
-    linearly (np.interp); (ARC_GAP, nan) where samples span the window with an interval over has_gap's limit, or
-    stop before t1 after samples before t0; (ARC_NONE, nan) otherwise. SeriesRing.at and has_gap in one call."""
+    linearly (np.interp); (ARC_GAP, nan) where the samples spanning the window have an interval over gap_limit, or
+    stop before t1 after samples before t0; (ARC_NONE, nan) otherwise."""
     n = len(t)
     if n < 2 or t[0] > t0 or t[n - 1] < t1:
         stalled = n > 0 and t[0] <= t0 and t[n - 1] < t1
