@@ -188,7 +188,7 @@ async def run_daemon(
     def report(text: str) -> None:  # events between status lines (sys.stdout looked up now: a live view wraps it)
         print(f"slipdaq: {can_name}: {text}", file=status_stream or sys.stdout, flush=True)
 
-    compiled.prepare()  # the kernels now (numba: 0.5 s, 2 s the first time on a machine), before the log exists
+    compiled.prepare()  # the kernels now (numba: 0.5 s; 3-6 s the first time on a machine), before the log exists
     clock = SteadyClock()  # one clock for both sources and the log: windows never see a host clock step
     can_meta = can_metadata(config, bus)
     if can_meta and int(can_meta["can_receive_buffer_bytes"]) < config.can.receive_buffer_bytes:
