@@ -75,17 +75,17 @@ class FastSlipRows:
             return [None] * len(times)
         speeds = np.empty(len(times))
         ok = np.empty(len(times), dtype=np.bool_)
-        line_speeds()(ring.times, ring.values, times, half, gap_limit(ring.times),
-                      TWO_PI * r0_m, speeds, ok)
+        line_speeds()(ring.times, ring.values, times, half, TWO_PI * r0_m, speeds, ok)
         return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 
 
-def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, max_gap_s: float, scale: float,
-                 speeds: np.ndarray, ok: np.ndarray) -> None:
+def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, scale: float, speeds: np.ndarray,
+                 ok: np.ndarray) -> None:
     """speeds[q]: scale x the slope of ring.local_lines' line at times[q] (samples t, values v, at least 2*half+1);
     ok[q]: half + 1 samples at or after times[q], half before it, and no interval between the line's samples over
-    max_gap_s (an interval that is NaN counts as over, as numpy's max has it)."""
+    gap_limit(t) (an interval that is NaN counts as over, as numpy's max has it)."""
     n = len(t)
+    max_gap_s = gap_limit(t)
     values = np.empty(len(times))
     local_line_values(t, v, times, half, values, speeds)
     for q in range(len(times)):
@@ -101,6 +101,6 @@ def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, max
 
 
 line_speeds = kernel(_line_speeds,
-                     "void(float64[:], float64[:], float64[:], int64, float64, float64, float64[:], boolean[:])",
-                     uses=(first_index, local_line_values))
-"""line_speeds()(t, v, times, half, max_gap_s, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""
+                     "void(float64[:], float64[:], float64[:], int64, float64, float64[:], boolean[:])",
+                     uses=(first_index, local_line_values, gap_limit))
+"""line_speeds()(t, v, times, half, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""

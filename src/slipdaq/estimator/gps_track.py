@@ -14,7 +14,7 @@ from bisect import bisect_left, bisect_right
 import numpy as np
 
 from slipdaq.compiled import kernel
-from slipdaq.estimator.numpy_rules import block_sum, interp_into, pairwise_sum, search_with_guess
+from slipdaq.estimator.numpy_rules import block_sum, interp_at, interp_into, pairwise_sum, search_with_guess
 from slipdaq.estimator.ring import SeriesRing, first_index
 
 MAX_GPS_GAP_S = 1.0
@@ -56,7 +56,7 @@ def _integrate_speed(times_s: np.ndarray, speeds_mps: np.ndarray, t0: float, t1:
 
 
 integrate_speed = kernel(_integrate_speed, "float64(float64[:], float64[:], float64, float64)",
-                         uses=(first_index, search_with_guess, interp_into, block_sum, pairwise_sum))
+                         uses=(first_index, search_with_guess, interp_at, interp_into, block_sum, pairwise_sum))
 """integrate_speed()(times_s, speeds_mps, t0, t1): see _integrate_speed (integrate_speed_m)."""
 
 

@@ -51,35 +51,37 @@ def search_with_guess(key: float, arr: np.ndarray, guess: int) -> int:
     return imin - 1
 
 
+def interp_at(xv: float, xp: np.ndarray, fp: np.ndarray, guess: int) -> tuple[float, int]:
+    """(np.interp(xv, xp, fp), the index its search found: the next point's guess), xp at least two points (left and
+    right: fp's ends)."""
+    n = len(xp)
+    if xv != xv:
+        return xv, guess
+    j = search_with_guess(xv, xp, guess)
+    if j == -1:
+        return fp[0], j
+    if j == n:
+        return fp[n - 1], j
+    if j == n - 1 or xp[j] == xv:
+        return fp[j], j
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (xv - xp[j]) + fp[j]
+    if y != y:  # nan one way: the other
+        y = slope * (xv - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y, j
+
+
 def interp_into(x: np.ndarray, xp: np.ndarray, fp: np.ndarray, out: np.ndarray) -> None:
     """out[:] = np.interp(x, xp, fp) (left and right: fp's ends; xp at least one point)."""
-    n = len(xp)
-    left, right = fp[0], fp[n - 1]
-    if n == 1:
+    if len(xp) == 1:  # left, right and the point itself are all fp[0] (a NaN included)
         for i in range(len(x)):
-            out[i] = left if x[i] < xp[0] else (right if x[i] > xp[0] else fp[0])
+            out[i] = fp[0]
         return
     j = 0
     for i in range(len(x)):
-        xv = x[i]
-        if xv != xv:
-            out[i] = xv
-            continue
-        j = search_with_guess(xv, xp, j)
-        if j == -1:
-            out[i] = left
-        elif j == n:
-            out[i] = right
-        elif j == n - 1 or xp[j] == xv:
-            out[i] = fp[j]
-        else:
-            slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-            y = slope * (xv - xp[j]) + fp[j]
-            if y != y:  # nan one way: the other
-                y = slope * (xv - xp[j + 1]) + fp[j + 1]
-                if y != y and fp[j] == fp[j + 1]:
-                    y = fp[j]
-            out[i] = y
+        out[i], j = interp_at(x[i], xp, fp, j)
 
 
 def block_sum(a: np.ndarray, start: int, n: int) -> float:

@@ -10,7 +10,7 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.compiled import kernel
-from slipdaq.estimator.numpy_rules import interp_into, search_with_guess
+from slipdaq.estimator.numpy_rules import interp_at, search_with_guess
 from slipdaq.estimator.ring import SeriesRing, first_index, longest_gap_of
 
 TWO_PI = 2.0 * math.pi
@@ -100,15 +100,13 @@ def _window_arc(t: np.ndarray, v: np.ndarray, t0: float, t1: float) -> tuple[int
         return (ARC_GAP if stalled else ARC_NONE), np.nan
     if longest_gap_of(t, t0, t1) > gap_limit(t):
         return ARC_GAP, np.nan
-    ends = np.empty(2)
-    ends[0], ends[1] = t0, t1
-    revs = np.empty(2)
-    interp_into(ends, t, v, revs)
-    return ARC, TWO_PI * (revs[1] - revs[0])
+    n0, j = interp_at(t0, t, v, 0)  # np.interp(ends, t, v): the second end's search from the first's
+    n1, _ = interp_at(t1, t, v, j)
+    return ARC, TWO_PI * (n1 - n0)
 
 
 window_arc = kernel(_window_arc, "Tuple((int64, float64))(float64[:], float64[:], float64, float64)",
-                    uses=(first_index, longest_gap_of, gap_limit, search_with_guess, interp_into))
+                    uses=(first_index, longest_gap_of, gap_limit, search_with_guess, interp_at))
 """window_arc()(t, v, t0, t1): see _window_arc (WheelWindows.window)."""
 
 
