@@ -19,6 +19,7 @@ from slipdaq.logformat.json_codec import (
     fast_slip_messages,
     fast_slip_row_json,
     fix_json,
+    loads,
     nmea_line_json,
     rows_of_columns,
     std_dumps,
@@ -56,6 +57,27 @@ def exact(data: bytes) -> Any:
 @given(JSON_VALUES)
 def test_dumps_keeps_what_json_dumps_writes(payload: Any) -> None:
     assert exact(dumps(payload)) == exact(std_dumps(payload))
+
+
+def same_values(a: Any, b: Any) -> bool:
+    """Equal, of the same types, floats bit for bit (NaN equal to NaN, -0.0 not 0.0)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, float):
+        return np.float64(a).tobytes() == np.float64(b).tobytes() or (a != a and b != b)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(same_values(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict):
+        return list(a) == list(b) and all(same_values(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+@given(JSON_VALUES)
+def test_loads_reads_what_json_loads_reads(payload: Any) -> None:
+    """What the log's messages hold (dumps: orjson's bytes, or json.dumps's with NaN, Infinity and big integers)
+    reads back by loads as json.loads reads it, every float bit for bit; and json's own indented text too."""
+    for data in (dumps(payload), std_dumps(payload), json.dumps(payload, indent=1).encode()):
+        assert same_values(loads(data), json.loads(data))
 
 
 @st.composite

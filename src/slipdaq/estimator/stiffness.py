@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 
 class StiffnessFit:
     """Normal equations A theta = b kept as Python floats (A = [[a00, a01], [a01, a11]]): a window costs a few float
-    operations; the solve takes the same products as numpy's (its matrix-vector and dot products go through BLAS,
-    whose rounding is kept by doing those two there)."""
+    operations, and so does the solve: each product and sum rounded once, in the order written, the same bits on
+    every machine (BLAS, numpy's matrix product, fuses some of them by the CPU it finds)."""
 
     def __init__(self, forgetting: float = 0.998, min_windows: int = 20) -> None:
         self.forgetting = forgetting
@@ -60,10 +58,9 @@ class StiffnessFit:
         if det <= 1e-12 * max(a00 * a11, 1e-300):
             return  # no spread of force yet
         i00, i01, i10, i11 = a11 / det, -a01 / det, -a10 / det, a00 / det
-        b = np.array((self._b0, self._b1))
-        theta = np.array(((i00, i01), (i10, i11))) @ b
-        beta, alpha = float(theta[0]), float(theta[1])
-        resid = max(self._yy - float(theta @ b), 0.0)
+        b0, b1 = self._b0, self._b1
+        beta, alpha = i00 * b0 + i01 * b1, i10 * b0 + i11 * b1  # theta = A^-1 b
+        resid = max(self._yy - (beta * b0 + alpha * b1), 0.0)
         scale = resid / max(self._w - 2.0, 1.0)
         c00, c01, c11 = i00 * scale, i01 * scale, i11 * scale
         if beta <= 0 or alpha <= 0:

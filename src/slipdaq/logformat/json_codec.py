@@ -1,12 +1,13 @@
-"""The JSON messages of the log: records to bytes and back. Written with orjson: compact JSON whose values are those
-json.dumps writes (a float's shortest repr, read back bit for bit); where orjson cannot keep a value (a NaN or an
-infinity, which it writes as null; an integer over 64 bits; a numpy scalar; a key that is not a str) the message is
-json.dumps's (NaN, Infinity) instead, so every value reads back as it was."""
+"""The JSON messages of the log: records to bytes and back. Written and read with orjson: compact JSON whose values
+are those json.dumps writes (a float's shortest repr, read back bit for bit); where orjson cannot keep a value (a NaN
+or an infinity, which it writes as null; an integer over 64 bits; a numpy scalar; a key that is not a str) the message
+is json.dumps's (NaN, Infinity) instead, so every value reads back as it was."""
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Iterable, Sequence
 from operator import attrgetter
 from typing import Any
@@ -66,6 +67,21 @@ def dumps(payload: object) -> bytes:
     if b"null" in out and _non_finite(payload):
         return std_dumps(payload)
     return out
+
+
+_LONG_DIGITS = re.compile(rb"\d{19}")
+"""19 digits in a row: maybe an integer beyond 64 bits, which orjson reads as a float (json: an int)."""
+
+
+def loads(data: bytes) -> Any:
+    """A message's JSON read back, as json.loads reads it: by orjson, or by json where orjson refuses the text (NaN
+    and Infinity, which json.dumps writes; a lone surrogate) or where it may hold an integer beyond 64 bits."""
+    if _LONG_DIGITS.search(data) is None:
+        try:
+            return orjson.loads(data)
+        except orjson.JSONDecodeError:
+            pass
+    return json.loads(data)
 
 
 def _dumps_row(row: dict[str, Any], values: Sequence[object]) -> bytes:

@@ -25,6 +25,7 @@ from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.json_codec import (
     can_frame_from_dict,
     can_frame_to_dict,
+    loads,
     rows_of_columns,
     wheel_sample_to_dict,
 )
@@ -155,7 +156,7 @@ def iter_topic(
     A log that was not finished is read up to its last complete chunk; scan_result (if given) then tells how far."""
     for topic, encoding, log_time, data in iter_messages(path, topics, scan_result):
         if encoding != cdr.ENCODING:
-            d = json.loads(data)
+            d = loads(data)
             if topic == TOPIC_FAST_SLIP and isinstance(d.get("time_s"), list):  # a message of rows (columns)
                 for row in rows_of_columns(d):
                     yield topic, log_time, row
@@ -189,7 +190,7 @@ def iter_raw_batches(
                     run = []
                 yield cdr.decode_can_batch(data, channels[0])[1]
             else:
-                run.append(can_frame_from_dict(json.loads(data)))
+                run.append(can_frame_from_dict(loads(data)))
                 if len(run) >= MAX_BATCH_FRAMES:
                     yield CanFrameBatch.from_frames(run)
                     run = []
@@ -197,7 +198,7 @@ def iter_raw_batches(
         if run:
             yield CanFrameBatch.from_frames(run)
             run = []
-        d = json.loads(data)
+        d = loads(data)
         if topic == TOPIC_UBX:
             yield UbxFrame(d["timestamp_s"], bytes.fromhex(d["data"]))
         elif topic == TOPIC_IMU_RAW:

@@ -35,4 +35,5 @@ MAX_BATCH_SPAN_S = 0.05
 
 def log_time_ns(t_s: float) -> int:
     """A record's log time: nanoseconds since the Unix epoch (never negative), as MCAP stores it."""
-    return max(int(round(t_s * 1e9)), 0)
+    ns = int(round(t_s * 1e9))
+    return ns if ns > 0 else 0
