@@ -20,27 +20,21 @@ Maybe = list[float | None]
 """A column whose value may be undefined (None)."""
 
 
-_PLANS: dict[tuple[str, ...], list[tuple[str, str, str | None]]] = {}
-"""Per order of wheels: each column's name, attribute and wheel (None: the row's own), in FAST_SLIP_COLUMNS' order."""
-
-
-def _plan(wheels: tuple[str, ...]) -> list[tuple[str, str, str | None]]:
-    plan = _PLANS.get(wheels)
-    if plan is None:
-        plan = _PLANS[wheels] = [(c.key(w) if w is not None else c.name, c.attribute, w)
-                                 for group in FAST_SLIP_COLUMNS for w in (wheels if group.per_wheel else (None,))
-                                 for c in group.columns]
-    return plan
-
-
 def _columns(time_s: list[float], speed_mps: list[float], accel_mps2: list[float], accel_source: list[str],
              wheels: Sequence[str], slip: dict[str, Maybe], wheel_speed_mps: dict[str, Maybe]) -> dict[str, list[Any]]:
     """The rows' values by column name, in FAST_SLIP_COLUMNS' order (FastSlip.as_row's keys)."""
     by_attribute: dict[str, list[Any]] = {"time_s": time_s, "speed_mps": speed_mps, "accel_mps2": accel_mps2,
                                           "accel_source": accel_source}
     per_wheel = {"slip": slip, "speed_mps": wheel_speed_mps}
-    return {name: by_attribute[attribute] if w is None else per_wheel[attribute][w]
-            for name, attribute, w in _plan(tuple(wheels))}
+    out: dict[str, list[Any]] = {}
+    for group in FAST_SLIP_COLUMNS:
+        for w in wheels if group.per_wheel else ("",):
+            for c in group.columns:
+                if group.per_wheel:
+                    out[c.key(w)] = per_wheel[c.attribute][w]
+                else:
+                    out[c.name] = by_attribute[c.attribute]
+    return out
 
 
 def _dicts(columns: dict[str, list[Any]]) -> list[dict[str, Any]]:
