@@ -46,9 +46,9 @@ def unpack(rev: str, dest: Path) -> Path:
 
 
 def byte_compile(*srcs: Path) -> None:
-    """Each tree's .pyc files written where they are missing or out of date. With PYTHONDONTWRITEBYTECODE set (as on
-    the CI machines) an unpacked base would otherwise compile every module from source at each start, about 0.13 s
-    a process that this tree, whose .pyc files an earlier run wrote, does not pay."""
+    """Each tree's .pyc files written where they are missing or out of date. With PYTHONDONTWRITEBYTECODE set, an
+    unpacked base would otherwise compile every module from source at each start (about 0.15 s a process), which a
+    tree whose .pyc files an earlier run wrote does not pay."""
     for src in srcs:
         compileall.compile_dir(str(src), quiet=1)
 
