@@ -16,13 +16,12 @@ import argparse
 import json
 import os
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import ROOT, add_base_argument, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, under, unpack
 
 PARTS = (
     ("slipdaq.estimator.slip", "SlipEstimator.add_gps", "a fix into the estimator (add_gps)"),
@@ -100,9 +99,8 @@ def main() -> None:
             sides[f"base {a.base}"] = unpack(a.base, Path(tmp) / "base")
         for r in range(a.rounds):
             for name, src in (sides.items() if r % 2 == 0 else reversed(sides.items())):
-                env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
-                out = subprocess.run([sys.executable, "-m", "benchmarks.estimate_parts", str(a.raw), "--side"],
-                                     env=env, capture_output=True, text=True, check=True).stdout
+                cmd, env = under(src, __file__, str(a.raw), "--side")
+                out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
                 print(table(f"round {r + 1}, {name}", json.loads(out.splitlines()[-1])), "\n", flush=True)
 
 
