@@ -9,21 +9,26 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import copy
+import dataclasses
 import io
 import json
 from pathlib import Path
 from typing import Any
 
 import jsonschema
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
+from slipdaq import WHEELS
 from slipdaq.cli import main
 from slipdaq.config import load_config
 from slipdaq.live.demo import run_demo_async
 from slipdaq.pipeline import Pipeline
-from slipdaq.records import CanFrame, NmeaLine
-from slipdaq.sinks.mcap_log import McapLogSink
+from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, WheelSample
+from slipdaq.sinks.mcap_log import McapLogSink, samples_to_batch
 from support.paths import CONFIG
 from support.reliability_support import sim_records
 
@@ -132,6 +137,89 @@ def test_the_order_does_not_depend_on_how_frames_were_grouped(tmp_path: Path) ->
                 log_time_order=False) if c.topic != "/diagnostics/events"])
     assert sum(t == "/estimate" for t, _, _ in logs[0]) > 40 and logs[0] == logs[1]
 
+
+def _sink_log(path: Path, frames: list[CanFrame], wheel_at: list[int], batched: bool) -> list[tuple[str, int, bytes]]:
+    """frames into a log's sink, then an NMEA line: frame by frame (on_raw, then on_wheel for the frame's samples)
+    or as one batch (on_can_batch, on_wheel_batch). wheel_at: the frame of each wheel sample, in order (a frame
+    has one sample per wheel, at its time). The log's messages in file order."""
+    samples = [WheelSample(frames[i].timestamp_s, WHEELS[wheel_at[:k].count(i)], 0.01 * k, k, float(k), None, 0)
+               for k, i in enumerate(wheel_at)]
+    sink = McapLogSink(path, load_config(CONFIG), mode="replay")
+    if batched:
+        sink.on_can_batch(CanFrameBatch.from_frames(frames))
+        sink.on_wheel_batch(dataclasses.replace(samples_to_batch(samples), frame=np.array(wheel_at, dtype=np.int64)))
+    else:
+        for i, frame in enumerate(frames):
+            sink.on_raw(frame)
+            for sample, at in zip(samples, wheel_at):
+                if at == i:
+                    sink.on_wheel(sample)
+    sink.on_raw(NmeaLine(frames[-1].timestamp_s + 1e-4, "$GPGGA,*56"))
+    sink.close()
+    with open(path, "rb") as f:
+        return [(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+@pytest.mark.parametrize(("n_frames", "wheel_at", "topics"), [
+    # samples up to 40 ms; the /can/raw batch closes at 50 ms; the GPS line closes the /wpt/count batch
+    (80, list(range(0, 41, 10)), ["/can/raw", "/wpt/count", "/can/raw", "/nmea/raw"]),
+    # four wheels a frame; the first sample at 50 ms and at 100 ms closes a /wpt/count batch, the GPS line the other
+    # three (samples 401-403 after 201-400: the order they closed in, not their first numbers' bytes, comes first)
+    (101, [i for i in range(101) for _ in WHEELS], ["/can/raw", "/wpt/count", "/can/raw", "/wpt/count", "/wpt/count",
+                                                    "/nmea/raw"]),
+])
+def test_a_batch_closed_by_a_gps_line_goes_where_frame_by_frame_puts_it(tmp_path: Path, n_frames: int,
+                                                                        wheel_at: list[int], topics: list[str]) -> None:
+    """Wheel frames among other traffic (a production car's ABS speeds) and batches that close by their span in a
+    run of frames: frame by frame, a closed batch is written at the next frame, before a batch the GPS line closes
+    even if that one holds earlier samples; from one batch of the same frames (an import, a replay, or a live read
+    of many frames at once) the log is the same, message for message."""
+    frames = [CanFrame(0.001 * i, 0x200 if i in wheel_at else 0x123, bytes(8)) for i in range(n_frames)]  # 0.001 * 50 == 0.05
+    one = _sink_log(tmp_path / "one.mcap", frames, wheel_at, batched=False)
+    assert [t for t, _, _ in one] == topics
+    assert _sink_log(tmp_path / "batch.mcap", frames, wheel_at, batched=True) == one
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_frames_one_by_one_and_in_any_runs_make_the_same_log(tmp_path_factory: pytest.TempPathFactory,
+                                                             data: st.DataObject) -> None:
+    """Random traffic: frames 0.1-5 ms apart, some with a sample of one to four wheels, GPS lines between them, the
+    frames between two lines cut into runs at random (a reader's wake-ups, a log's batches). Frame by frame and in
+    runs, the sink writes the same messages in the same order."""
+    n = data.draw(st.integers(50, 400))
+    gaps = data.draw(st.lists(st.integers(1, 50), min_size=n, max_size=n))
+    wheels = data.draw(st.lists(st.sampled_from([0, 0, 0, 1, 4]), min_size=n, max_size=n))
+    lines = set(data.draw(st.lists(st.integers(0, n - 1), max_size=12)))
+    cuts = set(data.draw(st.lists(st.integers(1, n - 1), max_size=30)))
+    times = np.cumsum(np.array(gaps) * 1e-4).tolist()
+    frames = [CanFrame(t, 0x200 if w else 0x123, bytes(8)) for t, w in zip(times, wheels)]
+    samples = [(i, WheelSample(times[i], WHEELS[j], 0.01 * i, i, float(i), None, 0))
+               for i, w in enumerate(wheels) for j in range(w)]
+    out = []
+    for batched in (False, True):
+        path = tmp_path_factory.mktemp("order") / "log.mcap"
+        sink = McapLogSink(path, load_config(CONFIG), mode="replay")
+        start = 0
+        for i in range(n):
+            if not batched:
+                sink.on_raw(frames[i])
+                for _, s in (x for x in samples if x[0] == i):
+                    sink.on_wheel(s)
+            elif i + 1 in cuts or i in lines or i == n - 1:
+                mine = [(k - start, s) for k, s in samples if start <= k <= i]
+                sink.on_can_batch(CanFrameBatch.from_frames(frames[start : i + 1]))
+                if mine:
+                    batch = samples_to_batch([s for _, s in mine])
+                    sink.on_wheel_batch(dataclasses.replace(batch, frame=np.array([k for k, _ in mine])))
+                start = i + 1
+            if i in lines:
+                sink.on_raw(NmeaLine(times[i] + 5e-5, "$GPGGA,*56"))
+        sink.close()
+        with open(path, "rb") as f:
+            out.append([(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(
+                log_time_order=False)])
+    assert out[0] == out[1]
 
 def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follows(tmp_path: Path) -> None:
     """A live log: 512 frames fill a /can/raw batch, then the bus and the GPS go quiet. The batch is written (in its

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import itertools
 import logging
 import sys
 import time
@@ -225,6 +226,8 @@ class McapLogSink(Sink):
         self._ready: list[tuple[int, int, int, str, float, bytes]] = []
         """Closed batches not written yet: (CAN frame number, 0 /can/raw or 1 /wpt/count, sequence, topic, log time,
         message), written in that order before the next other message (see _drain)."""
+        self._closed = itertools.count()
+        """The closed batches' sequence: the order they closed in."""
         self._piece_first = 0
         """Number of the first frame of the last on_can_batch (its samples' `frame` counts from there)."""
         self.can_index = 0
@@ -295,11 +298,17 @@ class McapLogSink(Sink):
             self._drain()
         self._emit(topic, log_time_s, data)
 
-    def _drain(self) -> None:
+    def _drain(self, before: int | None = None) -> None:
         """The closed batches in the order of processing: by the CAN frame each ends with, /can/raw before the
         /wpt/count samples of the same frame. (Pipeline.process_can_batch hands a run of frames to on_can_batch
-        before its samples to on_wheel_batch; this puts them in the order frame by frame would.)"""
-        ready, self._ready = sorted(self._ready), []
+        before its samples to on_wheel_batch; this puts them in the order frame by frame would.) before: only those
+        that end before that frame (frame by frame, the frames after them wrote them)."""
+        ready = sorted(self._ready)
+        if before is None:
+            self._ready = []
+        else:
+            k = next((i for i, r in enumerate(ready) if r[0] >= before), len(ready))
+            ready, self._ready = ready[:k], ready[k:]
         in_flush, self._in_flush = self._in_flush, True  # no chunk flush in between: it would close more batches
         try:
             for _frame, _kind, _seq, topic, t, data in ready:
@@ -319,7 +328,10 @@ class McapLogSink(Sink):
             self.flush()
 
     def flush_batches(self) -> None:
-        """Write the pending /can/raw and /wpt/count batches now."""
+        """Write the pending /can/raw and /wpt/count batches now (after the closed ones that frame by frame would have
+        written already: those that end before the last frame)."""
+        if self._ready and (self._can.n or self._samples.n):
+            self._drain(before=self.can_index - 1)
         if self._can.n:
             self._flush_can()
         if self._samples.n:
@@ -397,14 +409,14 @@ class McapLogSink(Sink):
         p = self._can
         first, t, frame = p.first_index, p.t_last, p.frame_last
         data = cdr.reencode_can_batch(first, p.take(self.log.channel_names))
-        self._ready.append((frame, 0, len(self._ready), TOPIC_CAN, t, data))
+        self._ready.append((frame, 0, next(self._closed), TOPIC_CAN, t, data))
 
     def _flush_samples(self) -> None:
         """Close the pending /wpt/count batch: its log time is its last sample's."""
         q = self._samples
         first, t, frame = q.first_index, q.t_last, q.frame_last
         data = cdr.encode_wheel_batch(first, q.take())
-        self._ready.append((frame, 1, len(self._ready), TOPIC_WPT, t, data))
+        self._ready.append((frame, 1, next(self._closed), TOPIC_WPT, t, data))
 
     def on_can_batch(self, batch: CanFrameBatch) -> None:
         """Consecutive frames (Pipeline.process_can_batch): into /can/raw batches by the same rule as on_raw."""
