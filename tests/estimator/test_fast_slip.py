@@ -175,7 +175,6 @@ def test_released_columns_are_the_rows_made_one_by_one(cfg, drive, monkeypatch) 
     speed or where omega*r0 is undefined or not finite."""
     from collections import deque
 
-    from tests.estimator.test_ring_kernels import wheel_speeds_numpy
     from tests.logformat.test_epoch_json import exact
 
     from slipdaq.estimator.fast_slip import FastSlipRows
@@ -191,7 +190,7 @@ def test_released_columns_are_the_rows_made_one_by_one(cfg, drive, monkeypatch) 
             return got
         taken = pending[: len(got)]
         times = np.array([t for t, _v, _a in taken])
-        speeds = [wheel_speeds_numpy(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
+        speeds = [FastSlipRows._wheel_speeds(ring, r0, times) for ring, r0 in zip(rings, r0_m)]
         source = "imu" if self.speed.has_imu else "gps"
         for k, ((t, v, a), row) in enumerate(zip(taken, got)):
             wheels = {}

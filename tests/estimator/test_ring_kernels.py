@@ -108,7 +108,7 @@ def test_local_lines_bit_for_bit(series, queries, half, order) -> None:  # type:
 
 
 def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
-    """FastSlipRows._wheel_rows' speeds written with numpy (the code the line_speeds kernel replaced)."""
+    """FastSlipRows._wheel_speeds written with numpy (the code the line_speeds kernel replaced)."""
     from slipdaq.estimator.fast_slip import FAST_LINE_HALF
     from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI
 
@@ -129,22 +129,16 @@ def wheel_speeds_numpy(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list
 
 @settings(max_examples=150, deadline=None)
 @given(series=series, queries=st.lists(st.floats(-0.2, 2.5), min_size=1, max_size=12),
-       r0=st.floats(0.2, 0.4), vehicle=st.lists(st.floats(-1.0, 40.0) | st.just(0.5), min_size=1, max_size=12))
-def test_fast_wheel_speeds(series, queries, r0, vehicle) -> None:  # type: ignore[no-untyped-def]
-    """The wheels' speeds as numpy gave them, and their slips as Python took them from those (None where the speed
-    is, where it is not finite, or where the vehicle is slower than the minimum speed)."""
+       r0=st.floats(0.2, 0.4))
+def test_fast_wheel_speeds(series, queries, r0) -> None:  # type: ignore[no-untyped-def]
     from slipdaq.estimator.fast_slip import FastSlipRows
 
     times, values = series
     q = np.array(sorted(queries))
-    v = (vehicle * len(q))[: len(q)]
     want = wheel_speeds_numpy(ring_of(times, values), r0, q)
-    want_slips = [(ws - x) / x if ws is not None and x >= 0.5 and math.isfinite(ws) else None for ws, x in zip(want, v)]
     for compiled_ in (True, False):
         with kernels(compiled_):
-            speeds, slips = FastSlipRows._wheel_rows(ring_of(times, values), r0, q, np.array(v), 0.5)
-            assert speeds == want
-            assert [None if x is None else x.hex() for x in slips] == [None if x is None else x.hex() for x in want_slips]
+            assert FastSlipRows._wheel_speeds(ring_of(times, values), r0, q) == want
 
 
 def slip_spread_numpy(ring: SeriesRing, t0: float, t1: float) -> float | None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from typing import cast
 
 import numpy as np
 
@@ -45,7 +44,7 @@ class FastSlipRows:
             return None
         need = FAST_LINE_HALF + 1
         # an instant t has `need` samples of a ring at or after it when t <= the need-th last sample's time
-        ready_until = min((r.time_back(need) if len(r) >= need else -math.inf for r in rings if len(r)),
+        ready_until = min((float(r.times[-need]) if len(r) >= need else -math.inf for r in rings if len(r)),
                           default=math.inf)
         n = 0
         for t, _, _ in pending:
@@ -57,47 +56,38 @@ class FastSlipRows:
         rows = [pending.popleft() for _ in range(n)]
         times = [r[0] for r in rows]
         speeds = [r[1] for r in rows]
-        grid, vehicle = np.array(times), np.array(speeds)
+        grid = np.array(times)
+        low = self.min_speed_mps
         slips, wheel_speeds = {}, {}
         for w, ring, r0 in zip(WHEELS, rings, r0_m):
-            wheel_speeds[w], slips[w] = self._wheel_rows(ring, r0, grid, vehicle, self.min_speed_mps)
+            ws_all = wheel_speeds[w] = self._wheel_speeds(ring, r0, grid)
+            slips[w] = [(ws - v) / v if ws is not None and v >= low and math.isfinite(ws) else None
+                        for ws, v in zip(ws_all, speeds)]
         return FastSlipBatch(times, speeds, [r[2] for r in rows], ["imu" if self.speed.has_imu else "gps"] * n, WHEELS,
                              slips, wheel_speeds)
 
     @staticmethod
-    def _wheel_rows(ring: SeriesRing, r0_m: float, times: np.ndarray, vehicle_mps: np.ndarray, min_speed_mps: float
-                    ) -> tuple[list[float | None], list[float | None]]:
-        """omega*r0 at each time (2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
-        or after it, without the line's samples before it, or with a gap in them: windows.py's rule) and the slip
-        against the vehicle's speed (None where omega*r0 is, is not finite, or the speed is below min_speed_mps)."""
+    def _wheel_speeds(ring: SeriesRing, r0_m: float, times: np.ndarray) -> list[float | None]:
+        """omega*r0 at each time: 2*pi*r0 * the slope of its local line; None without FAST_LINE_HALF + 1 samples at
+        or after it, without the line's samples before it, or with a gap in them (windows.py's rule)."""
         half = FAST_LINE_HALF
         if len(ring) < 2 * half + 1:
-            return [None] * len(times), [None] * len(times)
-        out = np.empty((2, len(times)))
-        ok = np.empty((2, len(times)), dtype=np.bool_)
-        undefined = line_speeds()(ring.times, ring.values, times, vehicle_mps, half, TWO_PI * r0_m, min_speed_mps,
-                                  out, ok)
-        speeds, slips = cast("list[list[float | None]]", out.tolist())
-        if undefined:
-            speeds_ok, slips_ok = ok.tolist()
-            speeds = [x if good else None for x, good in zip(speeds, speeds_ok)]
-            slips = [x if good else None for x, good in zip(slips, slips_ok)]
-        return speeds, slips
+            return [None] * len(times)
+        speeds = np.empty(len(times))
+        ok = np.empty(len(times), dtype=np.bool_)
+        line_speeds()(ring.times, ring.values, times, half, TWO_PI * r0_m, speeds, ok)
+        return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 
 
-def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, vehicle: np.ndarray, half: int, scale: float,
-                 min_speed: float, out: np.ndarray, ok: np.ndarray) -> int:
-    """out[0, q]: scale x the slope of ring.local_lines' line at times[q] (samples t, values v, at least 2*half+1);
-    ok[0, q]: half + 1 samples at or after times[q], half before it, and no interval between the line's samples over
-    gap_limit(t) (an interval that is NaN counts as over, as numpy's max has it). out[1, q]: the slip
-    (out[0, q] - vehicle[q]) / vehicle[q]; ok[1, q]: ok[0, q], out[0, q] finite and vehicle[q] >= min_speed.
-    Returns how many of ok are False."""
+def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, scale: float, speeds: np.ndarray,
+                 ok: np.ndarray) -> None:
+    """speeds[q]: scale x the slope of ring.local_lines' line at times[q] (samples t, values v, at least 2*half+1);
+    ok[q]: half + 1 samples at or after times[q], half before it, and no interval between the line's samples over
+    gap_limit(t) (an interval that is NaN counts as over, as numpy's max has it)."""
     n = len(t)
     max_gap_s = gap_limit(t)
-    speeds = out[0]
     values = np.empty(len(times))
     local_line_values(t, v, times, half, values, speeds)
-    undefined = 0
     for q in range(len(times)):
         first = first_index(t, times[q], 0, False)
         c = min(max(first, half), n - half - 1)  # the line's centre sample, as local_line_values takes it
@@ -106,17 +96,11 @@ def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, vehicle: np.nd
             d = t[k + 1] - t[k]
             if d > longest or d != d:
                 longest = d
-        good = n - first >= half + 1 and first >= half and longest <= max_gap_s
-        ws = scale * speeds[q]
-        speeds[q] = ws
-        ok[0, q] = good
-        v_q = vehicle[q]
-        ok[1, q] = good and v_q >= min_speed and math.isfinite(ws)
-        out[1, q] = (ws - v_q) / v_q if ok[1, q] else math.nan
-        undefined += (not ok[0, q]) + (not ok[1, q])
-    return undefined
+        ok[q] = n - first >= half + 1 and first >= half and longest <= max_gap_s
+        speeds[q] = scale * speeds[q]
 
 
-line_speeds = kernel(_line_speeds, "int64(float64[:], float64[:], float64[:], float64[:], int64, float64, float64, "
-                     "float64[:, :], boolean[:, :])", uses=(first_index, local_line_values, gap_limit))
-"""line_speeds()(t, v, times, vehicle, half, scale, min_speed, out, ok): see _line_speeds (FastSlipRows._wheel_rows)."""
+line_speeds = kernel(_line_speeds,
+                     "void(float64[:], float64[:], float64[:], int64, float64, float64[:], boolean[:])",
+                     uses=(first_index, local_line_values, gap_limit))
+"""line_speeds()(t, v, times, half, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""

@@ -38,10 +38,6 @@ class SeriesRing:
     def last_time(self) -> float:
         return self.last_t
 
-    def time_back(self, k: int) -> float:
-        """The k-th newest sample's time (k >= 1, at most len(self)): times[-k]."""
-        return float(self._t[self._end - k])
-
     @property
     def first_time(self) -> float:
         return float(self._t[self._start]) if self._end > self._start else np.inf

@@ -8,7 +8,7 @@ import math
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -80,10 +80,7 @@ class FastRowsHeld:
         self.accel_mps2.extend(rows.accel_mps2)
         for w, column in self.slips.items():
             slip = rows.slip.get(w)
-            if slip is None:
-                column.extend([math.nan] * len(rows))
-            else:
-                column.extend(_nan_for_none(slip) if None in slip else cast("list[float]", slip))
+            column.extend(_nan_for_none(slip) if slip is not None else [math.nan] * len(rows))
         if self.time_s:
             self.last_s = self.time_s[-1]
 
