@@ -174,7 +174,8 @@ def test_a_batch_closed_by_a_gps_line_goes_where_frame_by_frame_puts_it(tmp_path
     run of frames: frame by frame, a closed batch is written at the next frame, before a batch the GPS line closes
     even if that one holds earlier samples; from one batch of the same frames (an import, a replay, or a live read
     of many frames at once) the log is the same, message for message."""
-    frames = [CanFrame(0.001 * i, 0x200 if i in wheel_at else 0x123, bytes(8)) for i in range(n_frames)]  # 0.001 * 50 == 0.05
+    # times i ms exactly as the span rule sees them (0.001 * 50 == 0.05)
+    frames = [CanFrame(0.001 * i, 0x200 if i in wheel_at else 0x123, bytes(8)) for i in range(n_frames)]
     one = _sink_log(tmp_path / "one.mcap", frames, wheel_at, batched=False)
     assert [t for t, _, _ in one] == topics
     assert _sink_log(tmp_path / "batch.mcap", frames, wheel_at, batched=True) == one
@@ -184,7 +185,7 @@ def test_a_batch_closed_by_a_gps_line_goes_where_frame_by_frame_puts_it(tmp_path
 @given(st.data())
 def test_frames_one_by_one_and_in_any_runs_make_the_same_log(tmp_path_factory: pytest.TempPathFactory,
                                                              data: st.DataObject) -> None:
-    """Random traffic: frames 0.1-5 ms apart, some with a sample of one to four wheels, GPS lines between them, the
+    """Random traffic: frames 0.1-5 ms apart, some with a sample of one wheel or of four, GPS lines between them, the
     frames between two lines cut into runs at random (a reader's wake-ups, a log's batches). Frame by frame and in
     runs, the sink writes the same messages in the same order."""
     n = data.draw(st.integers(50, 400))
@@ -220,6 +221,7 @@ def test_frames_one_by_one_and_in_any_runs_make_the_same_log(tmp_path_factory: p
             out.append([(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(
                 log_time_order=False)])
     assert out[0] == out[1]
+
 
 def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follows(tmp_path: Path) -> None:
     """A live log: 512 frames fill a /can/raw batch, then the bus and the GPS go quiet. The batch is written (in its
