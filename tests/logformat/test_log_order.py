@@ -138,23 +138,31 @@ def test_the_order_does_not_depend_on_how_frames_were_grouped(tmp_path: Path) ->
     assert sum(t == "/estimate" for t, _, _ in logs[0]) > 40 and logs[0] == logs[1]
 
 
-def _sink_log(path: Path, frames: list[CanFrame], wheel_at: list[int], batched: bool) -> list[tuple[str, int, bytes]]:
-    """frames into a log's sink, then an NMEA line: frame by frame (on_raw, then on_wheel for the frame's samples)
-    or as one batch (on_can_batch, on_wheel_batch). wheel_at: the frame of each wheel sample, in order (a frame
-    has one sample per wheel, at its time). The log's messages in file order."""
+def _sink_log(path: Path, frames: list[CanFrame], wheel_at: list[int], lines: set[int],
+              cuts: set[int] | None) -> list[tuple[str, int, bytes]]:
+    """frames into a log's sink with a GPS line after each frame of `lines`: frame by frame (cuts None: on_raw, then
+    on_wheel for the frame's samples), or in runs (on_can_batch, on_wheel_batch) that end before each frame of cuts,
+    at each line and at the end. wheel_at: the frame of each wheel sample, in order (a frame has one sample per wheel
+    its wheel_at holds, at its time). The log's messages in file order."""
     samples = [WheelSample(frames[i].timestamp_s, WHEELS[wheel_at[:k].count(i)], 0.01 * k, k, float(k), None, 0)
                for k, i in enumerate(wheel_at)]
     sink = McapLogSink(path, load_config(CONFIG), mode="replay")
-    if batched:
-        sink.on_can_batch(CanFrameBatch.from_frames(frames))
-        sink.on_wheel_batch(dataclasses.replace(samples_to_batch(samples), frame=np.array(wheel_at, dtype=np.int64)))
-    else:
-        for i, frame in enumerate(frames):
+    start = 0
+    for i, frame in enumerate(frames):
+        if cuts is None:
             sink.on_raw(frame)
             for sample, at in zip(samples, wheel_at):
                 if at == i:
                     sink.on_wheel(sample)
-    sink.on_raw(NmeaLine(frames[-1].timestamp_s + 1e-4, "$GPGGA,*56"))
+        elif i + 1 in cuts or i in lines or i == len(frames) - 1:
+            mine = [k for k, at in enumerate(wheel_at) if start <= at <= i]
+            sink.on_can_batch(CanFrameBatch.from_frames(frames[start : i + 1]))
+            if mine:
+                batch = samples_to_batch([samples[k] for k in mine])
+                sink.on_wheel_batch(dataclasses.replace(batch, frame=np.array([wheel_at[k] - start for k in mine])))
+            start = i + 1
+        if i in lines:
+            sink.on_raw(NmeaLine(frame.timestamp_s + 5e-5, "$GPGGA,*56"))
     sink.close()
     with open(path, "rb") as f:
         return [(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(log_time_order=False)]
@@ -176,9 +184,10 @@ def test_a_batch_closed_by_a_gps_line_goes_where_frame_by_frame_puts_it(tmp_path
     of many frames at once) the log is the same, message for message."""
     # times i ms exactly as the span rule sees them (0.001 * 50 == 0.05)
     frames = [CanFrame(0.001 * i, 0x200 if i in wheel_at else 0x123, bytes(8)) for i in range(n_frames)]
-    one = _sink_log(tmp_path / "one.mcap", frames, wheel_at, batched=False)
+    line = {n_frames - 1}
+    one = _sink_log(tmp_path / "one.mcap", frames, wheel_at, line, cuts=None)
     assert [t for t, _, _ in one] == topics
-    assert _sink_log(tmp_path / "batch.mcap", frames, wheel_at, batched=True) == one
+    assert _sink_log(tmp_path / "batch.mcap", frames, wheel_at, line, cuts=set()) == one
 
 
 @settings(max_examples=60, deadline=None)
@@ -195,32 +204,9 @@ def test_frames_one_by_one_and_in_any_runs_make_the_same_log(tmp_path_factory: p
     cuts = set(data.draw(st.lists(st.integers(1, n - 1), max_size=30)))
     times = np.cumsum(np.array(gaps) * 1e-4).tolist()
     frames = [CanFrame(t, 0x200 if w else 0x123, bytes(8)) for t, w in zip(times, wheels)]
-    samples = [(i, WheelSample(times[i], WHEELS[j], 0.01 * i, i, float(i), None, 0))
-               for i, w in enumerate(wheels) for j in range(w)]
-    out = []
-    for batched in (False, True):
-        path = tmp_path_factory.mktemp("order") / "log.mcap"
-        sink = McapLogSink(path, load_config(CONFIG), mode="replay")
-        start = 0
-        for i in range(n):
-            if not batched:
-                sink.on_raw(frames[i])
-                for _, s in (x for x in samples if x[0] == i):
-                    sink.on_wheel(s)
-            elif i + 1 in cuts or i in lines or i == n - 1:
-                mine = [(k - start, s) for k, s in samples if start <= k <= i]
-                sink.on_can_batch(CanFrameBatch.from_frames(frames[start : i + 1]))
-                if mine:
-                    batch = samples_to_batch([s for _, s in mine])
-                    sink.on_wheel_batch(dataclasses.replace(batch, frame=np.array([k for k, _ in mine])))
-                start = i + 1
-            if i in lines:
-                sink.on_raw(NmeaLine(times[i] + 5e-5, "$GPGGA,*56"))
-        sink.close()
-        with open(path, "rb") as f:
-            out.append([(c.topic, m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages(
-                log_time_order=False)])
-    assert out[0] == out[1]
+    wheel_at = [i for i, w in enumerate(wheels) for _ in range(w)]
+    logs = [_sink_log(tmp_path_factory.mktemp("order") / "log.mcap", frames, wheel_at, lines, c) for c in (None, cuts)]
+    assert logs[0] == logs[1]
 
 
 def test_a_batch_that_filled_is_on_disk_within_a_flush_period_when_nothing_follows(tmp_path: Path) -> None:
