@@ -6,6 +6,7 @@ Foxglove opens the file and plots every numeric field. The config (TOML) and DBC
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import datetime as dt
 import itertools
@@ -307,7 +308,7 @@ class McapLogSink(Sink):
         if before is None:
             self._ready = []
         else:
-            k = next((i for i, r in enumerate(ready) if r[0] >= before), len(ready))
+            k = bisect.bisect_left(ready, (before,))  # the first that ends at or after that frame
             ready, self._ready = ready[:k], ready[k:]
         in_flush, self._in_flush = self._in_flush, True  # no chunk flush in between: it would close more batches
         try:
