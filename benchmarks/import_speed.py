@@ -63,7 +63,7 @@ PARTS = (  # (label, path fragments of the functions whose own time counts), fir
     ("estimator", ("slipdaq/estimator/",)),
     ("maneuvers", ("slipdaq/maneuver/",)),
     ("pipeline", ("slipdaq/pipeline.py", "slipdaq/records.py", "slipdaq/columns.py")),
-    ("numba kernels (load, run)", ("numba", "llvmlite", "slipdaq/compiled.py")),
+    ("numba kernels (load, run)", ("numba", "llvmlite", "slipdaq/compiled/")),
     ("imports (modules' code, loading)", ("<frozen", "marshal", "_imp.", "builtins.compile", "__build_class__",
                                           "_abc_init")),
 )

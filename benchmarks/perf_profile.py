@@ -26,7 +26,7 @@ PROFILE_RULES: list[tuple[str, tuple[str, ...]]] = [
     ("decode: wheel frames (can_wheels, wheel_unwrap kernel, cantools)",
      ("decode/can_wheels.py", "decode/wheel_unwrap.py", "cantools")),
     ("decode: GPS (nmea, ubx, framing, pynmea2)", ("decode/", "pynmea2")),
-    ("compiled kernels: numba dispatch", ("numba", "slipdaq/compiled.py")),
+    ("compiled kernels: numba dispatch", ("numba", "slipdaq/compiled/")),
     ("log: estimates, fixes, diagnostics to JSON", ("logformat/json_codec.py", "json/")),
     ("log: CDR batches (logformat/cdr.py)", ("logformat/cdr.py",)),
     ("log: mcap Writer.add_message, chunks, zstd", ("mcap/", "zstandard")),

@@ -1,13 +1,15 @@
 """Per-sample loops (kernels) compiled with numba.
 
 A kernel is one plain Python function over numpy arrays and numbers, written in the subset numba compiles: the rule
-lives once, whatever the batch (one frame is a batch of one). `kernel()` returns the compiled function (numba
-compiles it once per machine, `cache=True`, and loads it from the cache after that); SLIPDAQ_JIT=0 in the
-environment, or numba missing, runs the same function interpreted (about 3 us a sample, against 1.8 us a call
-compiled: docs/architecture.md). The tests run both and check they agree bit for bit.
+lives once, whatever the batch (one frame is a batch of one). `kernel()` returns the compiled function: from the
+extension module that holds every kernel compiled ahead of time (ahead.py: built once per version, imported in
+under a millisecond), else numba's JIT (compiled once per machine, `cache=True`, loaded from its cache after that:
+numba's import and the load take about 0.35 s). SLIPDAQ_JIT=0 in the environment, or numba missing, runs the same
+function interpreted (about 3 us a sample, against 1.8 us a call compiled: docs/architecture.md). The tests run
+them all and check they agree bit for bit.
 
-numba is imported on the first kernel call (about 0.2-0.5 s): a run calls `prepare()` before its sources start, so
-that the first frames do not wait for it.
+The kernels are loaded on the first kernel call: a run calls `prepare()` before its sources start, so that the
+first frames do not wait for it.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Generic, TypeVar, cast
+
+from slipdaq.compiled import ahead
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -36,6 +40,8 @@ class Kernel(Generic[F]):
         self.py_func = fn
         self.signature = signature
         self.uses = uses
+        self.export_name = f"{fn.__module__.removeprefix('slipdaq.').replace('.', '_')}_{fn.__name__.lstrip('_')}"
+        """Its name in the module compiled ahead of time."""
         self._run: F | None = None
         _kernels.append(self)
 
@@ -44,13 +50,20 @@ class Kernel(Generic[F]):
         if run is None:
             with _lock:
                 if self._run is None:
-                    self._run = self._compile() if jit_enabled() else self.py_func
+                    self._run = self._choose()
                 run = self._run
         return run
 
     def reset(self) -> None:
         """Decide again on the next call (after SLIPDAQ_JIT changed)."""
         self._run = None
+
+    def _choose(self) -> F:
+        if not jit_enabled():
+            return self.py_func
+        built = ahead.module() if ahead.enabled() else None
+        run = getattr(built, self.export_name, None)
+        return cast(F, run) if run is not None else self._compile()
 
     def _compile(self) -> F:
         with _without_scipy_blas():
@@ -97,6 +110,11 @@ def kernel(fn: F, signature: str, uses: tuple[Callable[..., Any], ...] = ()) -> 
     return Kernel(fn, signature, uses)
 
 
+def kernels() -> list[Kernel[Any]]:
+    """The kernels of the modules imported so far."""
+    return list(_kernels)
+
+
 def prepare() -> None:
     """Import numba and load from its cache (or compile) every kernel of the modules imported so far; their first
     call then runs at once, and processes forked afterwards have them compiled."""
@@ -105,5 +123,6 @@ def prepare() -> None:
 
 
 def reset() -> None:
+    ahead.forget()
     for k in list(_kernels):
         k.reset()
