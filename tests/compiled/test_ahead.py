@@ -4,6 +4,7 @@ are the kernel tests' (tests/estimator, tests/decode): they run the compiled ker
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import inspect
 import os
@@ -14,6 +15,7 @@ import sys
 import sysconfig
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -76,6 +78,32 @@ def test_key_follows_the_kernels_code(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.undo()
     monkeypatch.setattr(ring.SeriesRing, "extend", lambda self, *a: None)
     assert ahead.key() == base
+
+
+TABLE = np.arange(4.0)
+SCALE = np.float64(2.0)
+
+
+def _reads_globals(i: int) -> float:
+    return float(TABLE[i] * SCALE)
+
+
+def _digest() -> str:
+    h = hashlib.sha256()
+    ahead._function_digest(_reads_globals, h, set())
+    return h.hexdigest()
+
+
+def test_digest_takes_global_arrays_and_numpy_scalars_by_value(monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba compiles a global array or scalar in as a constant: its value is in the key."""
+    base = _digest()
+    monkeypatch.setattr(sys.modules[__name__], "TABLE", np.arange(4.0) + 1.0)
+    assert _digest() != base
+    monkeypatch.undo()
+    monkeypatch.setattr(sys.modules[__name__], "SCALE", np.float64(3.0))
+    assert _digest() != base
+    monkeypatch.undo()
+    assert _digest() == base
 
 
 @needs_compiler

@@ -34,6 +34,8 @@ from pathlib import Path
 from types import CodeType, FunctionType, ModuleType
 from typing import Any
 
+import numpy as np
+
 log = logging.getLogger(__name__)
 
 KERNEL_MODULES = (
@@ -108,7 +110,8 @@ def key() -> str:
 
 def _function_digest(fn: Any, h: Any, seen: set[int]) -> None:
     """fn's code into h: its bytecode, constants and names (not its line numbers), its defaults, and each global it
-    reads: a constant by value, a module by name, a Python function by its own digest (once)."""
+    reads: a constant (a number, a string, a tuple, an array) by value, a module by name, a Python function by its
+    own digest (once), anything else by its type."""
     if id(fn) in seen:
         h.update(f"<{fn.__module__}.{fn.__qualname__}>".encode())
         return
@@ -124,8 +127,10 @@ def _function_digest(fn: Any, h: Any, seen: set[int]) -> None:
         elif isinstance(value, FunctionType):
             h.update(f"{name}=".encode())
             _function_digest(value, h, seen)
-        elif isinstance(value, int | float | bool | str | bytes | tuple | type(None)):
+        elif isinstance(value, int | float | bool | str | bytes | tuple | type(None) | np.generic):
             h.update(f"{name}={value!r}".encode())
+        elif isinstance(value, np.ndarray):  # numba compiles a global array in as a constant
+            h.update(f"{name}={value.dtype.str}{value.shape}".encode() + value.tobytes())
         else:
             h.update(f"{name}={type(value).__module__}.{type(value).__qualname__}".encode())
 
