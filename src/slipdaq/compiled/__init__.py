@@ -25,7 +25,7 @@ from slipdaq.compiled import ahead
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-_lock = threading.Lock()
+_lock = threading.RLock()  # reentrant: the module compiled ahead of time is found with it held, importing modules
 _kernels: list[Kernel[Any]] = []
 
 
@@ -55,7 +55,7 @@ class Kernel(Generic[F]):
         return run
 
     def reset(self) -> None:
-        """Decide again on the next call (after SLIPDAQ_JIT changed)."""
+        """Decide again on the next call (after SLIPDAQ_JIT or SLIPDAQ_AOT changed)."""
         self._run = None
 
     def _choose(self) -> F:
@@ -116,8 +116,9 @@ def kernels() -> list[Kernel[Any]]:
 
 
 def prepare() -> None:
-    """Import numba and load from its cache (or compile) every kernel of the modules imported so far; their first
-    call then runs at once, and processes forked afterwards have them compiled."""
+    """Load every kernel of the modules imported so far (from the module compiled ahead of time, built first where
+    it is missing; else numba's JIT, from its cache); their first call then runs at once, and processes forked
+    afterwards have them loaded."""
     for k in list(_kernels):
         k()
 
