@@ -5,7 +5,7 @@ docs/performance.md, "Start-up").
 
 The module's name carries a key: a hash of the kernels' code (each kernel of KERNEL_MODULES, with what it calls and
 reads), of this file and of the versions above. A process that finds no module for its key builds it in a process
-of its own (`python -m slipdaq.compiled.ahead`), under a lock that other processes wait on (about 8 s of one core,
+of its own (`build`), under a lock that other processes wait on (about 8 s of one core,
 once); the file is written under a temporary name and renamed into place. A build that fails leaves `NAME.failed`
 with the compiler's last lines, and the kernels are numba's JIT, as they are with SLIPDAQ_AOT=0 or without a
 writable cache directory. The code is generic for the architecture (pycc's default CPU), so that one cache serves
@@ -59,6 +59,8 @@ FORMAT = "1"
 CACHE_ENV = "SLIPDAQ_CACHE_DIR"
 AOT_ENV = "SLIPDAQ_AOT"
 BUILD_TIMEOUT_S = 600.0
+BUILDER = "import sys; from pathlib import Path; from slipdaq.compiled.ahead import build; build(Path(sys.argv[1]), sys.argv[2])"
+"""The build's process: OUT_DIR NAME."""
 STALE_AFTER_S = 30 * 86400.0
 
 _PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -220,7 +222,7 @@ def _build(name: str, path: Path, failed: Path) -> None:
     try:
         env = dict(os.environ, **{AOT_ENV: "0"})  # the builder loads no kernel: never waits on this lock
         env["PYTHONPATH"] = os.pathsep.join([str(_PACKAGE_DIR.parent), *filter(None, [env.get("PYTHONPATH")])])
-        done = subprocess.run([sys.executable, "-m", "slipdaq.compiled.ahead", str(tmp), name], env=env, cwd=tmp,
+        done = subprocess.run([sys.executable, "-c", BUILDER, str(tmp), name], env=env, cwd=tmp,
                               capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
         built = tmp / path.name
         if done.returncode == 0 and built.exists():
@@ -280,6 +282,3 @@ def build(out_dir: Path, name: str) -> Path:
         cc.compile()
     return out_dir / cc.output_file
 
-
-if __name__ == "__main__":
-    build(Path(sys.argv[1]), sys.argv[2])
