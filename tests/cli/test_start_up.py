@@ -84,6 +84,7 @@ def test_an_import_loads_asammdf_only_for_an_mf4_file(tmp_path) -> None:  # type
 KERNELS_PROBE = """
 import os, sys
 os.environ["SLIPDAQ_JIT"] = "1"
+os.environ["SLIPDAQ_AOT"] = "0"  # numba's JIT: the module compiled ahead of time imports no numba at all
 import slipdaq.estimator.ring
 from slipdaq import compiled
 compiled.prepare()

@@ -22,7 +22,7 @@ from mcap.reader import make_reader
 import slipdaq
 from conftest import CONFIG
 from slipdaq import compiled
-from slipdaq.compiled import ahead
+from slipdaq.compiled import ahead, registry
 
 needs_compiler = pytest.mark.skipif(
     importlib.util.find_spec("numba") is None or shutil.which(sysconfig.get_config_var("CC").split()[0]) is None,
@@ -59,7 +59,7 @@ def test_kernel_modules_name_every_kernel() -> None:
             importlib.import_module(info.name)
         except ImportError:  # an extra that is not installed
             continue
-    assert sorted({k.py_func.__module__ for k in compiled.kernels()}) == sorted(ahead.KERNEL_MODULES)
+    assert sorted({k.py_func.__module__ for k in compiled.kernels()}) == sorted(registry.KERNEL_MODULES)
     assert len({k.export_name for k in compiled.kernels()}) == len(compiled.kernels())
 
 
@@ -127,7 +127,7 @@ def test_replay_the_same_bytes_ahead_of_time_and_jit(tmp_path: Path) -> None:
                              SLIPDAQ_AOT=aot, SLIPDAQ_CACHE_DIR=str(cache))
     built = sorted(p.name for p in cache.iterdir() if p.suffix != ".lock")
     assert built == [ahead.module_name(ahead.key()) + sysconfig.get_config_var("EXT_SUFFIX")]
-    assert runs["1"][:4] == ["exit", "0", "False", str(len(ahead.all_kernels()))]  # every kernel ran in two passes
+    assert runs["1"][:4] == ["exit", "0", "False", str(len(registry.all_kernels()))]  # every kernel ran in two passes
     assert runs["1"][4:] == ["builtins"]  # the ahead module's functions
     assert runs["0"][:3] == ["exit", "0", "True"] and runs["0"][4:] == ["numba.core.registry"]
     a, b = _messages(tmp_path / "aot-1.mcap"), _messages(tmp_path / "aot-0.mcap")

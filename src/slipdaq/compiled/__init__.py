@@ -21,12 +21,12 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Generic, TypeVar, cast
 
-from slipdaq.compiled import ahead
+from slipdaq.compiled import ahead, registry
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 _lock = threading.RLock()  # reentrant: the module compiled ahead of time is found with it held, importing modules
-_kernels: list[Kernel[Any]] = []
+_kernels: list[Kernel[Any]] = registry.KERNELS
 
 
 def jit_enabled() -> bool:

@@ -3,8 +3,8 @@ their code, of Python, numpy and numba, in slipdaq's cache directory, and import
 a process then neither imports numba nor loads its JIT cache (0.35 s of each start on the 2-core machine:
 docs/performance.md, "Start-up").
 
-The module's name carries a key: a hash of the kernels' code (each kernel of KERNEL_MODULES, with what it calls and
-reads), of this file and of the versions above. A process that finds no module for its key builds it in a process
+The module's name carries a key: a hash of the kernels' code (each kernel of registry.KERNEL_MODULES, with what it
+calls and reads), of this file and of the versions above. A process that finds no module for its key builds it in a process
 of its own (`build`), under a lock that other processes wait on (about 8 s of one core,
 once); the file is written under a temporary name and renamed into place. A build that fails leaves `NAME.failed`
 with the compiler's last lines, and the kernels are numba's JIT, as they are with SLIPDAQ_AOT=0 or without a
@@ -36,22 +36,9 @@ from typing import Any
 
 import numpy as np
 
-log = logging.getLogger(__name__)
+from slipdaq.compiled.registry import all_kernels
 
-KERNEL_MODULES = (
-    "slipdaq.decode.wheel_unwrap",
-    "slipdaq.estimator.fast_slip",
-    "slipdaq.estimator.gps_track",
-    "slipdaq.estimator.latency",
-    "slipdaq.estimator.linear_region",
-    "slipdaq.estimator.readiness",
-    "slipdaq.estimator.reference_speed",
-    "slipdaq.estimator.ring",
-    "slipdaq.estimator.smoother",
-    "slipdaq.estimator.wheel_revolutions",
-)
-"""The modules that define a kernel, imported to build the module and its key (tests/compiled/test_ahead.py checks
-the list against every module of slipdaq)."""
+log = logging.getLogger(__name__)
 
 FORMAT = "1"
 """Changes what the key means (the build's recipe is in the key too: this file's bytes)."""
@@ -81,15 +68,6 @@ def cache_dir() -> Path:
         return Path(explicit)
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "slipdaq"
-
-
-def all_kernels() -> list[Any]:
-    """Every kernel of slipdaq (KERNEL_MODULES imported)."""
-    from slipdaq import compiled
-
-    for name in KERNEL_MODULES:
-        importlib.import_module(name)
-    return compiled.kernels()
 
 
 def key() -> str:
@@ -260,7 +238,8 @@ def _load(name: str, path: Path) -> ModuleType:
 
 
 def build(out_dir: Path, name: str) -> Path:
-    """Compile every kernel of KERNEL_MODULES into the extension module `name` in out_dir (numba.pycc); its path."""
+    """Compile every kernel (registry.KERNEL_MODULES) into the extension module `name` in out_dir (numba.pycc);
+    its path."""
     import warnings
 
     kernels = all_kernels()
