@@ -4,12 +4,12 @@ a process then neither imports numba nor loads its JIT cache (0.35 s of each sta
 docs/performance.md, "Start-up").
 
 The module's name carries a key: a hash of the kernels' code (each kernel of registry.KERNEL_MODULES, with what it
-calls and reads), of this file and of the versions above. A process that finds no module for its key builds it in a process
-of its own (`build`), under a lock that other processes wait on (about 8 s of one core,
-once); the file is written under a temporary name and renamed into place. A build that fails leaves `NAME.failed`
-with the compiler's last lines, and the kernels are numba's JIT, as they are with SLIPDAQ_AOT=0 or without a
-writable cache directory. The code is generic for the architecture (pycc's default CPU), so that one cache serves
-several machines; its bits are the JIT's and the Python's (tests/compiled/test_ahead.py).
+calls and reads), of this file and of the versions above. A process that finds no module for its key builds it in a
+process of its own (`build`), under a lock that other processes wait on (about 8 s of one core, once); the file is
+written under a temporary name and renamed into place. A build that fails leaves `NAME.failed` with the compiler's
+last lines, and the kernels are numba's JIT, as they are with SLIPDAQ_AOT=0 or without a writable cache directory.
+The code is generic for the architecture (pycc's default CPU), so that one cache serves several machines; its bits
+are the JIT's and the Python's (tests/compiled/test_ahead.py).
 """
 
 from __future__ import annotations
