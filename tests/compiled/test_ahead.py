@@ -137,18 +137,47 @@ def test_replay_the_same_bytes_ahead_of_time_and_jit(tmp_path: Path) -> None:
 @needs_compiler
 def test_a_failed_build_falls_back_to_the_jit(tmp_path: Path) -> None:
     """A build that fails (here: no working C compiler) leaves NAME.failed with its output; the kernels are numba's
-    JIT, and the next process does not try again."""
+    JIT, and the next process does not try again. On a terminal (stderr a pseudo-terminal here) the build says that
+    it compiles, then that it failed; the next process says nothing."""
+    import pty
+
     probe = ("from slipdaq import compiled; import slipdaq.estimator.ring; compiled.prepare(); import sys; "
              "print(sorted({type(k()).__module__ for k in compiled.kernels()}), 'numba' in sys.modules)")
     env = {**os.environ, "SLIPDAQ_CACHE_DIR": str(tmp_path), "CC": "false"}
+    said = []
     for _ in range(2):
-        done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=600)
-        assert done.returncode == 0, done.stderr
+        terminal, stderr = pty.openpty()
+        try:
+            done = subprocess.run([sys.executable, "-c", probe], stdout=subprocess.PIPE, stderr=stderr, text=True,
+                                  env=env, timeout=600)
+            os.close(stderr)
+            said.append(_read_all(terminal))
+        finally:
+            os.close(terminal)
+        assert done.returncode == 0, said[-1]
         assert done.stdout.split() == ["['numba.core.registry']", "True"]
     failed = [p for p in tmp_path.iterdir() if p.suffix == ".failed"]
     assert [p.name for p in failed] == [ahead.module_name(ahead.key()) + ".failed"]
     assert "exit status" in failed[0].read_text()
     assert not [p for p in tmp_path.iterdir() if p.is_dir()]  # the build's temporary directory is gone
+    lines = said[0].splitlines()
+    assert len(lines) == 2 and "slipdaq: compiling the kernels ahead of time" in lines[0], said[0]
+    assert "could not be compiled ahead of time" in lines[1] and str(failed[0]) in lines[1]
+    assert said[1] == ""
+
+
+def _read_all(fd: int) -> str:
+    """What a pseudo-terminal's other side wrote (its writer closed: reading ends with EIO or an empty read)."""
+    out = b""
+    while True:
+        try:
+            got = os.read(fd, 4096)
+        except OSError:  # EIO: the other side is closed
+            break
+        if not got:
+            break
+        out += got
+    return out.decode().replace("\r\n", "\n")
 
 
 def test_kernels_python_when_jit_is_off() -> None:

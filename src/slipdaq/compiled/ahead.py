@@ -195,7 +195,7 @@ def _locked(path: Path) -> Iterator[None]:
 def _build(name: str, path: Path, failed: Path) -> None:
     """Build the module in a process of its own, into a temporary directory beside path, then rename it into place;
     a failure leaves `failed` with the last lines of its output."""
-    log.info("compiling slipdaq's kernels ahead of time, once for this version (about 10 s)")
+    _say("compiling the kernels ahead of time, once for this version (about 10 s)", logging.INFO)
     tmp = Path(tempfile.mkdtemp(prefix=name + ".", dir=path.parent))
     try:
         env = dict(os.environ, **{AOT_ENV: "0"})  # the builder loads no kernel: never waits on this lock
@@ -209,10 +209,19 @@ def _build(name: str, path: Path, failed: Path) -> None:
             return
         tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
         failed.write_text(f"exit status {done.returncode}\n{tail}\n")
-        log.warning("slipdaq's kernels could not be compiled ahead of time (%s): numba's JIT is used instead",
-                    failed)
+        _say(f"the kernels could not be compiled ahead of time ({failed}): numba's JIT is used instead",
+             logging.WARNING)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _say(text: str, level: int) -> None:
+    """A line for a person at a terminal (stderr is one: the command pauses for the build, and says why), else the
+    log's."""
+    if sys.stderr is not None and sys.stderr.isatty():
+        print(f"slipdaq: {text}", file=sys.stderr, flush=True)
+    else:
+        log.log(level, "%s", text)
 
 
 def _drop_stale(kept: Path) -> None:
