@@ -6,8 +6,10 @@ round, one process per side (the order reversed every other round), after its im
 loaded, replays the log: into a sink that takes nothing (its batch methods overridden too, so that no frame is
 turned into objects), into an MCAP log (`offline.process_to_log`), and into a sink that records every call; then the
 recorded calls are made on an McapLogSink alone, --repeats times (the least counts): the log's writing without the
-estimator around it, the steadiest figure on a busy machine. CPU is process_time (every thread of the process). The
-table shows medians over the rounds.
+estimator around it, the steadiest figure on a busy machine. CPU is process_time (every thread of the process), and
+the main thread's own (thread_time: without the zstd worker thread; the replay into the MCAP log summarizes its
+maneuvers in a forked process, whose CPU neither counts, where the replay into nothing summarizes them here). The
+tables show medians over the rounds; the second, the sink alone's main-thread CPU by kind of call.
 
     python -m benchmarks.log_cost --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5]
 """
@@ -51,23 +53,36 @@ for name in CALLS:
 raw, out, repeats = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
 cfg = config_from_log(raw)
 compiled.prepare()
-t0 = time.process_time()
+t0, m0 = time.process_time(), time.thread_time()
 process(cfg, iter_raw_batches(raw), [Nothing()], stream=io.StringIO())
-t1 = time.process_time()
+t1, m1 = time.process_time(), time.thread_time()
 process_to_log(cfg, iter_raw_batches(raw), out, "replay", stream=io.StringIO())
-t2 = time.process_time()
+t2, m2 = time.process_time(), time.thread_time()
 recorder = Recorder()
 process(cfg, iter_raw_batches(raw), [recorder], stream=io.StringIO())
-sink_wall, sink_cpu = [], []
+sink_wall, sink_cpu, sink_main = [], [], []
 for _ in range(repeats):
-    w0, c0 = time.perf_counter(), time.process_time()
+    w0, c0, s0 = time.perf_counter(), time.process_time(), time.thread_time()
     sink = McapLogSink(out, cfg, "replay")
     for name, args in recorder.calls:
         getattr(sink, name)(*args)
     sink.close()
     sink_wall.append(time.perf_counter() - w0)
     sink_cpu.append(time.process_time() - c0)
-print(json.dumps({"nothing": t1 - t0, "log": t2 - t1, "sink_wall": min(sink_wall), "sink_cpu": min(sink_cpu)}))
+    sink_main.append(time.thread_time() - s0)
+by_call = {}
+for _ in range(repeats):  # the main thread's CPU per kind of call (a timer around each: apart from the runs above)
+    sink = McapLogSink(out, cfg, "replay")
+    spent = {}
+    for name, args in recorder.calls:
+        c0 = time.thread_time()
+        getattr(sink, name)(*args)
+        spent[name] = spent.get(name, 0.0) + time.thread_time() - c0
+    sink.close()
+    by_call = {k: min(v, by_call.get(k, v)) for k, v in spent.items()}
+print(json.dumps({"nothing": t1 - t0, "log": t2 - t1, "nothing_main": m1 - m0, "log_main": m2 - m1,
+                  "sink_wall": min(sink_wall), "sink_cpu": min(sink_cpu), "sink_main": min(sink_main),
+                  "calls": by_call}))
 """
 
 
@@ -99,17 +114,30 @@ def main() -> int:
             print(f"  round {r + 1} {name}: {got[name][-1]}", flush=True)
     frames = int(raw.with_suffix(".frames").read_text())
     print(f"\nA replay of {raw.name} ({frames:,} frames; {a.rounds} interleaved rounds, medians)\n")
-    print("| side | CPU into a sink that takes nothing | CPU into an MCAP log | difference | the sink alone, wall "
-          "| the sink alone, CPU | frames written per second (wall) |\n|---|---:|---:|---:|---:|---:|---:|")
+    print("| side | CPU into a sink that takes nothing | CPU into an MCAP log | difference | main thread: into nothing "
+          "| main thread: into the log | the sink alone, wall | the sink alone, CPU | the sink alone, main thread "
+          "| frames written per second (wall) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     med = {}
     for name, runs in got.items():
-        m = med[name] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        m = med[name] = {k: statistics.median(r[k] for r in runs) for k in runs[0] if k != "calls"}
         diff = statistics.median(r["log"] - r["nothing"] for r in runs)
-        print(f"| {name} | {m['nothing']:.2f} s | {m['log']:.2f} s | {diff:.2f} s | {m['sink_wall']:.2f} s "
-              f"| {m['sink_cpu']:.2f} s | {frames / m['sink_wall']:,.0f} |")
+        print(f"| {name} | {m['nothing']:.2f} s | {m['log']:.2f} s | {diff:.2f} s | {m['nothing_main']:.2f} s "
+              f"| {m['log_main']:.2f} s | {m['sink_wall']:.2f} s | {m['sink_cpu']:.2f} s | {m['sink_main']:.2f} s "
+              f"| {frames / m['sink_wall']:,.0f} |")
     b, n = med[f"base {base}"], med["this tree"]
     print(f"| this tree / base | {n['nothing'] / b['nothing']:.2f} | {n['log'] / b['log']:.2f} | "
-          f"| {n['sink_wall'] / b['sink_wall']:.2f} | {n['sink_cpu'] / b['sink_cpu']:.2f} | |")
+          f"| {n['nothing_main'] / b['nothing_main']:.2f} | {n['log_main'] / b['log_main']:.2f} "
+          f"| {n['sink_wall'] / b['sink_wall']:.2f} | {n['sink_cpu'] / b['sink_cpu']:.2f} "
+          f"| {n['sink_main'] / b['sink_main']:.2f} | |")
+    calls = {name: {k: statistics.median(r["calls"].get(k, 0.0) for r in runs) for k in runs[0]["calls"]}
+             for name, runs in got.items()}
+    kinds = sorted(calls["this tree"], key=lambda k: -calls["this tree"][k])
+    print("\nThe sink alone, the main thread's CPU by kind of call (the least of --repeats, medians):\n")
+    print("| call | " + " | ".join(calls) + " | this tree / base |\n|---|" + "---:|" * (len(calls) + 1))
+    for k in kinds:
+        this, theirs = calls["this tree"][k], calls[f"base {base}"].get(k, 0.0)
+        ratio = f"{this / theirs:.2f}" if theirs else ""
+        print(f"| `{k}` | " + " | ".join(f"{c.get(k, 0.0):.3f} s" for c in calls.values()) + f" | {ratio} |")
     return 0
 
 
