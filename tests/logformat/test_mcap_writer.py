@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import random
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -98,6 +98,7 @@ def test_a_with_block_finishes_the_file() -> None:
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from(["/slip/fast", "/slip/fast/row", "/estimate"]),
                           st.floats(0.0, 100.0), st.lists(st.binary(max_size=400), max_size=6)), max_size=40))
+@example([("/estimate", 50.0, [b"{}"]), ("/slip/fast", 60.0, []), ("/estimate", 55.0, [b"{}"])])  # none at 60 s
 def test_log_writer_write_all_is_write_of_each(runs: list[tuple[str, float, list[bytes]]]) -> None:
     """LogWriter.write_all (an offline log's runs of messages at one log time, in one call) writes the file that
     write() of each message in turn writes: sequences, log times (never earlier than the last), chunks, statistics."""

@@ -243,7 +243,7 @@ class LogWriter:
     def write_all(self, topic: str, log_time_s: float, datas: Sequence[bytes], now: float) -> int:
         """write() of each of datas in turn, all at one log time; the number written. A log that neither rotates nor
         survives a failure (offline runs) takes them in one call."""
-        if self._writer is None or self._survive or self.rotation is not None:
+        if not datas or self._writer is None or self._survive or self.rotation is not None:
             return sum(self.write(topic, log_time_s, data, now) for data in datas)
         return self._add(topic, log_time_s, datas)
 

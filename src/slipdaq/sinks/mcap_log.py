@@ -301,6 +301,8 @@ class McapLogSink(Sink):
 
     def _write_all(self, topic: str, log_time_s: float, datas: Sequence[bytes]) -> None:
         """_write of each of datas in turn, at one log time: an offline log's in one call (LogWriter.write_all)."""
+        if not datas:
+            return
         if self._tap is not None or self._flush_every_s is not None:
             for data in datas:
                 self._write(topic, log_time_s, data)
