@@ -1,13 +1,13 @@
 """logformat.mcap_writer writes the file mcap.Writer writes, byte for byte, whatever the calls: chunks closed by size
-(compressed on its worker thread) and by flush, metadata between them, messages out of log-time order, runs of
-messages at one log time (add_messages), channels registered late, empty chunks."""
+(compressed on its worker thread) and by flush, metadata between them, messages out of log-time order, channels
+registered late, empty chunks."""
 
 from __future__ import annotations
 
 import io
 import random
 
-from hypothesis import example, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -16,9 +16,6 @@ from slipdaq.logformat.mcap_writer import McapWriter
 
 CALL = st.one_of(
     st.tuples(st.just("message"), st.integers(0, 5), st.integers(0, 2**40), st.binary(max_size=300),
-              st.integers(0, 2**32 - 1)),
-    st.tuples(st.just("messages"), st.integers(0, 5), st.integers(0, 2**40), st.lists(st.binary(max_size=300),
-                                                                                       max_size=6),
               st.integers(0, 2**32 - 1)),
     st.tuples(st.just("flush")),
     st.tuples(st.just("metadata"), st.text(max_size=5), st.dictionaries(st.text(max_size=5), st.text(max_size=20),
@@ -36,14 +33,6 @@ def _write(writer: Writer | McapWriter, calls: list[tuple], chunk_size: int) -> 
         if call[0] == "message":
             _, k, t, data, seq = call
             writer.add_message(channels[k % len(channels)], log_time=t, data=data, publish_time=t, sequence=seq)
-        elif call[0] == "messages":  # a run at one log time: add_messages, mcap.Writer's add_message for each
-            _, k, t, datas, seq = call
-            if isinstance(writer, McapWriter):
-                assert writer.add_messages(channels[k % len(channels)], t, datas, seq) == seq + len(datas)
-            else:
-                for i, data in enumerate(datas):
-                    writer.add_message(channels[k % len(channels)], log_time=t, data=data, publish_time=t,
-                                       sequence=(seq + i) & 0xFFFFFFFF)
         elif call[0] == "flush":
             writer.flush()
         elif call[0] == "metadata":
@@ -93,31 +82,3 @@ def test_a_with_block_finishes_the_file() -> None:
     summary = make_reader(stream).get_summary()
     assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == 50
-
-
-@settings(max_examples=25, deadline=None)
-@given(st.lists(st.tuples(st.sampled_from(["/slip/fast", "/slip/fast/row", "/estimate"]),
-                          st.floats(0.0, 100.0), st.lists(st.binary(max_size=400), max_size=6)), max_size=40))
-@example([("/estimate", 50.0, [b"{}"]), ("/slip/fast", 60.0, []), ("/estimate", 55.0, [b"{}"])])  # none at 60 s
-def test_log_writer_write_all_is_write_of_each(runs: list[tuple[str, float, list[bytes]]]) -> None:
-    """LogWriter.write_all (an offline log's runs of messages at one log time, in one call) writes the file that
-    write() of each message in turn writes: sequences, log times (never earlier than the last), chunks, statistics."""
-    import tempfile
-    from pathlib import Path
-
-    from slipdaq.logformat.writer import LogWriter
-
-    with tempfile.TemporaryDirectory() as d:
-        files = []
-        for each in (False, True):
-            path = Path(d) / f"{each}.mcap"
-            log = LogWriter(path, {"created_utc": "-"}, chunk_size_bytes=700, fsync=False, survive_failures=False)
-            for topic, t, datas in runs:
-                if each:
-                    assert sum(log.write(topic, t, data, 0.0) for data in datas) == len(datas)
-                else:
-                    assert log.write_all(topic, t, datas, 0.0) == len(datas)
-            assert log.messages == sum(len(datas) for _, _, datas in runs)
-            log.close()
-            files.append(path.read_bytes())
-        assert files[0] == files[1]

@@ -1,17 +1,15 @@
-"""The log's MCAP writer: the file mcap.Writer writes (zstd chunks, message indexes, the summary with statistics, chunk
-and metadata indexes, summary offsets), byte for byte (tested against it), with what the log does per message made
-cheap: a message is appended to its chunk with one struct.pack (a run of messages at one log time in one call,
-add_messages), the statistics are counted per chunk, a chunk's message indexes are packed whole, and a chunk filled by
-messages is compressed on a worker thread (zstd releases the GIL) while the next one fills. That chunk is written in
-its place, before any later record, and flush() and finish() wait for it; the stream gets whole records in each
-write() as from mcap.Writer (logformat.durable relies on it)."""
+"""The log's MCAP writer: the file mcap.Writer writes (zstd chunks, message indexes, the summary with statistics,
+chunk and metadata indexes, summary offsets), byte for byte (tested against it), with what the log does per message
+made cheap: a message is appended to its chunk with one struct.pack, a chunk's message indexes are packed whole, and a
+chunk filled by messages is compressed on a worker thread (zstd releases the GIL) while the next one fills. That chunk
+is written in its place, before any later record, and flush() and finish() wait for it; the stream gets whole
+records in each write() as from mcap.Writer (logformat.durable relies on it)."""
 
 from __future__ import annotations
 
 import struct
 import zlib
 from collections import defaultdict
-from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from types import TracebackType
 from typing import Any
@@ -129,44 +127,27 @@ class McapWriter:
         return channel_id
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
-        self.add_messages(channel_id, log_time, (data,), sequence, publish_time)
-
-    def add_messages(self, channel_id: int, log_time: int, datas: Sequence[bytes], sequence: int,
-                     publish_time: int | None = None) -> int:
-        """add_message of each of datas in turn, all at one log time (publish time: the log time unless given), the
-        k-th with sequence (sequence + k) mod 2^32; returns sequence + len(datas). The statistics are counted per
-        chunk, as it closes (_count)."""
-        publish = log_time if publish_time is None else publish_time
-        for data in datas:
-            if self._chunk_messages == 0 or log_time < self._chunk_start:
-                self._chunk_start = log_time
-            if log_time > self._chunk_end:
-                self._chunk_end = log_time
-            self._chunk_messages += 1
-            chunk = self._chunk
-            index = self._indexes.get(channel_id)
-            if index is None:
-                index = self._indexes[channel_id] = []
-            index += (log_time, len(chunk))
-            chunk += _MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence & 0xFFFFFFFF, log_time, publish)
-            chunk += data
-            sequence += 1
-            if len(chunk) > self._chunk_size:
-                self._close_chunk(compress_on_thread=True)
-        return sequence
-
-    def _count(self) -> None:
-        """The chunk in progress's messages into the statistics (each channel's count in the order of its first
-        message, the first and last log times), as mcap.Writer counts them message by message."""
         stats = self._stats
-        if stats.message_count == 0 or self._chunk_start < stats.message_start_time:
-            stats.message_start_time = self._chunk_start
-        if self._chunk_end > stats.message_end_time:
-            stats.message_end_time = self._chunk_end
-        counts = stats.channel_message_counts
-        for channel_id, entries in self._indexes.items():
-            counts[channel_id] += len(entries) // 2
-        stats.message_count += self._chunk_messages
+        if stats.message_count == 0 or log_time < stats.message_start_time:
+            stats.message_start_time = log_time
+        if log_time > stats.message_end_time:
+            stats.message_end_time = log_time
+        stats.channel_message_counts[channel_id] += 1
+        stats.message_count += 1
+        if self._chunk_messages == 0 or log_time < self._chunk_start:
+            self._chunk_start = log_time
+        if log_time > self._chunk_end:
+            self._chunk_end = log_time
+        self._chunk_messages += 1
+        chunk = self._chunk
+        index = self._indexes.get(channel_id)
+        if index is None:
+            index = self._indexes[channel_id] = []
+        index += (log_time, len(chunk))
+        chunk += _MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time)
+        chunk += data
+        if len(chunk) > self._chunk_size:
+            self._close_chunk(compress_on_thread=True)
 
     # ---- chunks ----
     def _close_chunk(self, compress_on_thread: bool = False) -> None:
@@ -174,7 +155,6 @@ class McapWriter:
         next record written, or by flush or finish), else at once."""
         if not self._chunk_messages:
             return
-        self._count()
         if self._finished is not None:
             self._write_finished()
         if compress_on_thread and self._pool is None:

@@ -238,33 +238,20 @@ class LogWriter:
             if self._writer is None:
                 self.dropped_messages += 1
                 return False
-        return self._add(topic, log_time_s, (data,)) == 1
-
-    def write_all(self, topic: str, log_time_s: float, datas: Sequence[bytes], now: float) -> int:
-        """write() of each of datas in turn, all at one log time; the number written. A log that neither rotates nor
-        survives a failure (offline runs) takes them in one call."""
-        if not datas or self._writer is None or self._survive or self.rotation is not None:
-            return sum(self.write(topic, log_time_s, data, now) for data in datas)
-        return self._add(topic, log_time_s, datas)
-
-    def _add(self, topic: str, log_time_s: float, datas: Sequence[bytes]) -> int:
-        """The messages into the open segment, at one log time no earlier than the last message's."""
-        writer = self._writer
-        assert writer is not None
-        first = self._seq + 1
-        self._seq += len(datas)
+        self._seq += 1
         ns = log_time_ns(log_time_s)
         if ns < self._last_ns:
             ns = self._last_ns
         self._last_ns = ns
         try:
-            writer.add_messages(self._channels[topic], ns, datas, first)
+            self._writer.add_message(self._channels[topic], log_time=ns, data=data, publish_time=ns,
+                                     sequence=self._seq & 0xFFFFFFFF)
         except LogWriteError as e:
             self._fail(e)
-            return 0
-        self.messages += len(datas)
-        self.unflushed += len(datas)
-        return len(datas)
+            return False
+        self.messages += 1
+        self.unflushed += 1
+        return True
 
     def commit(self) -> None:
         """Close the chunk in progress and commit the file (it is then complete up to here on disk)."""

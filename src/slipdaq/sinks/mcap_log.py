@@ -299,18 +299,6 @@ class McapLogSink(Sink):
             self._drain()
         self._emit(topic, log_time_s, data)
 
-    def _write_all(self, topic: str, log_time_s: float, datas: Sequence[bytes]) -> None:
-        """_write of each of datas in turn, at one log time: an offline log's in one call (LogWriter.write_all)."""
-        if not datas:
-            return
-        if self._tap is not None or self._flush_every_s is not None:
-            for data in datas:
-                self._write(topic, log_time_s, data)
-            return
-        if self._ready:
-            self._drain()
-        self.log.write_all(topic, log_time_s, datas, self._mono())
-
     def _drain(self, before: int | None = None) -> None:
         """The closed batches in the order of processing: by the CAN frame each ends with, /can/raw before the
         /wpt/count samples of the same frame. (Pipeline.process_can_batch hands a run of frames to on_can_batch
@@ -477,8 +465,10 @@ class McapLogSink(Sink):
         """One /slip/fast message of columns per run of rows with the same wheels (all of them, in practice), then
         each row on /slip/fast/row (at the same log time, stamped with its own)."""
         runs, each = fast_slip_messages(rows)
-        self._write_all(TOPIC_FAST_SLIP, log_time_s, runs)
-        self._write_all(TOPIC_FAST_SLIP_ROW, log_time_s, each)
+        for data in runs:
+            self._write(TOPIC_FAST_SLIP, log_time_s, data)
+        for data in each:
+            self._write(TOPIC_FAST_SLIP_ROW, log_time_s, data)
 
     def on_maneuver(self, maneuver: Maneuver, log_time_s: float) -> None:
         self._write(TOPIC_MANEUVER, log_time_s, dumps(maneuver.as_row()))
