@@ -148,9 +148,11 @@ def test_a_failed_build_falls_back_to_the_jit(tmp_path: Path) -> None:
     for _ in range(2):
         terminal, stderr = pty.openpty()
         try:
-            done = subprocess.run([sys.executable, "-c", probe], stdout=subprocess.PIPE, stderr=stderr, text=True,
-                                  env=env, timeout=600)
-            os.close(stderr)
+            try:
+                done = subprocess.run([sys.executable, "-c", probe], stdout=subprocess.PIPE, stderr=stderr,
+                                      text=True, env=env, timeout=600)
+            finally:
+                os.close(stderr)  # the terminal's other side: reading it then ends after what was written
             said.append(_read_all(terminal))
         finally:
             os.close(terminal)
