@@ -10,9 +10,12 @@ CPU time (user + system, of the child) per run; the table shows medians, frames/
 ratio. Each side's output is kept for the guard (benchmarks/replay_check.py compares outputs the same way).
 
 With --two-pass: `replay --two-pass` (two passes over the log, the second written), frames/s counting the log's
-frames once.
+frames once. With --recorded: the log replayed is one as a run records it, its raw records and every derived topic
+(/estimate, /slip/fast, /wpt/count, ...: about three messages for each raw one), which a replay reads past: the
+raw-only log replayed once by the base.
 
     python -m benchmarks.replay_process --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5] [--two-pass]
+                                        [--recorded]
 """
 
 from __future__ import annotations
@@ -75,6 +78,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
     ap.add_argument("--work", type=Path, default=None, help="directory for the logs (default: a temporary one)")
     ap.add_argument("--two-pass", action="store_true", help="replay --two-pass")
+    ap.add_argument("--recorded", action="store_true", help="replay a log with every derived topic, as a run records it")
     a = ap.parse_args()
     flags = ["--two-pass"] if a.two_pass else []
     base = resolve(a.base)
@@ -89,6 +93,11 @@ def main() -> int:
                               text=True)
         frames_file.write_text(made.stdout.strip().splitlines()[-1])
     frames = int(frames_file.read_text())
+    if a.recorded:
+        recorded = work / f"recorded-{a.seconds:g}s-{a.rate_hz:g}hz.mcap"
+        if not recorded.exists():
+            run_replay(sides[f"base {base}"], raw, recorded)
+        raw = recorded
     print(f"{raw.name}: {frames:,} frames, {raw.stat().st_size / 1e6:.1f} MB", flush=True)
     for src in sides.values():  # numba's cache for each tree, imports warm
         run_replay(src, raw, work / "warm.mcap", *flags)
@@ -100,7 +109,7 @@ def main() -> int:
     med = {name: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for name, v in got.items()}
     b, n = med[f"base {base}"], med["this tree"]
     print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "
-          f"+ 20 Hz NMEA ({frames:,} frames), "
+          f"+ 20 Hz NMEA ({frames:,} frames{', a recorded log: every derived topic in it' * a.recorded}), "
           f"{a.rounds} interleaved rounds, medians\n")
     print("| side | wall | CPU (user + sys) | frames/s (wall) | frames/s (CPU) |\n|---|---:|---:|---:|---:|")
     for name, (w, c) in med.items():

@@ -3,11 +3,11 @@ no record, and what a damaged byte range held (its messages by topic, its log ti
 
 A record is parsed with the mcap library's StreamReader over its own bytes only (its length from its 9-byte
 header), so a damaged length never reads into the records after it; a chunk is checked by its CRC (and
-decompressed) with mcap's breakup_chunk. Every other record must also write back to the same bytes
-(mcap.records' write()): a misparse, as a chunk whose opcode byte was flipped into a data-end or index record's,
-then fails instead of hiding what follows. Where a record's header itself is damaged, reading goes on at the next
-offset where a whole record parses, checks out and is followed by another record's header (resync()). The file is
-read with pread, never mapped.
+decompressed) with mcap's get_chunk_data_stream, its records read by logformat.chunk_read. Every other record must
+also write back to the same bytes (mcap.records' write()): a misparse, as a chunk whose opcode byte was flipped into
+a data-end or index record's, then fails instead of hiding what follows. Where a record's header itself is damaged,
+reading goes on at the next offset where a whole record parses, checks out and is followed by another record's
+header (resync()). The file is read with pread, never mapped.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import io
 import os
 import re
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,7 +24,9 @@ import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, MessageIndex, Schema
-from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+from mcap.stream_reader import CRCValidationError, StreamReader
+
+from slipdaq.logformat.chunk_read import chunk_messages
 
 MAGIC = b"\x89MCAP0\r\n"
 KNOWN_OPCODES = frozenset(int(o) for o in Opcode)
@@ -116,9 +118,11 @@ def parse_record(buf: Buffer, pos: int, size: int, *, index_entries: bool = True
     return record, end
 
 
-def chunk_records(chunk: Chunk, pos: int, end: int) -> list[Any]:
-    """The schema, channel and message records of a chunk, decompressed and checked against its CRC. Raises
-    BadRecord (with the chunk's extent) when the chunk is damaged."""
+def chunk_records(chunk: Chunk, pos: int, end: int, topics: Collection[str] | None = None,
+                  topic_of: Callable[[int], str | None] = lambda _: None) -> list[Any]:
+    """The schema, channel and message records of a chunk, decompressed and checked against its CRC; with topics
+    (and topic_of: a channel id's topic, None where unknown), a message of another topic as its (channel id, log
+    time) (chunk_read.chunk_messages). Raises BadRecord (with the chunk's extent) when the chunk is damaged."""
     try:
         if chunk.uncompressed_size > MAX_CHUNK:
             raise ValueError(f"it claims {chunk.uncompressed_size} bytes uncompressed")
@@ -128,7 +132,7 @@ def chunk_records(chunk: Chunk, pos: int, end: int) -> list[Any]:
                 raise ValueError(f"its zstd frame claims {content} bytes, its header {chunk.uncompressed_size}")
         elif chunk.compression not in ("", "lz4"):
             raise ValueError(f"unknown compression {chunk.compression[:20]!r}")
-        return breakup_chunk(chunk, validate_crc=True)
+        return chunk_messages(chunk, topics, topic_of)
     except CRCValidationError:
         why = "fails its CRC check"
     except zstandard.ZstdError as e:

@@ -136,7 +136,7 @@ def iter_messages(
     if on_metadata is not None and indexed is not None:
         for name, metadata in indexed:
             on_metadata(name, metadata)
-    for kind, item in scan(path, scan_result):
+    for kind, item in scan(path, scan_result, topics=topics):
         if kind == "metadata":
             if on_metadata is not None and indexed is None:
                 on_metadata(item.name, dict(item.metadata))

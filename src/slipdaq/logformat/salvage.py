@@ -20,7 +20,7 @@ import contextlib
 import os
 import struct
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -75,7 +75,7 @@ class ScanResult:
     orphans: int = 0
     """Messages on channels whose definition was in a damaged range (and not in the summary): not read."""
     topics: dict[str, int] = field(default_factory=dict)
-    """Messages read, by topic."""
+    """Messages in the data read, by topic (those of topics a scan passes over included)."""
     expected: dict[str, int] | None = None
     """Messages by topic as the file's statistics count them (a finished file with a sound summary)."""
     summary_damaged: str = ""
@@ -103,8 +103,10 @@ _UNREAD = object()
 
 
 class _Scan:
-    def __init__(self, path: Path, buf: FileBytes, res: ScanResult, skip: bool) -> None:
+    def __init__(self, path: Path, buf: FileBytes, res: ScanResult, skip: bool, topics: Collection[str] | None) -> None:
         self.path, self.buf, self.size, self.res, self.skip = path, buf, buf.size, res, skip
+        self.topics = topics
+        """The topics whose messages are read (None: all); the others are counted and passed over."""
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self._summary: Any = _UNREAD
@@ -129,6 +131,11 @@ class _Scan:
 
     def known(self, channel_id: int) -> bool:
         return channel_id in self.channels or channel_id in definitions(self.summary())[1]
+
+    def topic_of(self, channel_id: int) -> str | None:
+        """A channel's topic as the records read so far define it (None: not yet, or lost in damage)."""
+        c = self.channels.get(channel_id)
+        return c.topic if c is not None else None
 
     def topic(self, channel_id: int) -> str:
         c = self.channels.get(channel_id) or definitions(self.summary())[1].get(channel_id)
@@ -164,10 +171,7 @@ class _Scan:
             if isinstance(record, Footer):  # a footer without a data end before it
                 res.finished, res.has_summary = True, record.summary_start != 0
                 break
-            for kind, item in items:
-                if kind == "message":
-                    self.note_message(item)
-                yield kind, item
+            yield from items
             pos = end
         self.settle()
         if not self.skip and (self.no_magic or res.orphans or any(d.loses_data and not d.tail for d in res.damaged)):
@@ -179,7 +183,7 @@ class _Scan:
             return []
         self.owner = None
         if isinstance(record, Chunk):
-            return self.chunk_items(chunk_records(record, pos, end))
+            return self.chunk_items(chunk_records(record, pos, end, self.topics, self.topic_of))
         if isinstance(record, Message) and not self.known(record.channel_id):
             raise BadRecord(pos, f"a message on channel {record.channel_id}, which the file does not define",
                             Opcode.MESSAGE, end)
@@ -192,10 +196,29 @@ class _Scan:
     def chunk_items(self, records: list[Any]) -> list[Item]:
         items: list[Item] = []
         times: dict[int, list[int]] = {}
+        counts: dict[int, int] = {}
+        first = last = top = -1
         for r in records:
-            if isinstance(r, Message):
-                times.setdefault(r.channel_id, []).append(r.log_time)
-            items.extend(self.item(r))
+            if type(r) is tuple:  # chunk_read's (channel id, log time) of a message passed over
+                channel_id, t = r
+                times.setdefault(channel_id, []).append(t)
+            elif isinstance(r, Message):
+                channel_id, t = r.channel_id, r.log_time
+                times.setdefault(channel_id, []).append(t)
+                got = self.message_items(r)
+                if not got:
+                    continue  # an orphan: not counted
+                items.extend(got)
+            else:
+                items.extend(self.item(r))
+                continue
+            counts[channel_id] = counts.get(channel_id, 0) + 1
+            if first < 0:
+                first = t
+            last = t
+            top = max(top, t)
+        if counts:
+            self.note(counts, first, last, top)
         self.prev_times = times
         return items
 
@@ -226,6 +249,14 @@ class _Scan:
             return [("channel", r)]
         if not isinstance(r, Message):
             return []
+        out = self.message_items(r)
+        if out:
+            self.note({r.channel_id: 1}, r.log_time, r.log_time, r.log_time)
+        return out
+
+    def message_items(self, r: Message) -> list[Item]:
+        """A message's item (unless its topic is passed over), after its channel's and schema's where only the
+        summary defines them; none for an orphan (counted in res.orphans)."""
         out: list[Item] = []
         channel = self.channels.get(r.channel_id)
         if channel is None:  # its definition was in a damaged range: the summary's, when there is one
@@ -238,7 +269,8 @@ class _Scan:
             if schema is not None and schema.id not in self.schemas:
                 out.extend(self.item(schema))
             out.extend(self.item(channel))
-        out.append(("message", (channel, r)))
+        if self.topics is None or channel.topic in self.topics:
+            out.append(("message", (channel, r)))
         return out
 
     def index(self, record: MessageIndex) -> None:
@@ -266,16 +298,19 @@ class _Scan:
             self.res.stopped_because = f"at byte {e.pos}: {why}; nothing valid follows: torn from there"
         return nxt
 
-    def note_message(self, item: tuple[Channel, Message]) -> None:
-        channel, msg = item
+    def note(self, counts: dict[int, int], first_ns: int, last_ns: int, top_ns: int) -> None:
+        """Messages read or passed over, by channel, in a run of the file (a chunk): the first's, the last's and the
+        latest log time."""
         res = self.res
-        res.messages += 1
-        res.last_log_time_ns = msg.log_time
-        res.topics[channel.topic] = res.topics.get(channel.topic, 0) + 1
+        for channel_id, n in counts.items():
+            topic = self.channels[channel_id].topic
+            res.topics[topic] = res.topics.get(topic, 0) + n
+            res.messages += n
+        res.last_log_time_ns = last_ns
         for d in self.waiting:
-            d.after_ns = msg.log_time
+            d.after_ns = first_ns
         self.waiting.clear()
-        self.last_ns = msg.log_time if self.last_ns is None else max(self.last_ns, msg.log_time)
+        self.last_ns = top_ns if self.last_ns is None else max(self.last_ns, top_ns)
 
     def data_end(self, end: int) -> None:
         """After the data: the summary and footer of a finished file, or a live file's provisional footer."""
@@ -376,8 +411,10 @@ def reader_error(path: str | Path, res: ScanResult) -> str:
             "lists what is lost")
 
 
-def scan(path: str | Path, result: ScanResult | None = None, *, skip_damage: bool = False) -> Iterator[Item]:
-    """The records of an MCAP file in file order, up to its data end (or a torn tail).
+def scan(path: str | Path, result: ScanResult | None = None, *, skip_damage: bool = False,
+         topics: Collection[str] | None = None) -> Iterator[Item]:
+    """The records of an MCAP file in file order, up to its data end (or a torn tail); with topics, only the
+    messages of those topics (the others are counted in `result` as read, but not made into records).
 
     Damage that valid records follow is skipped and listed in result.damaged; unless skip_damage, DamageError once
     the rest of the file is scanned, where the damage lost something (a chunk, a message, a metadata record, or
@@ -393,7 +430,7 @@ def scan(path: str | Path, result: ScanResult | None = None, *, skip_damage: boo
         raise LogError(f"{p}: cannot read: {e.strerror}") from None
     try:
         res.size_bytes = os.fstat(fd).st_size
-        yield from _Scan(p, FileBytes(fd, res.size_bytes), res, skip_damage).run()
+        yield from _Scan(p, FileBytes(fd, res.size_bytes), res, skip_damage, topics).run()
     finally:
         os.close(fd)
 
@@ -409,7 +446,7 @@ def survey(path: str | Path) -> ScanResult:
 def scan_messages(
     path: str | Path, topics: Sequence[str] | None = None, result: ScanResult | None = None
 ) -> Iterator[tuple[Channel, Message]]:
-    for kind, item in scan(path, result):
+    for kind, item in scan(path, result, topics=topics):
         if kind == "message":
             channel: Channel
             message: Message
