@@ -144,19 +144,25 @@ def test_a_chunk_whose_records_do_not_fit_it_is_damaged(log: Path) -> None:
 
 
 def damaged_copies(log: Path, tmp_path: Path) -> list[Path]:
-    """The log with a chunk's middle bytes flipped, cut in its last third, and with both."""
+    """The log with a chunk's middle bytes flipped, cut in its last third, and with both; and with its first chunk
+    flipped (the channels it defines then come from the summary)."""
     data = log.read_bytes()
     with open(log, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None and len(summary.chunk_indexes) >= 6
-    index = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)[2]
-    mid = index.chunk_start_offset + index.chunk_length // 2
-    flipped = bytearray(data)
-    for off in range(mid, mid + 4):
-        flipped[off] ^= 0xFF
+    indexes = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+    def flipped(index: Any) -> bytearray:
+        copy = bytearray(data)
+        mid = index.chunk_start_offset + index.chunk_length // 2
+        for off in range(mid, mid + 4):
+            copy[off] ^= 0xFF
+        return copy
+
+    third = flipped(indexes[2])
     out = []
-    for name, content in (("flipped", bytes(flipped)), ("cut", data[:len(data) * 2 // 3]),
-                          ("both", bytes(flipped[:len(data) * 2 // 3]))):
+    for name, content in (("flipped", bytes(third)), ("cut", data[:len(data) * 2 // 3]),
+                          ("both", bytes(third[:len(data) * 2 // 3])), ("first", bytes(flipped(indexes[0])))):
         (tmp_path / f"{name}.mcap").write_bytes(content)
         out.append(tmp_path / f"{name}.mcap")
     return out
@@ -176,6 +182,9 @@ def test_a_scan_of_some_topics_reads_what_a_scan_of_all_reads(log: Path, tmp_pat
     damaged = ScanResult(tmp_path / "both.mcap")
     list(scan(tmp_path / "both.mcap", damaged, skip_damage=True, topics=RAW_TOPICS))
     assert damaged.damaged and damaged.stopped_because, "the copy holds damage and a tear"
+    first = ScanResult(tmp_path / "first.mcap")
+    kinds = [k for k, _ in scan(tmp_path / "first.mcap", first, skip_damage=True, topics=(TOPIC_ESTIMATE,))]
+    assert first.damaged and "channel" in kinds, "channels defined by the summary only, after the damage"
 
 
 def test_the_chunk_content_is_the_librarys(log: Path) -> None:

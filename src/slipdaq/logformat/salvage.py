@@ -206,7 +206,7 @@ class _Scan:
                 channel_id, t = r.channel_id, r.log_time
                 times.setdefault(channel_id, []).append(t)
                 got = self.message_items(r)
-                if not got:
+                if got is None:
                     continue  # an orphan: not counted
                 items.extend(got)
             else:
@@ -250,13 +250,14 @@ class _Scan:
         if not isinstance(r, Message):
             return []
         out = self.message_items(r)
-        if out:
-            self.note({r.channel_id: 1}, r.log_time, r.log_time, r.log_time)
+        if out is None:
+            return []
+        self.note({r.channel_id: 1}, r.log_time, r.log_time, r.log_time)
         return out
 
-    def message_items(self, r: Message) -> list[Item]:
+    def message_items(self, r: Message) -> list[Item] | None:
         """A message's item (unless its topic is passed over), after its channel's and schema's where only the
-        summary defines them; none for an orphan (counted in res.orphans)."""
+        summary defines them; None for an orphan (counted in res.orphans)."""
         out: list[Item] = []
         channel = self.channels.get(r.channel_id)
         if channel is None:  # its definition was in a damaged range: the summary's, when there is one
@@ -264,7 +265,7 @@ class _Scan:
             channel = channels.get(r.channel_id)
             if channel is None:
                 self.res.orphans += 1
-                return []
+                return None
             schema = schemas.get(channel.schema_id)
             if schema is not None and schema.id not in self.schemas:
                 out.extend(self.item(schema))
