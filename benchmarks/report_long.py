@@ -9,6 +9,9 @@ The log (--hours of the simulator's `cycle` drive on paved, repeated back to bac
 by later runs with the same --hours and --rate-hz. Per round, `python -m slipdaq report LOG -o OUT` runs once for
 each side (the order reversed every other round); round 0, untimed, warms .pyc files and numba's kernel cache.
 
+--recorded: the log reported is one as a run records it (its raw records and every derived topic, which the report's
+two passes read past): the raw-only log replayed once.
+
 --fits ROUNDS: this tree's report after its summaries (the tire files' fits, the page's data, the report's files
 written), in one process, with the tire files fitted one after the other (tires.fit_here) and on threads
 (tires.ThreadFits, what `slipdaq report` does), in turns, the order reversed every round: wall and CPU time.
@@ -19,7 +22,7 @@ tire files fitted one after the other (tires.fit_here), not on threads (tires.Th
 CPU time of its own.
 
     python -m benchmarks.report_long [--hours 2] [--rate-hz 1000] [--work DIR] [--base REV] [--rounds 1] [--parts]
-                                     [--fits ROUNDS]
+                                     [--fits ROUNDS] [--recorded]
 """
 
 from __future__ import annotations
@@ -127,8 +130,9 @@ def run_measured(cmd: list[str], env: dict[str, str]) -> tuple[float, float, flo
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024 / 1e6  # ru_maxrss: KiB
 
 
-def make_log(work: Path, hours: float, rate_hz: float) -> tuple[Path, int]:
-    """The drive's raw-only log in work (written once) and its WPT frames."""
+def make_log(work: Path, hours: float, rate_hz: float, recorded: bool = False) -> tuple[Path, int]:
+    """The drive's raw-only log in work (written once) and its WPT frames; recorded: the log as a run records it,
+    its raw records and every derived topic (the raw-only log replayed once by this tree, also kept)."""
     log = work / f"drive-{hours:g}h-{rate_hz:g}hz.mcap"
     frames_file = log.with_suffix(".frames")
     if not (log.exists() and frames_file.exists()):
@@ -138,7 +142,13 @@ def make_log(work: Path, hours: float, rate_hz: float) -> tuple[Path, int]:
                               capture_output=True, text=True)
         frames_file.write_text(made.stdout.strip().splitlines()[-1])
         print(f"wrote {log.name} in {time.perf_counter() - t:.0f} s", flush=True)
-    return log, int(frames_file.read_text())
+    frames = int(frames_file.read_text())
+    if recorded:
+        raw, log = log, work / f"recorded-{hours:g}h-{rate_hz:g}hz.mcap"
+        if not log.exists():
+            subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(log)], check=True,
+                           env=dict(os.environ, PYTHONPATH=python_path(ROOT / "src")), capture_output=True)
+    return log, frames
 
 
 def tree_mb(d: Path) -> dict[str, float]:
@@ -156,13 +166,15 @@ def main() -> int:
     ap.add_argument("--base", default=None, metavar="REV", help="that revision's report too, side by side")
     ap.add_argument("--rounds", type=int, default=1, help="timed rounds (default 1; 0: none, with --parts or --fits)")
     ap.add_argument("--parts", action="store_true", help="this tree's report part by part, in one process")
+    ap.add_argument("--recorded", action="store_true",
+                    help="report a log as a run records it (raw and derived topics), not a raw-only one")
     ap.add_argument("--fits", type=int, default=0, metavar="ROUNDS",
                     help="the report after its summaries with the tire files fitted in turn and on threads, ROUNDS each")
     a = ap.parse_args()
     work = a.work or Path(tempfile.mkdtemp(prefix="slipdaq-report-long-"))
     work.mkdir(parents=True, exist_ok=True)
     try:
-        log, frames = make_log(work, a.hours, a.rate_hz)
+        log, frames = make_log(work, a.hours, a.rate_hz, a.recorded)
         print(f"{log.name}: {frames:,} WPT frames, {log.stat().st_size / 1e6:.0f} MB", flush=True)
         common = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         common["PYTHONPYCACHEPREFIX"] = str(work / "pycache")
