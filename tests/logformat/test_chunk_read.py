@@ -4,7 +4,6 @@ and a scan that reads some topics (salvage.scan's topics) against a scan of ever
 
 from __future__ import annotations
 
-import os
 import zlib
 from collections.abc import Callable, Collection
 from pathlib import Path
@@ -19,14 +18,12 @@ from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
-from slipdaq.config import load_config
 from slipdaq.logformat.chunk_read import chunk_content, chunk_messages
 from slipdaq.logformat.damage import BadRecord, chunk_records
 from slipdaq.logformat.salvage import ScanResult, scan
 from slipdaq.logformat.topics import RAW_TOPICS, TOPIC_ESTIMATE
-from slipdaq.offline.run import process_to_log
-from slipdaq.sim.emit import SimSettings, generate
-from support.paths import CONFIG, DATA, write_config
+from support.paths import DATA
+from support.sim_logs import chunked_log
 
 OLDER_LOGS = [DATA / "slipdaq-6641212" / "drive-fast-rows.mcap", DATA / "slipdaq-42c5f78" / "logfile-asc-import.mcap"]
 
@@ -34,14 +31,7 @@ OLDER_LOGS = [DATA / "slipdaq-6641212" / "drive-fast-rows.mcap", DATA / "slipdaq
 @pytest.fixture(scope="module")
 def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """This tree's log of a 20 s drive in chunks of 32 kB (a dozen or more)."""
-    d = tmp_path_factory.mktemp("chunk-read")
-    cfg = load_config(write_config(d, CONFIG.read_text().replace("# chunk_size_bytes = 1048576",
-                                                                 "chunk_size_bytes = 32768")))
-    records = (ev.record for ev in generate(cfg, "cycle", "paved", SimSettings(seed=3), duration_s=20.0)
-               if ev.record is not None)
-    with open(os.devnull, "w") as quiet:
-        process_to_log(cfg, records, d / "run.mcap", "import", stream=quiet)
-    return d / "run.mcap"
+    return chunked_log(tmp_path_factory.mktemp("chunk-read"), 20.0, 32768, seed=3)
 
 
 def mcap_written(path: Path, compression: CompressionType) -> Path:

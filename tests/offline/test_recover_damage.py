@@ -24,15 +24,12 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from slipdaq.cli import main
-from slipdaq.config import load_config
 from slipdaq.logformat.damage import fmt_time
 from slipdaq.logformat.durable import TRAILER
 from slipdaq.logformat.errors import LogError
 from slipdaq.logformat.reader import iter_estimates, iter_raw_records
 from slipdaq.logformat.salvage import DamageError, ScanResult, survey
-from slipdaq.offline.run import process_to_log
-from slipdaq.sim.emit import SimSettings, generate
-from support.paths import CONFIG, write_config
+from support.sim_logs import chunked_log
 
 Msg = tuple[str, int, bytes]
 
@@ -40,15 +37,9 @@ Msg = tuple[str, int, bytes]
 @pytest.fixture(scope="module")
 def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished 30 s log of about 20 chunks."""
-    d = tmp_path_factory.mktemp("damage")
-    cfg = load_config(write_config(d, CONFIG.read_text().replace("# chunk_size_bytes = 1048576",
-                                                                 "chunk_size_bytes = 131072")))
-    records = (ev.record for ev in generate(cfg, "cycle", "paved", SimSettings(seed=5), duration_s=30.0)
-               if ev.record is not None)
-    with open(os.devnull, "w") as quiet:
-        process_to_log(cfg, records, d / "run.mcap", "import", stream=quiet)
-    assert len(chunks(d / "run.mcap")) >= 10
-    return d / "run.mcap"
+    log = chunked_log(tmp_path_factory.mktemp("damage"), 30.0, 131072, seed=5)
+    assert len(chunks(log)) >= 10
+    return log
 
 
 def chunks(path: Path) -> list:  # type: ignore[type-arg]
