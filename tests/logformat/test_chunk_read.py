@@ -15,10 +15,10 @@ from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
-from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk, get_chunk_data_stream
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from slipdaq.logformat.chunk_read import chunk_content, chunk_messages
+from slipdaq.logformat.chunk_read import chunk_messages
 from slipdaq.logformat.damage import BadRecord, chunk_records
 from slipdaq.logformat.salvage import ScanResult, scan
 from slipdaq.logformat.topics import RAW_TOPICS, TOPIC_ESTIMATE
@@ -176,9 +176,3 @@ def test_a_scan_of_some_topics_reads_what_a_scan_of_all_reads(log: Path, tmp_pat
     kinds = [k for k, _ in scan(tmp_path / "first.mcap", first, skip_damage=True, topics=(TOPIC_ESTIMATE,))]
     assert first.damaged and "channel" in kinds, "channels defined by the summary only, after the damage"
 
-
-def test_the_chunk_content_is_the_librarys(log: Path) -> None:
-    """chunk_read decompresses and checks as mcap's get_chunk_data_stream does: the same bytes."""
-    for chunk in file_chunks(log):
-        stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-        assert chunk_content(chunk) == stream.read(size)

@@ -28,12 +28,6 @@ _MESSAGE_HEAD = struct.Struct("<HIQQ")
 """A message record's fixed fields: channel id, sequence, log time, publish time."""
 
 
-def chunk_content(chunk: Chunk) -> bytes:
-    """A chunk's records' bytes, decompressed and checked against its CRC (CRCValidationError) by mcap."""
-    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-    return stream.read(size)
-
-
 def chunk_messages(
     chunk: Chunk, topics: Collection[str] | None = None, topic_of: Callable[[int], str | None] = lambda _: None
 ) -> list[Schema | Channel | Message | tuple[int, int]]:
@@ -41,13 +35,13 @@ def chunk_messages(
     (defined earlier in the chunk, else topic_of(channel id)) is not in them as its (channel id, log time), and a
     channel topic_of does not know (None): its messages as Message. Raises CRCValidationError on a chunk that fails
     its CRC, McapError on records that do not fit it."""
-    data = chunk_content(chunk)
+    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    data = stream.read(size)
     out: list[Schema | Channel | Message | tuple[int, int]] = []
-    local: dict[int, str] = {}
     read: dict[int, bool] = {}
-    """By channel id: its messages are made into Message records."""
+    """By channel id: its messages are made into Message records (a channel defined in the chunk: by its topic)."""
     head, message_head = _HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
-    pos, size = 0, len(data)
+    pos = 0
     while pos < size:
         if pos + 9 > size:
             raise McapError(f"a record header cut short at byte {pos} of the chunk")
@@ -61,7 +55,7 @@ def chunk_messages(
             channel_id, sequence, log_time, publish_time = message_head(data, start)
             keep = read.get(channel_id)
             if keep is None:
-                topic = local.get(channel_id) or topic_of(channel_id)
+                topic = topic_of(channel_id)
                 keep = read[channel_id] = topics is None or topic is None or topic in topics
             if not keep:
                 out.append((channel_id, log_time))
@@ -72,8 +66,7 @@ def chunk_messages(
             record: Any = (Channel if opcode == Opcode.CHANNEL else Schema).read(
                 ReadDataStream(io.BytesIO(data[start:end])))
             if isinstance(record, Channel):
-                local[record.id] = record.topic
-                read.pop(record.id, None)
+                read[record.id] = topics is None or record.topic in topics
             out.append(record)
         pos = end
     return out
