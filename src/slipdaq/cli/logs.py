@@ -202,7 +202,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp, _imports_frozen():
         p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
                            metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
-                           total=total, **(first.second_pass() if first else {"calibration": cal.start}))
+                           total=total, reread=lambda: iter_raw_batches(args.log),
+                           **(first.second_pass() if first else {"calibration": cal.start}))
         records = p.can_frames + p.nmea.lines + p.ubx.frames
         _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)
     _unfinished_note(args.log, scanned)

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import sys
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +23,7 @@ from slipdaq.config.calibration import Calibration, Learned, merged, parse_calib
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.offline.log_process import LogProcess
 from slipdaq.offline.summaries import DetectorFeed, SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
@@ -184,21 +186,29 @@ def process_to_log(
     mode: str,
     *,
     metadata: dict[str, str] | None = None,
+    reread: Callable[[], Iterable[RawRecord | CanFrameBatch]] | None = None,
     **options: Any,
 ) -> Pipeline:
     """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
     calibration it started from is stored in the log's metadata (calibration_toml), so that a replay of the log
     starts from it too. A run of a known total of at least summaries.MIN_RAW_RECORDS records summarizes its
-    maneuvers in a second process (forked before the log's writer starts its thread), the same bytes."""
+    maneuvers in a second process (forked before the log's writer starts its thread), and, given reread (the same
+    records again, read anew: a replay's input), writes its log in a process of its own (log_process.LogProcess,
+    forked first): the same bytes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
-    beside = options.get("maneuvers", True) and worth_a_process(options.get("total"))
-    with SummaryProcess() if beside else contextlib.nullcontext() as summaries:
-        sink = McapLogSink(out_path, config, mode=mode, metadata=meta)
+    make = functools.partial(McapLogSink, out_path, config, mode=mode, metadata=meta)
+    beside = worth_a_process(options.get("total"))
+    with contextlib.ExitStack() as stack:
+        apart = stack.enter_context(LogProcess(make, lambda: batched(reread()), config)) \
+            if reread is not None and beside else None
+        summaries = stack.enter_context(SummaryProcess()) if beside and options.get("maneuvers", True) else None
+        sink = apart or make()
         try:
             return process(config, records, [sink], **({"description": mode, "summaries": summaries} | options))
         finally:
-            sink.close()
+            if apart is None:
+                sink.close()
 
 
 class _FirstPassSink(Sink):

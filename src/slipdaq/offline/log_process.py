@@ -1,0 +1,272 @@
+"""A replay's log written in a process of its own (LogProcess): the run's sink calls go, in order, to a forked process
+that makes the log's sink and calls it. The CAN frames, their wheel samples and the other raw records, most of what a
+sink gets, are not sent: the process reads the same input itself and decodes the wheel frames as the pipeline does
+(the decoder gives the same samples however the frames are cut), and a call names only how many frames or samples,
+with the first frame's or the record's time, or the samples' first and last frame and last revolutions, which the
+process checks against what it read and decoded. The sink gets the same
+calls with the same records: the same log."""
+
+from __future__ import annotations
+
+import gc
+import pickle
+import queue
+import signal
+import threading
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterable
+from multiprocessing import get_context
+from multiprocessing.connection import Connection
+from types import TracebackType
+from typing import Any
+
+from slipdaq import compiled
+from slipdaq.config import Config
+from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.records import CanFrame, CanFrameBatch, RawRecord, WheelSampleBatch
+from slipdaq.sinks import SINK_CALLS, Sink
+
+RUN_CALLS = 256
+"""Calls pickled and sent together."""
+QUEUED_RUNS = 256
+"""Runs pickled and not yet written to the pipe at most: past it the run waits for the process (memory stays bounded)."""
+FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
+"""The calls whose records the process takes from its own reading: on_can_batch, on_wheel_batch, on_raw."""
+
+Items = Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
+
+
+class LogProcessError(RuntimeError):
+    """The log's process read other records than the run's, or ended without saying why."""
+
+
+class _Input:
+    """The input read again in the log's process: its CAN frames in the pieces and its other raw records in the order
+    the run's calls take them, its wheel frames decoded in turn."""
+
+    def __init__(self, items: Items, config: Config) -> None:
+        self._items = iter(items)
+        self._decoder = WheelDecoder(config)
+        self._batches: deque[tuple[CanFrameBatch, WheelSampleBatch]] = deque()
+        self._pos = 0
+        """Frames of the first batch taken already."""
+        self._raw: deque[RawRecord] = deque()
+        self._samples = WheelSampleBatch.empty()
+        """The samples of the frames taken last."""
+
+    def _read(self) -> None:
+        item = next(self._items, None)
+        if item is None:
+            raise LogProcessError("the log's process read to the input's end before the run did")
+        if isinstance(item, list):
+            item = CanFrameBatch.from_frames(item)
+        if not isinstance(item, CanFrameBatch):
+            self._raw.append(item)
+        elif len(item):  # as Pipeline.process_all: an empty batch is passed over
+            self._batches.append((item, self._decoder.decode_batch(item)))
+
+    def frames(self, n: int, first_s: float) -> CanFrameBatch:
+        """The next n frames (a piece of one input batch, as the pipeline cuts them); first_s: the first one's time."""
+        while not self._batches:
+            self._read()
+        batch, samples = self._batches[0]
+        a, b = self._pos, self._pos + n
+        if b > len(batch) or float(batch.timestamp_s[a]) != first_s:
+            raise LogProcessError(f"the log's process read other CAN frames than the run's ({n} frames at "
+                                  f"{first_s!r} s)")
+        piece = batch if (a, b) == (0, len(batch)) else batch.slice(a, b)
+        i0, i1 = int(samples.frame.searchsorted(a)), int(samples.frame.searchsorted(b))
+        self._samples = samples if (i0, i1, a) == (0, len(samples), 0) else samples.slice(i0, i1, frame_offset=-a)
+        if b == len(batch):
+            self._batches.popleft()
+            self._pos = 0
+        else:
+            self._pos = b
+        return piece
+
+    def samples(self, mark: tuple[int, int, int, float]) -> WheelSampleBatch:
+        """The wheel samples of the frames taken last; mark: the run's (_mark)."""
+        if _mark(self._samples) != mark:
+            raise LogProcessError(f"the log's process decoded other wheel samples than the run's "
+                                  f"({_mark(self._samples)} against {mark})")
+        return self._samples
+
+
+    def record(self, time_s: float) -> RawRecord:
+        """The next raw record other than a CAN frame (its time: time_s)."""
+        while not self._raw:
+            self._read()
+        record = self._raw.popleft()
+        if record.timestamp_s != time_s:
+            raise LogProcessError(f"the log's process read another record than the run's (at {time_s!r} s)")
+        return record
+
+
+def _mark(samples: WheelSampleBatch) -> tuple[int, int, int, float]:
+    """What the log's process checks of the samples of a run of frames: how many, the first and last one's frame (in
+    the run) and the last one's revolutions."""
+    n = len(samples)
+    return (n, int(samples.frame[0]), int(samples.frame[n - 1]), float(samples.revolutions[n - 1])) if n else \
+        (0, 0, 0, 0.0)
+
+
+def _serve(make_sink: Callable[[], Sink], items: Callable[[], Items], config: Config, calls: Connection,
+           done: Connection, parent_ends: tuple[Connection, ...]) -> None:
+    """The log's process: the calls, run by run, to the sink, until told to stop (then it is closed) or the run's end
+    of the pipe closes; None back when the log is closed, else the error."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
+    gc.freeze()
+    for end in parent_ends:
+        end.close()
+    try:
+        sink = make_sink()
+        try:
+            source = _Input(items(), config)
+            take: dict[str, Callable[..., None]] = {name: getattr(sink, name) for name in SINK_CALLS}
+            take[FRAMES] = lambda n, t: sink.on_can_batch(source.frames(n, t))
+            take[SAMPLES] = lambda mark: sink.on_wheel_batch(source.samples(mark))
+            take[RAW] = lambda t: sink.on_raw(source.record(t))
+            while (run := pickle.loads(calls.recv_bytes())) is not None:
+                for name, args in run:
+                    take[name](*args)
+        finally:
+            sink.close()
+    except EOFError:  # the run has gone
+        return
+    except BaseException as e:
+        e.add_note("in the log's process:\n" + traceback.format_exc())
+        calls.close()  # the run's next write fails at once: it then reads this error
+        try:
+            done.send(e)
+        except Exception:  # an error that does not pickle
+            done.send(LogProcessError(f"{e!r} in the log's process"))
+        return
+    done.send(None)
+
+
+class LogProcess(Sink):
+    """A sink in a forked process (make_sink()'s there) whose raw records come from items(), the run's input read
+    again (as Pipeline.process_all gets it): its calls are pickled here, RUN_CALLS at a time, and written to the pipe
+    by a thread. close() waits for the process to close the log and raises its error, if any; a run that fails calls
+    terminate(). Fork it before any thread is started (the summaries' process after it)."""
+
+    def __init__(self, make_sink: Callable[[], Sink], items: Callable[[], Items], config: Config) -> None:
+        compiled.prepare()  # the kernels loaded once, before the fork
+        ctx = get_context("fork")
+        calls_in, self._calls = ctx.Pipe(duplex=False)
+        self._done, done_out = ctx.Pipe(duplex=False)
+        self.process = ctx.Process(target=_serve, args=(make_sink, items, config, calls_in, done_out,
+                                                        (self._calls, self._done)), name="slipdaq-log", daemon=True)
+        self.process.start()
+        calls_in.close()
+        done_out.close()
+        self._run: list[tuple[str, tuple[Any, ...]]] = []
+        self._outbox: queue.Queue[bytes | None] = queue.Queue(QUEUED_RUNS)
+        self._sender: threading.Thread | None = None
+        self._broken = False
+        """The pipe broke: the process has ended (its error is on the done pipe)."""
+        self._ended = False
+
+    def _call(self, name: str, args: tuple[Any, ...]) -> None:
+        self._run.append((name, args))
+        if len(self._run) >= RUN_CALLS:
+            self._send_run()
+
+    def _send_run(self) -> None:
+        if self._broken:
+            self._raise_ended()
+        if self._sender is None:
+            self._sender = threading.Thread(target=self._send, name="slipdaq-log-calls", daemon=True)
+            self._sender.start()
+        run, self._run = self._run, []
+        self._outbox.put(pickle.dumps(run, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _send(self) -> None:
+        """The runs, in turn, to the process; once the pipe breaks, the rest are dropped (the run raises)."""
+        while (data := self._outbox.get()) is not None:
+            if self._broken:
+                continue
+            try:
+                self._calls.send_bytes(data)
+            except OSError:
+                self._broken = True
+
+    def _raise_ended(self) -> None:
+        """The process's error (it has ended, or ends now)."""
+        self._ended = True
+        error: BaseException | None
+        try:
+            error = self._done.recv()
+        except EOFError:
+            error = LogProcessError(f"the log's process ended (exit status {self.process.exitcode})")
+        self.terminate()
+        raise error or LogProcessError("the log's process ended before the run did")
+
+    def on_can_batch(self, batch: CanFrameBatch) -> None:
+        self._call(FRAMES, (len(batch), float(batch.timestamp_s[0])))
+
+    def on_wheel_batch(self, samples: WheelSampleBatch) -> None:
+        self._call(SAMPLES, (_mark(samples),))
+
+    def on_raw(self, record: RawRecord) -> None:
+        if isinstance(record, CanFrame):  # not from the input's batches: sent as it is
+            self._call("on_raw", (record,))
+        else:
+            self._call(RAW, (record.timestamp_s,))
+
+    def close(self) -> None:
+        """The calls sent, the log closed there; its error raised here."""
+        if self._ended:
+            return
+        self._send_run()
+        self._outbox.put(pickle.dumps(None))
+        self._outbox.put(None)
+        assert self._sender is not None
+        self._sender.join()
+        self._ended = True
+        try:
+            error = self._done.recv()
+        except EOFError:
+            error = LogProcessError(f"the log's process ended (exit status {self.process.exitcode})")
+        self.process.join()
+        self._calls.close()
+        self._done.close()
+        if error is not None:
+            raise error
+
+    def terminate(self) -> None:
+        """The process ended now (SIGTERM), the log left as it is."""
+        self._ended = True
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join()
+        self._outbox.put(None)
+        if self._sender is not None:
+            self._sender.join()
+        self._calls.close()
+        self._done.close()
+
+    def __enter__(self) -> LogProcess:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """A run that ended well closes the log; one that ended with an error or an interrupt terminates it."""
+        if error is None:
+            self.close()
+        elif not self._ended:
+            self.terminate()
+
+
+def _forwarded(name: str) -> Callable[..., None]:
+    def call(self: LogProcess, *args: Any) -> None:
+        self._call(name, args)
+    call.__name__ = call.__qualname__ = name
+    call.__doc__ = f"{name}, to the log's process."
+    return call
+
+
+for _name in SINK_CALLS:
+    if _name not in vars(LogProcess):
+        setattr(LogProcess, _name, _forwarded(_name))
