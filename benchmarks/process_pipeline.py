@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """Does a process pipeline pay on this machine? The replay's run (offline.process_to_log's: the pipeline, the log
 written by McapLogSink, the maneuvers' summaries in their forked process) against the same run with the log's sink in
-a forked process of its own (its calls pickled in runs through a pipe), and against the same run with the log read
-in a forked process (its records pickled in runs); and the first pass of a two-pass run (the second core idle) with
-the log read here and read in a forked process. Each variant runs in a fresh process per round (imports and
-numba's kernels loaded before the clock starts, as gc.freeze()s them), the variants in turn, the order reversed
-every other round; medians of the run's wall time, the main thread's CPU and the whole process tree's CPU (the forked
-processes' included). Also the cost of pickling what each pipe would carry, in process.
+a forked process of its own (its calls pickled in runs through a pipe), against the same run with the log written by
+offline.log_process.LogProcess (a forked process that reads the input again: only the derived records are pickled),
+and against the same run with the log read in a forked process (its records pickled in runs); and the first pass of a
+two-pass run (the second core idle) with the log read here and read in a forked process. Each variant runs in a
+fresh process per round (imports and numba's kernels loaded before the clock starts, as gc.freeze()s them), the
+variants in turn, the order reversed every other round; medians of the run's wall time, the main thread's CPU and the
+whole process tree's CPU (the forked processes' included). Also the cost of pickling what each pipe would carry, in
+process.
 
 The variants live here, not in src/: they are measured alternatives. The log is replay_process.py's (--seconds of 4
 WPT messages at --rate-hz + 20 Hz NMEA).
@@ -39,7 +41,8 @@ from typing import Any
 from benchmarks.base_revision import ROOT
 from benchmarks.replay_process import MAKE_LOG, python_path
 
-VARIANTS = ("replay", "replay, log's sink forked", "replay, log read forked", "first pass", "first pass, log read forked")
+VARIANTS = ("replay", "replay, log's sink forked", "replay, log written apart", "replay, log read forked", "first pass",
+            "first pass, log read forked")
 RUN_ITEMS = 64
 """Calls or records pickled and sent together."""
 
@@ -142,6 +145,7 @@ def one(variant: str, log: Path, out: Path) -> dict[str, float]:
     from slipdaq import compiled
     from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
     from slipdaq.offline import run
+    from slipdaq.offline.log_process import LogProcess
     from slipdaq.offline.summaries import SummaryProcess
     from slipdaq.sinks.mcap_log import McapLogSink
 
@@ -159,7 +163,9 @@ def one(variant: str, log: Path, out: Path) -> dict[str, float]:
         run.first_pass(config, records, start, str(log), total=total, stream=quiet)
     else:
         make = functools.partial(McapLogSink, out, config, mode="replay", metadata={})
-        sink = forked_sink(make) if variant.endswith("sink forked") else make()
+        apart = LogProcess(make, lambda: run.batched(iter_raw_batches(log)), config) \
+            if variant.endswith("written apart") else None
+        sink = forked_sink(make) if variant.endswith("sink forked") else apart or make()
         try:
             with SummaryProcess() as summaries:
                 run.process(config, records, [sink], calibration=start, stream=quiet, summaries=summaries,

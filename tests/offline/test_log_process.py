@@ -27,6 +27,9 @@ RAV4 = DATA / "rav4-comma2k19"
 FIXED_META = {"created_utc": "2026-01-01T00:00:00+00:00"}
 """The one value of a log that names the time of the run, the same on both sides."""
 
+_forks: list[int] = []
+os.register_at_fork(before=lambda: _forks.append(os.getpid()))
+
 
 @pytest.fixture(scope="module")
 def drive() -> tuple[Config, list[Any]]:
@@ -48,8 +51,10 @@ def _both_ways(cfg: Config, records: Any, tmp_path: Path, name: str, **options: 
     here = tmp_path / f"{name}-here.mcap"
     apart = tmp_path / f"{name}-apart.mcap"
     p_here = process_to_log(cfg, records(), here, "replay", metadata=FIXED_META, stream=io.StringIO(), **options)
+    before = len(_forks)
     p_apart = process_to_log(cfg, records(), apart, "replay", metadata=FIXED_META, stream=io.StringIO(),
                              reread=records, **options)
+    assert len(_forks) - before == 2  # the log's process and the summaries'
     assert p_apart.estimates == p_here.estimates > 0
     assert apart.read_bytes() == here.read_bytes()
     assert _children() == []
