@@ -1,13 +1,11 @@
 """A replay's log written in a process of its own (offline.log_process): the same bytes as the log written in the run's
 process, for frames one by one, a log's batches and a second pass; an input read again that differs, an error where
-the log is written and a run that stops each end the run with the error, and leave no process behind."""
+the log is written each end the run with the error, and leave no process behind (a run that stops:
+test_summary_process.py)."""
 
 from __future__ import annotations
 
 import io
-import multiprocessing
-import os
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +19,11 @@ from slipdaq.offline.run import first_pass, process_to_log
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
 from slipdaq.records import NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
+from support.forks import FORKS, children
 from support.paths import CONFIG, DATA, ROOT
+from support.sim_logs import FIXED_META
 
 RAV4 = DATA / "rav4-comma2k19"
-FIXED_META = {"created_utc": "2026-01-01T00:00:00+00:00"}
-"""The one value of a log that names the time of the run, the same on both sides."""
-
-_forks: list[int] = []
-os.register_at_fork(before=lambda: _forks.append(os.getpid()))
 
 
 @pytest.fixture(scope="module")
@@ -41,23 +36,18 @@ def drive() -> tuple[Config, list[Any]]:
     return cfg, records
 
 
-def _children() -> list[str]:
-    with open(f"/proc/{os.getpid()}/task/{os.getpid()}/children") as f:
-        return f.read().split()
-
-
 def _both_ways(cfg: Config, records: Any, tmp_path: Path, name: str, **options: Any) -> bytes:
     """The log written here and in a process of its own; the bytes, checked equal."""
     here = tmp_path / f"{name}-here.mcap"
     apart = tmp_path / f"{name}-apart.mcap"
     p_here = process_to_log(cfg, records(), here, "replay", metadata=FIXED_META, stream=io.StringIO(), **options)
-    before = len(_forks)
+    before = len(FORKS)
     p_apart = process_to_log(cfg, records(), apart, "replay", metadata=FIXED_META, stream=io.StringIO(),
                              reread=records, **options)
-    assert len(_forks) - before == 2  # the log's process and the summaries'
+    assert len(FORKS) - before == 2  # the log's process and the summaries'
     assert p_apart.estimates == p_here.estimates > 0
     assert apart.read_bytes() == here.read_bytes()
-    assert _children() == []
+    assert children() == []
     return here.read_bytes()
 
 
@@ -96,7 +86,7 @@ def test_an_input_read_again_that_differs_fails_the_run(drive: tuple[Config, lis
         process_to_log(cfg, iter(records), tmp_path / "out.mcap", "replay", stream=io.StringIO(),
                        total=len(records), reread=lambda: iter(other))
     assert "in the log's process" in "".join(raised.value.__notes__)
-    assert _children() == []
+    assert children() == []
 
 
 def test_an_error_where_the_log_is_written_is_the_runs(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
@@ -110,22 +100,4 @@ def test_an_error_where_the_log_is_written_is_the_runs(drive: tuple[Config, list
         process_to_log(cfg, iter(records), out, "replay", stream=io.StringIO(), total=len(records),
                        reread=lambda: iter(records))
     assert "in the log's process" in "".join(raised.value.__notes__)
-    assert _children() == []
-
-
-def _interrupted(records: list[Any], after: int, error: BaseException) -> Iterator[Any]:
-    yield from records[:after]
-    raise error
-
-
-@pytest.mark.parametrize("error", [KeyboardInterrupt(), OSError("the input's disk is gone")])
-def test_the_log_process_ends_when_the_run_stops(drive: tuple[Config, list[Any]], tmp_path: Path,
-                                                error: BaseException) -> None:
-    """^C or an error half way: the log's process (and the summaries') terminated and reaped before the error leaves
-    process_to_log."""
-    cfg, records = drive
-    with pytest.raises(type(error)):
-        process_to_log(cfg, _interrupted(records, len(records) // 2, error), tmp_path / "out.mcap", "replay",
-                       total=len(records), stream=io.StringIO(), reread=lambda: iter(records))
-    assert not [p for p in multiprocessing.active_children() if p.name in ("slipdaq-log", "slipdaq-summaries")]
-    assert _children() == []
+    assert children() == []

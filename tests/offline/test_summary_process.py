@@ -24,13 +24,9 @@ from slipdaq.offline.summaries import MIN_RAW_RECORDS, SummaryProcess, SummaryPr
 from slipdaq.sim.emit import SimSettings, generate
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
+from support.forks import FORKS, children
 from support.paths import CONFIG
-
-FIXED_META = {"created_utc": "2026-01-01T00:00:00+00:00"}
-"""The one value of a log that names the time of the run, the same on both sides."""
-
-_forks: list[int] = []
-os.register_at_fork(before=lambda: _forks.append(os.getpid()))
+from support.sim_logs import FIXED_META
 
 
 @pytest.fixture(scope="module")
@@ -160,19 +156,20 @@ def _interrupted(records: list[Any], after: int, error: BaseException) -> Iterat
 
 
 @pytest.mark.parametrize("error", [KeyboardInterrupt(), OSError("the log's disk is gone")])
+@pytest.mark.parametrize("log_apart", [False, True])
 def test_the_process_ends_when_the_run_stops(drive: tuple[Config, list[Any]], tmp_path: Path,
-                                            error: BaseException) -> None:
+                                            error: BaseException, log_apart: bool) -> None:
     """A replay (a known total of records: the process is forked) stopped half way by ^C or an error: the summary
-    process is terminated and reaped before the error leaves process_to_log (no orphan)."""
+    process, and the log's where it is written apart (offline.log_process), are terminated and reaped before the
+    error leaves process_to_log (no orphan)."""
     cfg, records = drive
-    before = len(_forks)
+    before = len(FORKS)
     with pytest.raises(type(error)):
         process_to_log(cfg, _interrupted(records, len(records) // 2, error), tmp_path / "out.mcap", "replay",
-                       total=MIN_RAW_RECORDS, stream=io.StringIO())
-    assert _forks[before:] == [os.getpid()]  # one process forked, by this one
-    assert not [p for p in multiprocessing.active_children() if p.name == "slipdaq-summaries"]
-    with open(f"/proc/{os.getpid()}/task/{os.getpid()}/children") as f:
-        assert f.read().split() == []
+                       total=MIN_RAW_RECORDS, stream=io.StringIO(), reread=(lambda: iter(records)) if log_apart else None)
+    assert FORKS[before:] == [os.getpid()] * (2 if log_apart else 1)  # forked by this process
+    assert not [p for p in multiprocessing.active_children() if p.name in ("slipdaq-summaries", "slipdaq-log")]
+    assert children() == []
 
 
 def test_jobs_come_back_in_order_and_a_dead_process_fails_what_is_out() -> None:
@@ -198,19 +195,19 @@ def test_short_logs_and_runs_without_a_total_summarize_at_once(drive: tuple[Conf
     cfg, records = drive
     assert not worth_a_process(None)
     assert not worth_a_process(MIN_RAW_RECORDS - 1)
-    before = len(_forks)
+    before = len(FORKS)
     process_to_log(cfg, records, tmp_path / "import.mcap", "import", stream=io.StringIO())
     process_to_log(cfg, records, tmp_path / "short.mcap", "replay", total=MIN_RAW_RECORDS - 1, stream=io.StringIO())
-    assert _forks[before:] == []
+    assert FORKS[before:] == []
 
 
-def test_a_live_run_forks_no_summary_process(tmp_path: Path) -> None:
+def test_a_live_runFORKS_no_summary_process(tmp_path: Path) -> None:
     """The live daemon summarizes on its thread (its records later in the log): no second process."""
     from slipdaq.live.demo import run_demo
 
-    before = len(_forks)
+    before = len(FORKS)
     assert run_demo(3.0, "cycle", "paved", tmp_path, out=io.StringIO(), no_calibration=True) == 0
-    assert _forks[before:] == []
+    assert FORKS[before:] == []
 
 
 def _tree(root: Path) -> dict[str, bytes]:
@@ -235,17 +232,17 @@ def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
     log = tmp_path / "drive.mcap"
     process_to_log(cfg, records, log, "import", stream=io.StringIO())
     monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 10**9)  # every log short: no second process
-    before = len(_forks)
+    before = len(FORKS)
     after = make_report([log], tmp_path / "after", two_pass=True, summaries_beside=True)
     assert read_log(log, two_pass=True, maneuvers=True).maneuvers is None
-    assert _forks[before:] == []
+    assert FORKS[before:] == []
     monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 1)
     beside = make_report([log], tmp_path / "beside", two_pass=True, summaries_beside=True)
-    assert _forks[before:] == [os.getpid()]
+    assert FORKS[before:] == [os.getpid()]
     assert [len(x.logs[0].maneuvers) for x in (after, beside)] == [len(after.logs[0].maneuvers)] * 2
     assert len(after.logs[0].maneuvers) >= 8  # accelerate, cruise and brake
     assert _tree(tmp_path / "beside") == _tree(tmp_path / "after")
-    before = len(_forks)
+    before = len(FORKS)
     make_report([log], tmp_path / "default", two_pass=True)  # `slipdaq report`: summaries beside the pass
-    assert _forks[before:] == [os.getpid()]
+    assert FORKS[before:] == [os.getpid()]
     assert _tree(tmp_path / "default") == _tree(tmp_path / "after")

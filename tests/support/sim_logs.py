@@ -1,4 +1,5 @@
-"""A simulated drive written as this tree logs it, in chunks small enough that a short log holds many."""
+"""Simulated drives written as this tree logs them: in chunks small enough that a short log holds many; logs to be
+compared byte for byte."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ from slipdaq.config import load_config
 from slipdaq.offline.run import process_to_log
 from slipdaq.sim.emit import SimSettings, generate
 from support.paths import CONFIG, write_config
+
+FIXED_META = {"created_utc": "2026-01-01T00:00:00+00:00"}
+"""The one value of a log that names the time of the run: given to both of two logs to be compared byte for byte."""
 
 
 def chunked_log(d: Path, seconds: float, chunk_bytes: int, seed: int) -> Path:
