@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from slipdaq.records.columns import ESTIMATE_COLUMNS, FAST_SLIP_COLUMNS, record_row
+from slipdaq.records.pickling import by_fields
 
 
 @dataclass(slots=True)
@@ -470,11 +471,8 @@ class Diagnostics:
         return {name: dict(v) if isinstance(v, dict) else v for name in self.__slots__
                 for v in (getattr(self, name),)}
 
-# ---- source and log events ----------------------------------------------------------------------------------------
-# What happened to the devices and the log file, beside the records: a GPS unplugged and plugged back, a receiver at
-# the wrong baud rate, a CAN reader that raised, the disk full, the host clock stepped. Written to the log's
-# /diagnostics/events topic and shown in the live view; informational: the estimates depend only on the raw records,
-# so replay needs none of them.
+# ---- source and log events: what happened to the devices and the log file (a GPS unplugged, the disk full, the host
+# clock stepped...), on /diagnostics/events and the live view; the estimates depend only on the raw records.
 
 @dataclass(frozen=True, slots=True)
 class SourceEvent:
@@ -497,4 +495,5 @@ class SourceEvent:
 
 
 EventHandler = Callable[[SourceEvent], None]
+by_fields(GpsFix, WheelEstimate, Estimate)
 

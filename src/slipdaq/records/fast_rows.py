@@ -15,6 +15,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.records import FastSlip, FastWheel
 from slipdaq.records.columns import FAST_ACCEL_SOURCES, FAST_SLIP_COLUMNS
+from slipdaq.records.pickling import by_fields
 
 Maybe = list[float | None]
 """A column whose value may be undefined (None)."""
@@ -129,6 +130,9 @@ class FastSlipBatch(Sequence[FastSlip]):
         return cls([r.time_s for r in rows], [r.speed_mps for r in rows], [r.accel_mps2 for r in rows],
                    [r.accel_source for r in rows], tuple(wheels), {w: [r.wheels[w].slip for r in rows] for w in wheels},
                    {w: [r.wheels[w].speed_mps for r in rows] for w in wheels})
+
+
+by_fields(FastSlipBatch)
 
 
 def _array(values: Maybe) -> tuple[np.ndarray, np.ndarray]:
