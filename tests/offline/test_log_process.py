@@ -5,6 +5,7 @@ test_summary_process.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_reco
 from slipdaq.offline.log_process import LogProcessError
 from slipdaq.offline.run import first_pass, process_to_log
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
-from slipdaq.records import NmeaLine
+from slipdaq.records import CanFrame, NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
 from support.forks import FORKS, children
 from support.paths import CONFIG, DATA, ROOT
@@ -77,12 +78,33 @@ def test_a_real_captures_replay_the_same_bytes(tmp_path: Path) -> None:
     _both_ways(config_from_log(log), lambda: iter_raw_batches(log), tmp_path, "rav4", total=raw_record_count(log))
 
 
-def test_an_input_read_again_that_differs_fails_the_run(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
-    """The log's process checks each frame run's first time and each raw record's: a line missing is an error."""
-    cfg, records = drive
+def _line_missing(records: list[Any]) -> list[Any]:
     k = next(i for i, r in enumerate(records) if isinstance(r, NmeaLine) and i > len(records) // 3)
-    other = records[:k] + records[k + 1:]
-    with pytest.raises(LogProcessError, match="another record than the run's") as raised:
+    return records[:k] + records[k + 1:]
+
+
+def _frame_moved(records: list[Any]) -> list[Any]:
+    k = next(i for i, r in enumerate(records) if isinstance(r, CanFrame) and i > len(records) // 3
+             and isinstance(records[i - 1], NmeaLine))  # the first frame of a run: its time is checked
+    return records[:k] + [dataclasses.replace(records[k], timestamp_s=records[k].timestamp_s + 1e-6)] + records[k + 1:]
+
+
+def _cut_after_a_line(records: list[Any]) -> list[Any]:
+    return records[: next(i for i, r in enumerate(records) if isinstance(r, NmeaLine) and i > 2 * len(records) // 3)]
+
+
+@pytest.mark.parametrize(("change", "error"), [
+    (_line_missing, "another record than the run's"),
+    (_frame_moved, "other CAN frames than the run's"),
+    (_cut_after_a_line, "read to the input's end before the run did"),
+])
+def test_an_input_read_again_that_differs_fails_the_run(drive: tuple[Config, list[Any]], tmp_path: Path,
+                                                        change: Any, error: str) -> None:
+    """The log's process checks each run of frames' first time and each raw record's time: a line missing, a frame
+    moved by a microsecond and the input cut short are each an error."""
+    cfg, records = drive
+    other = change(records)
+    with pytest.raises(LogProcessError, match=error) as raised:
         process_to_log(cfg, iter(records), tmp_path / "out.mcap", "replay", stream=io.StringIO(),
                        total=len(records), reread=lambda: iter(other))
     assert "in the log's process" in "".join(raised.value.__notes__)

@@ -31,6 +31,9 @@ RUN_CALLS = 256
 """Calls pickled and sent together."""
 QUEUED_RUNS = 256
 """Runs pickled and not yet written to the pipe at most: past it the run waits for the process (memory stays bounded)."""
+DECODE_FRAMES = 8192
+"""The log's process decodes the wheel frames of this many frames (of whole batches) at once (numpy's cost per call
+paid once for many, as Pipeline.process_all does)."""
 FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
 """The calls whose records the process takes from its own reading: on_can_batch, on_wheel_batch, on_raw."""
 
@@ -48,7 +51,8 @@ class _Input:
     def __init__(self, items: Items, config: Config) -> None:
         self._items = iter(items)
         self._decoder = WheelDecoder(config)
-        self._batches: deque[tuple[CanFrameBatch, WheelSampleBatch]] = deque()
+        self._batches: deque[tuple[CanFrameBatch, WheelSampleBatch, int]] = deque()
+        """Batches read, each with the samples of the frames decoded with it and its first frame's index there."""
         self._pos = 0
         """Frames of the first batch taken already."""
         self._raw: deque[RawRecord] = deque()
@@ -56,28 +60,43 @@ class _Input:
         """The samples of the frames taken last."""
 
     def _read(self) -> None:
-        item = next(self._items, None)
-        if item is None:
-            raise LogProcessError("the log's process read to the input's end before the run did")
-        if isinstance(item, list):
-            item = CanFrameBatch.from_frames(item)
-        if not isinstance(item, CanFrameBatch):
-            self._raw.append(item)
-        elif len(item):  # as Pipeline.process_all: an empty batch is passed over
-            self._batches.append((item, self._decoder.decode_batch(item)))
+        """Items read until DECODE_FRAMES frames or the input's end, their wheel frames decoded at once."""
+        got: list[CanFrameBatch] = []
+        frames, raw = 0, len(self._raw)
+        while frames < DECODE_FRAMES:
+            item = next(self._items, None)
+            if item is None:
+                break
+            if isinstance(item, list):
+                item = CanFrameBatch.from_frames(item)
+            if not isinstance(item, CanFrameBatch):
+                self._raw.append(item)
+            elif len(item):  # as Pipeline.process_all: an empty batch is passed over
+                got.append(item)
+                frames += len(item)
+        if not got:
+            if len(self._raw) == raw:
+                raise LogProcessError("the log's process read to the input's end before the run did")
+            return
+        samples = self._decoder.decode_batch(got[0] if len(got) == 1 else CanFrameBatch.concat(got))
+        first = 0
+        for batch in got:
+            self._batches.append((batch, samples, first))
+            first += len(batch)
 
     def frames(self, n: int, first_s: float) -> CanFrameBatch:
         """The next n frames (a piece of one input batch, as the pipeline cuts them); first_s: the first one's time."""
         while not self._batches:
             self._read()
-        batch, samples = self._batches[0]
+        batch, samples, first = self._batches[0]
         a, b = self._pos, self._pos + n
         if b > len(batch) or float(batch.timestamp_s[a]) != first_s:
             raise LogProcessError(f"the log's process read other CAN frames than the run's ({n} frames at "
                                   f"{first_s!r} s)")
         piece = batch if (a, b) == (0, len(batch)) else batch.slice(a, b)
-        i0, i1 = int(samples.frame.searchsorted(a)), int(samples.frame.searchsorted(b))
-        self._samples = samples if (i0, i1, a) == (0, len(samples), 0) else samples.slice(i0, i1, frame_offset=-a)
+        i0, i1 = int(samples.frame.searchsorted(first + a)), int(samples.frame.searchsorted(first + b))
+        self._samples = samples if (i0, i1, first + a) == (0, len(samples), 0) else \
+            samples.slice(i0, i1, frame_offset=-(first + a))
         if b == len(batch):
             self._batches.popleft()
             self._pos = 0
