@@ -1,7 +1,7 @@
 """A replay's log written in a process of its own (offline.log_process): the same bytes as the log written in the run's
-process, for frames one by one, a log's batches and a second pass; an input read again that differs, an error where
-the log is written each end the run with the error, and leave no process behind (a run that stops:
-test_summary_process.py)."""
+process, for frames one by one, a log's batches, a second pass and a real capture; an input read again that differs
+and an error where the log is written each end the run with their error and leave no process behind (a run that
+stops: test_summary_process.py)."""
 
 from __future__ import annotations
 

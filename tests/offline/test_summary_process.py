@@ -201,7 +201,7 @@ def test_short_logs_and_runs_without_a_total_summarize_at_once(drive: tuple[Conf
     assert FORKS[before:] == []
 
 
-def test_a_live_runFORKS_no_summary_process(tmp_path: Path) -> None:
+def test_a_live_run_forks_no_summary_process(tmp_path: Path) -> None:
     """The live daemon summarizes on its thread (its records later in the log): no second process."""
     from slipdaq.live.demo import run_demo
 

@@ -3,8 +3,7 @@ that makes the log's sink and calls it. The CAN frames, their wheel samples and 
 sink gets, are not sent: the process reads the same input itself and decodes the wheel frames as the pipeline does
 (the decoder gives the same samples however the frames are cut), and a call names only how many frames or samples,
 with the first frame's or the record's time, or the samples' first and last frame and last revolutions, which the
-process checks against what it read and decoded. The sink gets the same
-calls with the same records: the same log."""
+process checks against what it read and decoded. The sink gets the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
@@ -46,7 +45,7 @@ class LogProcessError(RuntimeError):
 
 class _Input:
     """The input read again in the log's process: its CAN frames in the pieces and its other raw records in the order
-    the run's calls take them, its wheel frames decoded in turn."""
+    the run's calls take them, its wheel frames decoded DECODE_FRAMES at a time."""
 
     def __init__(self, items: Items, config: Config) -> None:
         self._items = iter(items)
@@ -111,7 +110,6 @@ class _Input:
                                   f"({_mark(self._samples)} against {mark})")
         return self._samples
 
-
     def record(self, time_s: float) -> RawRecord:
         """The next raw record other than a CAN frame (its time: time_s)."""
         while not self._raw:
@@ -146,13 +144,17 @@ def _serve(make_sink: Callable[[], Sink], items: Callable[[], Items], config: Co
             take[FRAMES] = lambda n, t: sink.on_can_batch(source.frames(n, t))
             take[SAMPLES] = lambda mark: sink.on_wheel_batch(source.samples(mark))
             take[RAW] = lambda t: sink.on_raw(source.record(t))
-            while (run := pickle.loads(calls.recv_bytes())) is not None:
+            while True:
+                try:
+                    data = calls.recv_bytes()
+                except EOFError:  # the run has gone
+                    return
+                if (run := pickle.loads(data)) is None:
+                    break
                 for name, args in run:
                     take[name](*args)
         finally:
             sink.close()
-    except EOFError:  # the run has gone
-        return
     except BaseException as e:
         e.add_note("in the log's process:\n" + traceback.format_exc())
         calls.close()  # the run's next write fails at once: it then reads this error
