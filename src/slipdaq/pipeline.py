@@ -78,9 +78,7 @@ class _Decoded:
     def take(self, first: int, n: int) -> tuple[np.ndarray, WheelSampleBatch]:
         """wheel_frames and decode_batch of the n frames from `first` on, as if decoded alone."""
         k = first - self.first
-        frame = self.samples.frame
-        i0, i1 = int(frame.searchsorted(k)), int(frame.searchsorted(k + n))
-        return self.which[k : k + n], self.samples.slice(i0, i1, frame_offset=-k)
+        return self.which[k : k + n], self.samples.of_frames(k, k + n)
 
 
 _Decoded.NONE = _Decoded(0, np.empty(0, dtype=np.int64), WheelSampleBatch.empty())
@@ -449,13 +447,9 @@ class Pipeline:
             self._out.on_can_batch(piece)
             if not len(samples):
                 continue
-            frame = samples.frame
-            i0, i1 = int(frame.searchsorted(a - offset)), int(frame.searchsorted(b - offset))
-            if i1 <= i0:
-                continue
-            mine = samples if (i0, i1) == (0, len(samples)) and a == offset else \
-                samples.slice(i0, i1, frame_offset=offset - a)
-            self._out.on_wheel_batch(mine)
+            mine = samples.of_frames(a - offset, b - offset)
+            if len(mine):
+                self._out.on_wheel_batch(mine)
 
     def run(self, records: Iterable[RawRecord]) -> None:
         for r in records:

@@ -93,9 +93,7 @@ class _Input:
             raise LogProcessError(f"the log's process read other CAN frames than the run's ({n} frames at "
                                   f"{first_s!r} s)")
         piece = batch if (a, b) == (0, len(batch)) else batch.slice(a, b)
-        i0, i1 = int(samples.frame.searchsorted(first + a)), int(samples.frame.searchsorted(first + b))
-        self._samples = samples if (i0, i1, first + a) == (0, len(samples), 0) else \
-            samples.slice(i0, i1, frame_offset=-(first + a))
+        self._samples = samples.of_frames(first + a, first + b)
         if b == len(batch):
             self._batches.popleft()
             self._pos = 0
@@ -213,14 +211,18 @@ class LogProcess(Sink):
             except OSError:
                 self._broken = True
 
-    def _raise_ended(self) -> None:
-        """The process's error (it has ended, or ends now)."""
+    def _outcome(self) -> BaseException | None:
+        """What the process says at its end: None (the log closed) or its error; waits for it."""
         self._ended = True
-        error: BaseException | None
         try:
-            error = self._done.recv()
+            error: BaseException | None = self._done.recv()
         except EOFError:
             error = LogProcessError(f"the log's process ended (exit status {self.process.exitcode})")
+        return error
+
+    def _raise_ended(self) -> None:
+        """The process's error (it has ended, or ends now)."""
+        error = self._outcome()
         self.terminate()
         raise error or LogProcessError("the log's process ended before the run did")
 
@@ -245,11 +247,7 @@ class LogProcess(Sink):
         self._outbox.put(None)
         assert self._sender is not None
         self._sender.join()
-        self._ended = True
-        try:
-            error = self._done.recv()
-        except EOFError:
-            error = LogProcessError(f"the log's process ended (exit status {self.process.exitcode})")
+        error = self._outcome()
         self.process.join()
         self._calls.close()
         self._done.close()

@@ -291,12 +291,12 @@ class WheelSampleBatch:
         f = np.empty(0, dtype=np.float64)
         return cls(e, e.astype(np.uint8), f, f, e, f, e, e, e.astype(np.uint8))
 
-    def slice(self, start: int, stop: int, frame_offset: int = 0) -> WheelSampleBatch:
-        """Samples start..stop, their frame indices moved by frame_offset."""
-        return WheelSampleBatch(self.frame[start:stop] + frame_offset, self.wheel[start:stop],
-                                self.timestamp_s[start:stop], self.revolutions[start:stop], self.count[start:stop],
-                                self.raw[start:stop], self.seq[start:stop], self.lost_frames[start:stop],
-                                self.flags[start:stop])
+    def of_frames(self, start: int, stop: int) -> WheelSampleBatch:
+        """The samples of frames start..stop, their frame indices counted from start (itself: all of them, from 0)."""
+        i, k = int(self.frame.searchsorted(start)), int(self.frame.searchsorted(stop))
+        return self if (i, k, start) == (0, len(self), 0) else WheelSampleBatch(
+            self.frame[i:k] - start, self.wheel[i:k], self.timestamp_s[i:k], self.revolutions[i:k], self.count[i:k],
+            self.raw[i:k], self.seq[i:k], self.lost_frames[i:k], self.flags[i:k])
 
     def samples(self, wheels: Sequence[str]) -> Iterator[WheelSample]:
         for w, t, rev, c, raw, q, lost, fl in zip(
