@@ -2,7 +2,7 @@
 """Does a process pipeline pay on this machine? The replay's run (offline.process_to_log's: the pipeline, the log
 written by McapLogSink, the maneuvers' summaries in their forked process) against the same run with the log's sink in
 a forked process of its own (its calls pickled in runs through a pipe), against the same run with the log written by
-offline.log_process.LogProcess (a forked process that reads the input again: only the derived records are pickled),
+offline.log_process.LogProcess (a forked process sent the input's raw messages as read, and the derived records),
 and against the same run with the log read in a forked process (its records pickled in runs); and the first pass of a
 two-pass run (the second core idle) with the log read here and read in a forked process. Each variant runs in a
 fresh process per round (imports and numba's kernels loaded before the clock starts, as gc.freeze()s them), the
@@ -143,7 +143,14 @@ def forked_reader(path: Path) -> Iterator[Any]:
 
 def one(variant: str, log: Path, out: Path) -> dict[str, float]:
     from slipdaq import compiled
-    from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
+    from slipdaq.logformat.reader import (
+        config_from_log,
+        iter_raw_batches,
+        iter_raw_messages,
+        raw_batches,
+        raw_record_count,
+        read_metadata,
+    )
     from slipdaq.offline import run
     from slipdaq.offline.log_process import LogProcess
     from slipdaq.offline.summaries import SummaryProcess
@@ -163,8 +170,10 @@ def one(variant: str, log: Path, out: Path) -> dict[str, float]:
         run.first_pass(config, records, start, str(log), total=total, stream=quiet)
     else:
         make = functools.partial(McapLogSink, out, config, mode="replay", metadata={})
-        apart = LogProcess(make, lambda: run.batched(iter_raw_batches(log)), config) \
+        apart = LogProcess(make, lambda messages: run.batched(raw_batches(messages)), config) \
             if variant.endswith("written apart") else None
+        if apart is not None:
+            records = apart.input(iter_raw_messages(log))
         sink = forked_sink(make) if variant.endswith("sink forked") else apart or make()
         try:
             with SummaryProcess() as summaries:

@@ -7,7 +7,11 @@ NMEA from the simulator's cycle is written once by the base's code (so both read
 `python -m slipdaq replay RAW -o OUT` runs once for each side (the order reversed every other round, so that a busy
 spell of the machine falls on both), each side's `src` on PYTHONPATH (the base from `git archive`). Wall time and
 CPU time (user + system, of the child) per run; the table shows medians, frames/s of the median wall time, and the
-ratio. Each side's output is kept for the guard (benchmarks/replay_check.py compares outputs the same way).
+ratio. The CPU is also split: the main thread's (time.thread_time at its exit, start-up included) and that of the
+processes it forks (the log's and the maneuver summaries'), which share the machine's other core: with both near the
+wall time, neither side can go faster by moving work to the other. The child runs slipdaq's `__main__` as `-m` does
+(runpy), with that reading at its exit. Each side's output is kept for the guard (benchmarks/replay_check.py compares
+outputs the same way).
 
 With --two-pass: `replay --two-pass` (two passes over the log, the second written), frames/s counting the log's
 frames once. With --recorded: the log replayed is one as a run records it, its raw records and every derived topic
@@ -59,15 +63,33 @@ def python_path(src: Path) -> str:
     return os.pathsep.join([str(src), *filter(None, [os.environ.get("PYTHONPATH")])])
 
 
-def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float]:
-    """(wall s, CPU s of the child) of one `python -m slipdaq replay`."""
+SPLIT = """
+import resource, runpy, sys, time
+out = sys.argv.pop(1)
+sys.argv[0] = "slipdaq"
+try:
+    runpy.run_module("slipdaq", run_name="__main__", alter_sys=True)
+finally:
+    forked = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with open(out, "w") as f:
+        f.write(f"{time.thread_time()} {forked.ru_utime + forked.ru_stime}")
+"""
+"""The child: `python -m slipdaq ARGS` as runpy runs it, then its main thread's CPU and its forked processes' into
+the file named first."""
+
+
+def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float, float, float]:
+    """(wall s, CPU s of the child, of its main thread, of the processes it forked) of one `slipdaq replay`."""
+    split = out.with_suffix(".cpu")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "slipdaq", "replay", str(raw), "-o", str(out), *flags], check=True,
+    subprocess.run([sys.executable, "-c", SPLIT, str(split), "replay", str(raw), "-o", str(out), *flags], check=True,
                    env=dict(os.environ, PYTHONPATH=python_path(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    main_thread, forked = (float(x) for x in split.read_text().split())
+    split.unlink()
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), main_thread, forked
 
 
 def main() -> int:
@@ -101,20 +123,24 @@ def main() -> int:
     print(f"{raw.name}: {frames:,} frames, {raw.stat().st_size / 1e6:.1f} MB", flush=True)
     for src in sides.values():  # numba's cache for each tree, imports warm
         run_replay(src, raw, work / "warm.mcap", *flags)
-    got: dict[str, list[tuple[float, float]]] = {name: [] for name in sides}
+    got: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in sides}
     for r in range(a.rounds):
         for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
             got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
-            print(f"  round {r + 1} {name}: {got[name][-1][0]:.2f} s wall, {got[name][-1][1]:.2f} s CPU", flush=True)
-    med = {name: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for name, v in got.items()}
+            w, c, m, f = got[name][-1]
+            print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)",
+                  flush=True)
+    med = {name: tuple(statistics.median(x[k] for x in v) for k in range(4)) for name, v in got.items()}
     b, n = med[f"base {base}"], med["this tree"]
     print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "
           f"+ 20 Hz NMEA ({frames:,} frames{', a recorded log: every derived topic in it' * a.recorded}), "
           f"{a.rounds} interleaved rounds, medians\n")
-    print("| side | wall | CPU (user + sys) | frames/s (wall) | frames/s (CPU) |\n|---|---:|---:|---:|---:|")
-    for name, (w, c) in med.items():
-        print(f"| {name} | {w:.2f} s | {c:.2f} s | {frames / w:,.0f} | {frames / c:,.0f} |")
-    print(f"| this tree / base | {n[0] / b[0]:.2f} | {n[1] / b[1]:.2f} | {b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
+    print("| side | wall | CPU (user + sys) | main thread | forked processes | frames/s (wall) | frames/s (CPU) |\n"
+          "|---|---:|---:|---:|---:|---:|---:|")
+    for name, (w, c, m, f) in med.items():
+        print(f"| {name} | {w:.2f} s | {c:.2f} s | {m:.2f} s | {f:.2f} s | {frames / w:,.0f} | {frames / c:,.0f} |")
+    print(f"| this tree / base | {n[0] / b[0]:.2f} | {n[1] / b[1]:.2f} | {n[2] / b[2]:.2f} | {n[3] / b[3]:.2f} | "
+          f"{b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
     return 0
 
 

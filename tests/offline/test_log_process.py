@@ -1,12 +1,13 @@
 """A replay's log written in a process of its own (offline.log_process): the same bytes as the log written in the run's
-process, for frames one by one, a log's batches, a second pass and a real capture; an input read again that differs
-and an error where the log is written each end the run with their error and leave no process behind (a run that
-stops: test_summary_process.py)."""
+process, for frames one by one, a log's raw messages, a second pass, a real capture and an old log's frames one
+message each; records decoded otherwise in the process and an error where the log is written each end the run with
+their error and leave no process behind (a run that stops: test_summary_process.py)."""
 
 from __future__ import annotations
 
 import dataclasses
 import io
+import os
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,9 @@ import pytest
 
 from slipdaq.cli import main
 from slipdaq.config import Config, load_config
-from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count
+from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
+from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
+from slipdaq.logformat.topics import TOPIC_CAN, TOPIC_NMEA
 from slipdaq.offline.log_process import LogProcessError
 from slipdaq.offline.run import first_pass, process_to_log
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
@@ -37,14 +40,16 @@ def drive() -> tuple[Config, list[Any]]:
     return cfg, records
 
 
-def _both_ways(cfg: Config, records: Any, tmp_path: Path, name: str, **options: Any) -> bytes:
-    """The log written here and in a process of its own; the bytes, checked equal."""
+def _both_ways(cfg: Config, pieces: Any, decode: Any, tmp_path: Path, name: str, **options: Any) -> bytes:
+    """The log written here and in a process of its own (sent the pieces: decode(pieces()) the records); the bytes,
+    checked equal."""
     here = tmp_path / f"{name}-here.mcap"
     apart = tmp_path / f"{name}-apart.mcap"
-    p_here = process_to_log(cfg, records(), here, "replay", metadata=FIXED_META, stream=io.StringIO(), **options)
+    p_here = process_to_log(cfg, decode(pieces()), here, "replay", metadata=FIXED_META, stream=io.StringIO(),
+                            **options)
     before = len(FORKS)
-    p_apart = process_to_log(cfg, records(), apart, "replay", metadata=FIXED_META, stream=io.StringIO(),
-                             reread=records, **options)
+    p_apart = process_to_log(cfg, pieces(), apart, "replay", metadata=FIXED_META, stream=io.StringIO(),
+                             decode=decode, **options)
     assert len(FORKS) - before == 2  # the log's process and the summaries'
     assert p_apart.estimates == p_here.estimates > 0
     assert apart.read_bytes() == here.read_bytes()
@@ -52,21 +57,26 @@ def _both_ways(cfg: Config, records: Any, tmp_path: Path, name: str, **options: 
     return here.read_bytes()
 
 
+def _records(pieces: Any) -> Any:
+    return pieces
+
+
 def test_frames_one_by_one_the_same_bytes(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
+    """Records sent as they are (pickled): single frames, batched as the run batches them."""
     cfg, records = drive
-    _both_ways(cfg, lambda: iter(records), tmp_path, "frames", total=len(records))
+    _both_ways(cfg, lambda: iter(records), _records, tmp_path, "frames", total=len(records))
 
 
 def test_a_logs_replay_and_its_second_pass_the_same_bytes(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
-    """A log's CAN batches (as iter_raw_batches reads them), the first replay and a second pass (its calibration
-    held, the smoothed speeds)."""
+    """A log's raw messages (as a replay reads them), the first replay and a second pass (its calibration held, the
+    smoothed speeds)."""
     cfg, records = drive
     log = tmp_path / "recorded.mcap"
     process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
-    again = lambda: iter_raw_batches(log)  # noqa: E731
-    _both_ways(cfg, again, tmp_path, "replay", total=len(records))
-    first = first_pass(cfg, again(), None, str(log), total=len(records), stream=io.StringIO())
-    _both_ways(cfg, again, tmp_path, "second", total=len(records), **first.second_pass())
+    messages = lambda: iter_raw_messages(log)  # noqa: E731
+    _both_ways(cfg, messages, raw_batches, tmp_path, "replay", total=len(records))
+    first = first_pass(cfg, iter_raw_batches(log), None, str(log), total=len(records), stream=io.StringIO())
+    _both_ways(cfg, messages, raw_batches, tmp_path, "second", total=len(records), **first.second_pass())
 
 
 def test_a_real_captures_replay_the_same_bytes(tmp_path: Path) -> None:
@@ -75,38 +85,73 @@ def test_a_real_captures_replay_the_same_bytes(tmp_path: Path) -> None:
     assert main(["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea", str(RAV4 / "rav4_ublox.nmea"),
                  "--config", str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"), "-o", str(log),
                  "--no-calibration"]) == 0
-    _both_ways(config_from_log(log), lambda: iter_raw_batches(log), tmp_path, "rav4", total=raw_record_count(log))
+    _both_ways(config_from_log(log), lambda: iter_raw_messages(log), raw_batches, tmp_path, "rav4",
+               total=raw_record_count(log))
 
 
-def _line_missing(records: list[Any]) -> list[Any]:
-    k = next(i for i, r in enumerate(records) if isinstance(r, NmeaLine) and i > len(records) // 3)
-    return records[:k] + records[k + 1:]
+def test_an_old_logs_frames_one_message_each_the_same_bytes(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
+    """A log from before the batches (a JSON message per CAN frame): the process joins its frames into the same
+    batches as the run, though a batch's messages may reach it in several of the run's sends."""
+    cfg, records = drive
+    messages = [((None,), TOPIC_CAN, "json", dumps(can_frame_to_dict(r))) if isinstance(r, CanFrame)
+                else ((None,), TOPIC_NMEA, "json", dumps({"timestamp_s": r.timestamp_s, "line": r.line}))
+                for r in records]
+    _both_ways(cfg, lambda: iter(messages), raw_batches, tmp_path, "old", total=len(records))
 
 
-def _frame_moved(records: list[Any]) -> list[Any]:
-    k = next(i for i, r in enumerate(records) if isinstance(r, CanFrame) and i > len(records) // 3
-             and isinstance(records[i - 1], NmeaLine))  # the first frame of a run: its time is checked
-    return records[:k] + [dataclasses.replace(records[k], timestamp_s=records[k].timestamp_s + 1e-6)] + records[k + 1:]
+PARENT = os.getpid()
 
 
-def _cut_after_a_line(records: list[Any]) -> list[Any]:
-    return records[: next(i for i, r in enumerate(records) if isinstance(r, NmeaLine) and i > 2 * len(records) // 3)]
+def _in_the_process_only(change: Any) -> Any:
+    """A decode that changes the records in the log's process only (the run's records as they are)."""
+    def decode(pieces: Any) -> Any:
+        return change(pieces) if os.getpid() != PARENT else pieces
+    return decode
+
+
+def _line_moved(records: Any) -> Any:
+    lines = 0
+    for r in records:
+        if isinstance(r, NmeaLine):
+            lines += 1
+            if lines == 100:
+                r = dataclasses.replace(r, timestamp_s=r.timestamp_s + 1e-6)
+        yield r
+
+
+def _frame_moved(records: Any) -> Any:
+    frames, before = 0, None
+    for r in records:
+        if isinstance(r, CanFrame) and isinstance(before, NmeaLine):
+            frames += 1
+            if frames == 100:  # the first frame of a run: its time is checked
+                r = dataclasses.replace(r, timestamp_s=r.timestamp_s + 1e-6)
+        before = r
+        yield r
+
+
+def _cut_after_a_line(records: Any) -> Any:
+    lines = 0
+    for r in records:
+        yield r
+        lines += isinstance(r, NmeaLine)
+        if lines == 100:
+            return
 
 
 @pytest.mark.parametrize(("change", "error"), [
-    (_line_missing, "another record than the run's"),
+    (_line_moved, "another record than the run's"),
     (_frame_moved, "other CAN frames than the run's"),
-    (_cut_after_a_line, "read to the input's end before the run did"),
+    (_cut_after_a_line, "decoded fewer items of the input than the run read"),
 ])
-def test_an_input_read_again_that_differs_fails_the_run(drive: tuple[Config, list[Any]], tmp_path: Path,
-                                                        change: Any, error: str) -> None:
-    """The log's process checks each run of frames' first time and each raw record's time: a line missing, a frame
-    moved by a microsecond and the input cut short are each an error."""
+def test_records_decoded_otherwise_in_the_process_fail_the_run(drive: tuple[Config, list[Any]], tmp_path: Path,
+                                                               change: Any, error: str) -> None:
+    """The log's process checks each run of frames' first time and each raw record's time against the run's calls:
+    a line or a frame moved by a microsecond and the input ending early there are each an error."""
     cfg, records = drive
-    other = change(records)
     with pytest.raises(LogProcessError, match=error) as raised:
         process_to_log(cfg, iter(records), tmp_path / "out.mcap", "replay", stream=io.StringIO(),
-                       total=len(records), reread=lambda: iter(other))
+                       total=len(records), decode=_in_the_process_only(change))
     assert "in the log's process" in "".join(raised.value.__notes__)
     assert children() == []
 
@@ -120,6 +165,6 @@ def test_an_error_where_the_log_is_written_is_the_runs(drive: tuple[Config, list
         process_to_log(cfg, iter(records), out, "replay", stream=io.StringIO(), total=len(records))
     with pytest.raises(IsADirectoryError) as raised:
         process_to_log(cfg, iter(records), out, "replay", stream=io.StringIO(), total=len(records),
-                       reread=lambda: iter(records))
+                       decode=_records)
     assert "in the log's process" in "".join(raised.value.__notes__)
     assert children() == []

@@ -166,7 +166,7 @@ def test_the_process_ends_when_the_run_stops(drive: tuple[Config, list[Any]], tm
     before = len(FORKS)
     with pytest.raises(type(error)):
         process_to_log(cfg, _interrupted(records, len(records) // 2, error), tmp_path / "out.mcap", "replay",
-                       total=MIN_RAW_RECORDS, stream=io.StringIO(), reread=(lambda: iter(records)) if log_apart else None)
+                       total=MIN_RAW_RECORDS, stream=io.StringIO(), decode=(lambda p: p) if log_apart else None)
     assert FORKS[before:] == [os.getpid()] * (2 if log_apart else 1)  # forked by this process
     assert not [p for p in multiprocessing.active_children() if p.name in ("slipdaq-summaries", "slipdaq-log")]
     assert children() == []

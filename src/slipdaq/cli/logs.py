@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from pathlib import Path
 
 from slipdaq.cli.common import (
@@ -182,9 +183,16 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
+    from slipdaq.logformat.reader import (
+        RawMessage,
+        config_from_log,
+        iter_raw_messages,
+        raw_batches,
+        raw_record_count,
+        read_metadata,
+    )
     from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.offline.run import first_pass, process_to_log, start_calibration
+    from slipdaq.offline.run import ReadOnce, first_pass, process_to_log, start_calibration
     from slipdaq.report.labels import LABEL_PREFIX
     from slipdaq.sources.read_errors import guarded
 
@@ -197,12 +205,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
                            logged=start_calibration(meta, args.log))
     scanned = ScanResult(Path(args.log))
     first = None
-    if args.two_pass:
-        first = first_pass(cfg, guarded(args.log, iter_raw_batches(args.log)), cal.start, str(args.log), total=total)
+    if args.two_pass:  # the first pass's messages kept for the second (ReadOnce)
+        read = ReadOnce(lambda scan: iter_raw_messages(args.log, scanned if scan else None))
+        first = first_pass(cfg, guarded(args.log, raw_batches(read.first())), cal.start, str(args.log), total=total)
+        messages: Iterator[RawMessage] = read.second()
+    else:
+        messages = iter_raw_messages(args.log, scanned)
     with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp, _imports_frozen():
-        p = process_to_log(cfg, guarded(args.log, iter_raw_batches(args.log, scanned)), tmp, "replay",
+        p = process_to_log(cfg, messages, tmp, "replay",
                            metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
-                           total=total, reread=lambda: iter_raw_batches(args.log),
+                           total=total, decode=lambda messages: guarded(args.log, raw_batches(messages)),
                            **(first.second_pass() if first else {"calibration": cal.start}))
         records = p.can_frames + p.nmea.lines + p.ubx.frames
         _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)

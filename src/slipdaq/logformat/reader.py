@@ -12,7 +12,7 @@ everything else.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +47,8 @@ from slipdaq.logformat.topics import (
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame, XbusBytes
 
 __all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates",
-           "iter_raw_batches", "iter_raw_records", "iter_topic", "raw_record_count", "read_metadata"]
+           "iter_raw_batches", "iter_raw_messages", "iter_raw_records", "iter_topic", "raw_batches", "raw_record_count",
+           "read_metadata"]
 
 
 def _open(path: str | Path):
@@ -170,12 +171,14 @@ def iter_topic(
                 yield topic, log_time_ns(s.timestamp_s), wheel_sample_to_dict(s)
 
 
-def iter_raw_batches(
-    path: str | Path, scan_result: ScanResult | None = None
-) -> Iterator[CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame]:
-    """The raw records in the order the pipeline processed them when recording, CAN frames as batches: the logged
-    batches as they are, or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
-    run: list[CanFrame] = []
+RawMessage = tuple[tuple[str | None, ...], str, str, bytes]
+"""A raw topic's message as a replay reads it: (the log's CAN channel names, topic, message encoding, data)."""
+RawItem = CanFrameBatch | NmeaLine | UbxFrame | XbusBytes | RtcmFrame
+
+
+def iter_raw_messages(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[RawMessage]:
+    """The raw topics' messages in the order they were written, each with the CAN channel names of the log's
+    metadata (iter_messages: checked as it reads them)."""
     channels: list[tuple[str | None, ...]] = [(None,)]
 
     def on_metadata(name: str, metadata: dict[str, str]) -> None:
@@ -183,12 +186,20 @@ def iter_raw_batches(
             channels[0] = can_channels(metadata, path)
 
     for topic, encoding, _t, data in iter_messages(path, RAW_TOPICS, scan_result, on_metadata):
+        yield channels[0], topic, encoding, data
+
+
+def raw_batches(messages: Iterable[RawMessage]) -> Iterator[RawItem]:
+    """The raw records of raw messages (iter_raw_messages), CAN frames as batches: the logged batches as they are,
+    or (a log from before the batches) runs of up to MAX_BATCH_FRAMES per-frame messages."""
+    run: list[CanFrame] = []
+    for channels, topic, encoding, data in messages:
         if topic == TOPIC_CAN:
             if encoding == cdr.ENCODING:
                 if run:
                     yield CanFrameBatch.from_frames(run)
                     run = []
-                yield cdr.decode_can_batch(data, channels[0])[1]
+                yield cdr.decode_can_batch(data, channels)[1]
             else:
                 run.append(can_frame_from_dict(loads(data)))
                 if len(run) >= MAX_BATCH_FRAMES:
@@ -209,6 +220,12 @@ def iter_raw_batches(
             yield NmeaLine(d["timestamp_s"], d["line"])
     if run:
         yield CanFrameBatch.from_frames(run)
+
+
+def iter_raw_batches(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[RawItem]:
+    """The raw records in the order the pipeline processed them when recording (raw_batches of
+    iter_raw_messages)."""
+    yield from raw_batches(iter_raw_messages(path, scan_result))
 
 
 def iter_raw_records(path: str | Path, scan_result: ScanResult | None = None) -> Iterator[RawRecord]:

@@ -1,12 +1,14 @@
 """A replay's log written in a process of its own (LogProcess): the run's sink calls go, in order, to a forked process
 that makes the log's sink and calls it. The CAN frames, their wheel samples and the other raw records, most of what a
-sink gets, are not sent: the process reads the same input itself and decodes the wheel frames as the pipeline does
-(the decoder gives the same samples however the frames are cut), and a call names only how many frames or samples,
-with the first frame's or the record's time, or the samples' first and last frame and last revolutions, which the
-process checks against what it read and decoded. The sink gets the same calls with the same records: the same log."""
+sink gets, are not sent as records: the run sends its input as it read it (a log's raw messages, the bytes as read),
+the process decodes it as the run does and decodes the wheel frames as the pipeline does (the decoder gives the same
+samples however the frames are cut), and a call names only how many frames or samples, with the first frame's or
+the record's time, or the samples' first and last frame and last revolutions, which the process checks against what
+it decoded. The sink gets the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
+import fcntl
 import gc
 import pickle
 import queue
@@ -14,7 +16,7 @@ import signal
 import threading
 import traceback
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from multiprocessing import get_context
 from multiprocessing.connection import Connection
 from types import TracebackType
@@ -34,21 +36,55 @@ DECODE_FRAMES = 8192
 """The log's process decodes the wheel frames of this many frames (of whole batches) at once (numpy's cost per call
 paid once for many, as Pipeline.process_all does)."""
 FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
-"""The calls whose records the process takes from its own reading: on_can_batch, on_wheel_batch, on_raw."""
+"""The calls whose records the process takes from the input it decodes: on_can_batch, on_wheel_batch, on_raw."""
+INPUT, INPUT_END = "input", "input_end"
+"""The input's pieces (a log's raw messages) the run read for its next item, the process decoding the same; the end
+of the input's pieces."""
 
-Items = Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
+Item = RawRecord | CanFrameBatch | list[CanFrame]
+Decode = Callable[[Iterable[Any]], Iterable[Item]]
+"""The input's items (as Pipeline.process_all gets them) from its pieces: the same function in the run and the process."""
 
 
 class LogProcessError(RuntimeError):
     """The log's process read other records than the run's, or ended without saying why."""
 
 
+class _Pieces:
+    """The input's pieces as the run sends them, item by item: an iterator that never runs dry while an item is owed."""
+
+    def __init__(self) -> None:
+        self._pieces: deque[Any] = deque()
+        self.items = 0
+        """Items the run has read: the process may take as many."""
+        self._ended = False
+
+    def add(self, pieces: list[Any]) -> None:
+        self._pieces.extend(pieces)
+        self.items += 1
+
+    def __iter__(self) -> Iterator[Any]:
+        return self
+
+    def end(self) -> None:
+        self._ended = True
+
+    def __next__(self) -> Any:
+        if not self._pieces:
+            if self._ended:
+                raise StopIteration
+            raise LogProcessError("the log's process decoded more of the input than the run had read")
+        return self._pieces.popleft()
+
+
 class _Input:
-    """The input read again in the log's process: its CAN frames in the pieces and its other raw records in the order
+    """The input as the log's process decodes it: its CAN frames in the pieces and its other raw records in the order
     the run's calls take them, its wheel frames decoded DECODE_FRAMES at a time."""
 
-    def __init__(self, items: Items, config: Config) -> None:
-        self._items = iter(items)
+    def __init__(self, decode: Decode, config: Config) -> None:
+        self.pieces = _Pieces()
+        self._items = iter(decode(self.pieces))
+        self._taken = 0
         self._decoder = WheelDecoder(config)
         self._batches: deque[tuple[CanFrameBatch, WheelSampleBatch, int]] = deque()
         """Batches read, each with the samples of the frames decoded with it and its first frame's index there."""
@@ -59,13 +95,15 @@ class _Input:
         """The samples of the frames taken last."""
 
     def _read(self) -> None:
-        """Items read until DECODE_FRAMES frames or the input's end, their wheel frames decoded at once."""
+        """Items decoded until DECODE_FRAMES frames or the last item the run has read, their wheel frames decoded at
+        once."""
         got: list[CanFrameBatch] = []
         frames, raw = 0, len(self._raw)
-        while frames < DECODE_FRAMES:
+        while frames < DECODE_FRAMES and self._taken < self.pieces.items:
             item = next(self._items, None)
             if item is None:
-                break
+                raise LogProcessError("the log's process decoded fewer items of the input than the run read")
+            self._taken += 1
             if isinstance(item, list):
                 item = CanFrameBatch.from_frames(item)
             if not isinstance(item, CanFrameBatch):
@@ -75,7 +113,7 @@ class _Input:
                 frames += len(item)
         if not got:
             if len(self._raw) == raw:
-                raise LogProcessError("the log's process read to the input's end before the run did")
+                raise LogProcessError("the run's calls name more of the input than it has read")
             return
         samples = self._decoder.decode_batch(got[0] if len(got) == 1 else CanFrameBatch.concat(got))
         first = 0
@@ -126,8 +164,8 @@ def _mark(samples: WheelSampleBatch) -> tuple[int, int, int, float]:
         (0, 0, 0, 0.0)
 
 
-def _serve(make_sink: Callable[[], Sink], items: Callable[[], Items], config: Config, calls: Connection,
-           done: Connection, parent_ends: tuple[Connection, ...]) -> None:
+def _serve(make_sink: Callable[[], Sink], decode: Decode, config: Config, calls: Connection, done: Connection,
+           parent_ends: tuple[Connection, ...]) -> None:
     """The log's process: the calls, run by run, to the sink, until told to stop (then it is closed) or the run's end
     of the pipe closes; None back when the log is closed, else the error."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
@@ -137,8 +175,9 @@ def _serve(make_sink: Callable[[], Sink], items: Callable[[], Items], config: Co
     try:
         sink = make_sink()
         try:
-            source = _Input(items(), config)
+            source = _Input(decode, config)
             take: dict[str, Callable[..., None]] = {name: getattr(sink, name) for name in SINK_CALLS}
+            take[INPUT], take[INPUT_END] = source.pieces.add, source.pieces.end
             take[FRAMES] = lambda n, t: sink.on_can_batch(source.frames(n, t))
             take[SAMPLES] = lambda mark: sink.on_wheel_batch(source.samples(mark))
             take[RAW] = lambda t: sink.on_raw(source.record(t))
@@ -165,17 +204,22 @@ def _serve(make_sink: Callable[[], Sink], items: Callable[[], Items], config: Co
 
 
 class LogProcess(Sink):
-    """A sink in a forked process (make_sink()'s there) whose raw records come from items(), the run's input read
-    again (as Pipeline.process_all gets it): its calls are pickled here, RUN_CALLS at a time, and written to the pipe
-    by a thread. close() waits for the process to close the log and raises its error, if any; a run that fails calls
+    """A sink in a forked process (make_sink()'s there) whose raw records come from the run's input as input() reads
+    it, decoded there by decode: its calls are pickled here, RUN_CALLS at a time, and written to the pipe by a
+    thread. close() waits for the process to close the log and raises its error, if any; a run that fails calls
     terminate(). Fork it before any thread is started (the summaries' process after it)."""
 
-    def __init__(self, make_sink: Callable[[], Sink], items: Callable[[], Items], config: Config) -> None:
+    def __init__(self, make_sink: Callable[[], Sink], decode: Decode, config: Config) -> None:
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
         calls_in, self._calls = ctx.Pipe(duplex=False)
+        try:
+            fcntl.fcntl(self._calls.fileno(), 1031, 1 << 20)  # F_SETPIPE_SZ
+        except OSError:
+            pass
         self._done, done_out = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(target=_serve, args=(make_sink, items, config, calls_in, done_out,
+        self._decode = decode
+        self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, calls_in, done_out,
                                                         (self._calls, self._done)), name="slipdaq-log", daemon=True)
         self.process.start()
         calls_in.close()
@@ -186,6 +230,21 @@ class LogProcess(Sink):
         self._broken = False
         """The pipe broke: the process has ended (its error is on the done pipe)."""
         self._ended = False
+
+    def input(self, pieces: Iterable[Any]) -> Iterator[Item]:
+        """The run's input: decode(pieces), each item's pieces (those read for it) sent to the process before it."""
+        read: list[Any] = []
+
+        def tee() -> Iterator[Any]:
+            for piece in pieces:
+                read.append(piece)
+                yield piece
+            self._call(INPUT_END, ())  # before the last item's pieces: what decode reads past them is the end
+
+        for item in self._decode(tee()):
+            self._call(INPUT, (read[:],))
+            read.clear()
+            yield item
 
     def _call(self, name: str, args: tuple[Any, ...]) -> None:
         self._run.append((name, args))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import itertools
 import math
 import sys
 import time
@@ -47,7 +48,8 @@ READ_AHEAD_FRAMES = 4096
 READ_AHEAD_ITEMS = 1024
 
 
-def batched(records: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch | list[CanFrame]]:
+def batched(records: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
+            ) -> Iterator[RawRecord | CanFrameBatch | list[CanFrame]]:
     """Runs of consecutive CanFrames as lists (up to BATCH_FRAMES); everything else as it comes."""
     run: list[CanFrame] = []
     for r in records:
@@ -128,7 +130,7 @@ def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
 
 def process(
     config: Config,
-    records: Iterable[RawRecord | CanFrameBatch],
+    records: Iterable[RawRecord | CanFrameBatch | list[CanFrame]],
     sinks: list[Sink],
     *,
     calibration: Calibration | None = None,
@@ -181,31 +183,33 @@ def process(
 
 def process_to_log(
     config: Config,
-    records: Iterable[RawRecord | CanFrameBatch],
+    records: Iterable[Any],
     out_path: Path,
     mode: str,
     *,
     metadata: dict[str, str] | None = None,
-    reread: Callable[[], Iterable[RawRecord | CanFrameBatch]] | None = None,
+    decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]] | None = None,
     **options: Any,
 ) -> Pipeline:
     """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
     calibration it started from is stored in the log's metadata (calibration_toml), so that a replay of the log
     starts from it too. A run of a known total of at least summaries.MIN_RAW_RECORDS records summarizes its
-    maneuvers in a second process (forked before the log's writer starts its thread), and, given reread (the same
-    records again, read anew: a replay's input), writes its log in a process of its own (log_process.LogProcess,
-    forked first): the same bytes."""
+    maneuvers in a second process (forked before the log's writer starts its thread), and, given decode (records
+    are then the input's pieces, a replay's raw messages, and decode(records) its records), writes its log in a
+    process of its own (log_process.LogProcess, forked first), which takes the pieces from the run: the same
+    bytes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
     make = functools.partial(McapLogSink, out_path, config, mode=mode, metadata=meta)
     beside = worth_a_process(options.get("total"))
     with contextlib.ExitStack() as stack:
-        apart = stack.enter_context(LogProcess(make, lambda: batched(reread()), config)) \
-            if reread is not None and beside else None
+        apart = stack.enter_context(LogProcess(make, lambda pieces: batched(decode(pieces)), config)) \
+            if decode is not None and beside else None
         summaries = stack.enter_context(SummaryProcess()) if beside and options.get("maneuvers", True) else None
         sink = apart or make()
+        items = apart.input(records) if apart is not None else decode(records) if decode is not None else records
         try:
-            return process(config, records, [sink], **({"description": mode, "summaries": summaries} | options))
+            return process(config, items, [sink], **({"description": mode, "summaries": summaries} | options))
         finally:
             if apart is None:
                 sink.close()
@@ -256,6 +260,41 @@ class FirstPass:
         """process()'s options for the second pass: this calibration held fixed, these speeds."""
         return {"calibration": self.calibration, "frozen": True, "gps_speeds": self.gps_speeds,
                 "description": "pass 2 of 2"}
+
+
+KEEP_BYTES = 256 * 1024 * 1024
+"""A two-pass run keeps the raw messages its first pass read, up to this many bytes of their data (about 40 minutes of
+4 WPT messages at 1 kHz), for its second pass, which reads only the rest of the log again."""
+
+
+class ReadOnce:
+    """A log's raw messages for the two passes of a run: the first pass's read from the log (read(True): the read
+    whose scan result the caller keeps) and kept up to keep_bytes of their data (KEEP_BYTES); the second's the kept
+    ones, then, where they are not all of them, the rest read again (read(False))."""
+
+    def __init__(self, read: Callable[[bool], Iterable[Any]], keep_bytes: int | None = None) -> None:
+        self._read = read
+        self._keep_bytes = KEEP_BYTES if keep_bytes is None else keep_bytes
+        self._kept: list[Any] = []
+        self._all = False
+
+    def first(self) -> Iterator[Any]:
+        kept: list[Any] | None = self._kept
+        size = 0
+        for message in self._read(True):
+            if kept is not None:
+                size += len(message[-1])
+                if size <= self._keep_bytes:
+                    kept.append(message)
+                else:
+                    kept = None
+            yield message
+        self._all = kept is not None
+
+    def second(self) -> Iterator[Any]:
+        yield from self._kept
+        if not self._all:
+            yield from itertools.islice(self._read(False), len(self._kept), None)
 
 
 def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
@@ -363,7 +402,7 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
     maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
     beside the second pass (DetectorFeed; Rows.maneuvers)."""
-    from slipdaq.logformat.reader import config_from_log, iter_raw_batches, raw_record_count, read_metadata
+    from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_batches, raw_record_count, read_metadata
     from slipdaq.sources.read_errors import guarded
 
     config = config_from_log(log)
@@ -372,9 +411,11 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     if total == 0:
         return None
     with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
-        first = first_pass(config, guarded(log, iter_raw_batches(log)), start, str(log), total=total, stream=stream)
+        messages = ReadOnce(lambda _: iter_raw_messages(log))
+        first = first_pass(config, guarded(log, raw_batches(messages.first())), start, str(log), total=total,
+                           stream=stream)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
-        p = process(config, guarded(log, iter_raw_batches(log)), [rows], total=total, stream=stream,
+        p = process(config, guarded(log, raw_batches(messages.second())), [rows], total=total, stream=stream,
                     maneuvers=False, **first.second_pass())
         if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
             return None
