@@ -59,9 +59,9 @@ def import_python_can(with_mf4: bool) -> None:
 
 def main() -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
-    from slipdaq.allocator import fix_malloc_thresholds
-
     if verb_of(sys.argv[1:]) in ALLOCATOR_FIXED_VERBS:
+        from slipdaq.allocator import fix_malloc_thresholds  # ctypes.util: 10 ms, for these verbs only
+
         fix_malloc_thresholds()  # before the first large block (slipdaq/allocator.py)
     gc.disable()
     try:
