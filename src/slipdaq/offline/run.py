@@ -292,9 +292,13 @@ class ReadOnce:
         self._all = kept is not None
 
     def second(self) -> Iterator[Any]:
-        yield from self._kept
+        """The messages again (once), each kept one let go as it is taken."""
+        kept, self._kept = self._kept[::-1], []
+        skip = len(kept)
+        while kept:
+            yield kept.pop()
         if not self._all:
-            yield from itertools.islice(self._read(False), len(self._kept), None)
+            yield from itertools.islice(self._read(False), skip, None)
 
 
 def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
