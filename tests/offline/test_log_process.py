@@ -91,7 +91,8 @@ def test_a_real_captures_replay_the_same_bytes(tmp_path: Path) -> None:
 
 def test_an_old_logs_frames_one_message_each_the_same_bytes(drive: tuple[Config, list[Any]], tmp_path: Path) -> None:
     """A log from before the batches (a JSON message per CAN frame): the process joins its frames into the same
-    batches as the run, though a batch's messages may reach it in several of the run's sends."""
+    batches as the run (the message that ends a batch, read to end it, is sent with it; the record it makes, with
+    nothing)."""
     cfg, records = drive
     messages = [((None,), TOPIC_CAN, "json", dumps(can_frame_to_dict(r))) if isinstance(r, CanFrame)
                 else ((None,), TOPIC_NMEA, "json", dumps({"timestamp_s": r.timestamp_s, "line": r.line}))

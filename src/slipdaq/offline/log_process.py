@@ -8,6 +8,7 @@ it decoded. The sink gets the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import gc
 import pickle
@@ -35,6 +36,8 @@ QUEUED_RUNS = 256
 DECODE_FRAMES = 8192
 """The log's process decodes the wheel frames of this many frames (of whole batches) at once (numpy's cost per call
 paid once for many, as Pipeline.process_all does)."""
+PIPE_BYTES = 1 << 20
+"""The calls' pipe's size where the system lets it be set (the default, 64 kB, takes 16 writes a megabyte)."""
 FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
 """The calls whose records the process takes from the input it decodes: on_can_batch, on_wheel_batch, on_raw."""
 INPUT, INPUT_END = "input", "input_end"
@@ -213,10 +216,9 @@ class LogProcess(Sink):
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
         calls_in, self._calls = ctx.Pipe(duplex=False)
-        try:
-            fcntl.fcntl(self._calls.fileno(), 1031, 1 << 20)  # F_SETPIPE_SZ
-        except OSError:
-            pass
+        if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux: fewer writes and wake-ups
+            with contextlib.suppress(OSError):
+                fcntl.fcntl(self._calls.fileno(), set_size, PIPE_BYTES)
         self._done, done_out = ctx.Pipe(duplex=False)
         self._decode = decode
         self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, calls_in, done_out,
