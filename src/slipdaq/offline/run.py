@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import itertools
 import math
 import sys
 import time
@@ -264,41 +263,38 @@ class FirstPass:
 
 KEEP_BYTES = 256 * 1024 * 1024
 """A two-pass run keeps the raw messages its first pass read, up to this many bytes of their data (about 40 minutes of
-4 WPT messages at 1 kHz), for its second pass, which reads only the rest of the log again."""
+4 WPT messages at 1 kHz), for its second pass; a longer log is read again."""
 
 
 class ReadOnce:
     """A log's raw messages for the two passes of a run: the first pass's read from the log (read(True): the read
-    whose scan result the caller keeps) and kept up to keep_bytes of their data (KEEP_BYTES); the second's the kept
-    ones, then, where they are not all of them, the rest read again (read(False))."""
+    whose scan result the caller keeps) and kept while their data stays within keep_bytes (KEEP_BYTES); the second's
+    the kept ones, or, from a longer log, which keeps none, the log read again (read(False))."""
 
     def __init__(self, read: Callable[[bool], Iterable[Any]], keep_bytes: int | None = None) -> None:
         self._read = read
         self._keep_bytes = KEEP_BYTES if keep_bytes is None else keep_bytes
-        self._kept: list[Any] = []
-        self._all = False
+        self._kept: list[Any] | None = []
 
     def first(self) -> Iterator[Any]:
-        kept: list[Any] | None = self._kept
         size = 0
         for message in self._read(True):
-            if kept is not None:
+            if self._kept is not None:
                 size += len(message[-1])
                 if size <= self._keep_bytes:
-                    kept.append(message)
-                else:
-                    kept = None
+                    self._kept.append(message)
+                else:  # read again: a part kept would spare none of the reading (it reads from the start)
+                    self._kept = None
             yield message
-        self._all = kept is not None
 
     def second(self) -> Iterator[Any]:
         """The messages again (once), each kept one let go as it is taken."""
+        if self._kept is None:
+            yield from self._read(False)
+            return
         kept, self._kept = self._kept[::-1], []
-        skip = len(kept)
         while kept:
             yield kept.pop()
-        if not self._all:
-            yield from itertools.islice(self._read(False), skip, None)
 
 
 def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
