@@ -165,15 +165,14 @@ def one(variant: str, log: Path, out: Path) -> dict[str, float]:
     children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     self0 = resource.getrusage(resource.RUSAGE_SELF)
     wall0, main0 = time.perf_counter(), time.thread_time()
-    records = forked_reader(log) if variant.endswith("log read forked") else iter_raw_batches(log)
+    make = functools.partial(McapLogSink, out, config, mode="replay", metadata={})
+    apart = LogProcess(make, lambda messages: run.batched(raw_batches(messages)), config) \
+        if variant.endswith("written apart") else None
+    records = forked_reader(log) if variant.endswith("log read forked") else \
+        apart.input(iter_raw_messages(log)) if apart is not None else iter_raw_batches(log)
     if variant.startswith("first pass"):
         run.first_pass(config, records, start, str(log), total=total, stream=quiet)
     else:
-        make = functools.partial(McapLogSink, out, config, mode="replay", metadata={})
-        apart = LogProcess(make, lambda messages: run.batched(raw_batches(messages)), config) \
-            if variant.endswith("written apart") else None
-        if apart is not None:
-            records = apart.input(iter_raw_messages(log))
         sink = forked_sink(make) if variant.endswith("sink forked") else apart or make()
         try:
             with SummaryProcess() as summaries:

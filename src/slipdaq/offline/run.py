@@ -261,6 +261,15 @@ class FirstPass:
                 "description": "pass 2 of 2"}
 
 
+def log_decoder(log: str | Path) -> Callable[[Iterable[Any]], Iterator[RawRecord | CanFrameBatch]]:
+    """A log's raw messages (reader.iter_raw_messages) to its records (reader.raw_batches), an error in reading or
+    decoding them one InputError naming the log (sources.read_errors.guarded)."""
+    from slipdaq.logformat.reader import raw_batches
+    from slipdaq.sources.read_errors import guarded
+
+    return lambda messages: guarded(log, raw_batches(messages))
+
+
 KEEP_BYTES = 256 * 1024 * 1024
 """A two-pass run keeps the raw messages its first pass read, up to this many bytes of their data (about 40 minutes of
 4 WPT messages at 1 kHz), for its second pass; a longer log is read again."""
@@ -402,8 +411,7 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
     maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
     beside the second pass (DetectorFeed; Rows.maneuvers)."""
-    from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_batches, raw_record_count, read_metadata
-    from slipdaq.sources.read_errors import guarded
+    from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_record_count, read_metadata
 
     config = config_from_log(log)
     start = start_calibration(read_metadata(log), log)
@@ -411,12 +419,11 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     if total == 0:
         return None
     with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
-        messages = ReadOnce(lambda _: iter_raw_messages(log))
-        first = first_pass(config, guarded(log, raw_batches(messages.first())), start, str(log), total=total,
-                           stream=stream)
+        messages, decode = ReadOnce(lambda _: iter_raw_messages(log)), log_decoder(log)
+        first = first_pass(config, decode(messages.first()), start, str(log), total=total, stream=stream)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
-        p = process(config, guarded(log, raw_batches(messages.second())), [rows], total=total, stream=stream,
-                    maneuvers=False, **first.second_pass())
+        p = process(config, decode(messages.second()), [rows], total=total, stream=stream, maneuvers=False,
+                    **first.second_pass())
         if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
             return None
         if rows.feed is not None:
