@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from slipdaq.estimator.gps_track import integrate_speed_m
 from slipdaq.estimator.latency import LOCAL_FIT_HALF_SAMPLES, ring_revolutions
 from slipdaq.estimator.numpy_rules import interp_into, pairwise_sum
-from slipdaq.estimator.ring import SeriesRing
+from slipdaq.estimator.ring import LINE_CACHE_SIZE, SeriesRing, new_line_cache
 from slipdaq.estimator.wheel_revolutions import GAP_INTERVALS, MIN_GAP_S, TWO_PI, WheelWindows
 from support.paths import kernels
 
@@ -219,7 +219,8 @@ def test_latency_rows_revolutions(wheels, stall, arrival, lags, zero) -> None:  
         arcs = np.empty(len(times))
         add = ring_revolutions()
         for k, r in enumerate(rings):
-            if not add(r.times, r.values, times, first_needed, arrival, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0):
+            if not add(r.times, r.values, times, first_needed, arrival, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0,
+                       r.dropped, *new_line_cache(LINE_CACHE_SIZE)):  # a cache of its own: every line computed here
                 return None
         return arcs
 
@@ -249,7 +250,7 @@ def test_latency_rows_revolutions_stall_inside_and_outside_the_lags() -> None:
             add = ring_revolutions()
             for k, r in enumerate(rings):
                 if not add(r.times, r.values, times, first_needed, arrival,  # noqa: B023
-                           LOCAL_FIT_HALF_SAMPLES, arcs, k == 0):
+                           LOCAL_FIT_HALF_SAMPLES, arcs, k == 0, r.dropped, *new_line_cache(LINE_CACHE_SIZE)):
                     return None
             return arcs
 
@@ -257,3 +258,44 @@ def test_latency_rows_revolutions_stall_inside_and_outside_the_lags() -> None:
             assert (got is None) == inside
             if got is not None and want is not None:
                 assert [bits(a) for a in got] == [bits(b) for b in want]
+
+
+@pytest.mark.parametrize("cache_size", [1, 8, LINE_CACHE_SIZE])
+def test_latency_rows_revolutions_with_each_rings_line_cache(cache_size: int) -> None:
+    """Fix after fix, 50 ms apart, over two jittered 1 kHz reference wheels whose small rings drop their old samples
+    and move the rest on the way, each ring's line cache kept from fix to fix as WheelLatencyRows keeps it (of one
+    line, of 8, whose slots the lines take from each other, and the ring's own): every fix's revolutions the bits of
+    lines computed afresh (revolutions_numpy), compiled and as Python."""
+    rng = np.random.default_rng(cache_size)
+    n = 2400
+    series = [(100.0 + np.cumsum(0.001 + rng.uniform(-3e-4, 3e-4, n)), np.cumsum(rng.uniform(0.010, 0.012, n)))
+              for _ in range(2)]
+    lags = np.linspace(-0.02, 0.3, 321)
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            rings = [SeriesRing(64) for _ in series]
+            caches = [r.line_cache(LOCAL_FIT_HALF_SAMPLES) if cache_size == LINE_CACHE_SIZE
+                      else new_line_cache(cache_size) for r in rings]
+            add = ring_revolutions()
+            checked = dropped = 0
+            for end in range(50, n + 1, 50):
+                for ring, (t, v) in zip(rings, series):
+                    ring.drop_before = float(t[end - 1]) - 0.9
+                    ring.extend(t[end - 50:end], v[end - 50:end])
+                arrival = min(r.last_t for r in rings) - 0.002
+                times = arrival - lags
+                first_needed = times[-1] - 0.5
+                want = revolutions_numpy(rings, times, first_needed, arrival)
+                arcs = np.empty(len(times))
+                got: np.ndarray | None = arcs
+                for k, (r, cache) in enumerate(zip(rings, caches)):
+                    if not add(r.times, r.values, times, first_needed, arrival, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0,
+                               r.dropped, *cache):
+                        got = None
+                        break
+                assert (got is None) == (want is None)
+                if got is not None and want is not None:
+                    assert [bits(a) for a in got] == [bits(b) for b in want]
+                    checked += 1
+                dropped = rings[0].dropped
+            assert checked >= 30 and dropped > 0  # the lines outlived moves of the rings' samples

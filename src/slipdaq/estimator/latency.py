@@ -28,7 +28,7 @@ import numpy as np
 
 from slipdaq.compiled import kernel
 from slipdaq.estimator.phase import PHASE_ACCEL_MPS2
-from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values, longest_gap_of
+from slipdaq.estimator.ring import LINE_USES, SeriesRing, cached_line_values, longest_gap_of
 from slipdaq.estimator.wheel_revolutions import TWO_PI, gap_limit
 
 
@@ -287,7 +287,8 @@ class WheelLatencyRows:
         arcs = np.empty(len(times))
         add = ring_revolutions()
         for k, ring in enumerate(rings):
-            if not add(ring.times, ring.values, times, first_needed_s, arrival_s, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0):
+            if not add(ring.times, ring.values, times, first_needed_s, arrival_s, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0,
+                       ring.dropped, *ring.line_cache(LOCAL_FIT_HALF_SAMPLES)):
                 self._prev = None
                 return
         arcs *= TWO_PI / len(rings)
@@ -326,11 +327,12 @@ class WheelLatencyRows:
 
 
 def _ring_revolutions(t: np.ndarray, v: np.ndarray, times: np.ndarray, first_needed_s: float, arrival_s: float,
-                      half: int, arcs: np.ndarray, first: bool) -> bool:
+                      half: int, arcs: np.ndarray, first: bool, base: int, keys: np.ndarray, lines: np.ndarray) -> bool:
     """One reference wheel's revolutions at the lagged times (ring.local_linear's lines), into arcs (first: arcs =
     revs + 0.0, else arcs += revs); False, arcs as they were or partly written, where its samples (times t, values v)
     do not reach from first_needed_s to arrival_s, have a gap over gap_limit between the times, or are fewer
-    than a line takes."""
+    than a line takes. base, keys, lines: the ring's line cache (SeriesRing.dropped, line_cache): a fix's lagged
+    times share most of their lines with the fix before."""
     n = len(t)
     if n < 2 or t[0] > first_needed_s or t[n - 1] < arrival_s:
         return False
@@ -338,13 +340,14 @@ def _ring_revolutions(t: np.ndarray, v: np.ndarray, times: np.ndarray, first_nee
         return False
     revs = np.empty(len(times))
     slopes = np.empty(len(times))
-    local_line_values(t, v, times, half, revs, slopes)
+    cached_line_values(t, v, times, half, base, keys, lines, revs, slopes)
     for q in range(len(times)):
         arcs[q] = revs[q] + 0.0 if first else arcs[q] + revs[q]
     return True
 
 
 ring_revolutions = kernel(_ring_revolutions, "boolean(float64[:], float64[:], float64[:], float64, float64, int64, "
-                          "float64[:], boolean)", uses=(first_index, longest_gap_of, gap_limit, local_line_values))
-"""ring_revolutions()(t, v, times, first_needed_s, arrival_s, half, arcs, first): see _ring_revolutions
+                          "float64[:], boolean, int64, int64[:], float64[:, :])",
+                          uses=(*LINE_USES, longest_gap_of, gap_limit))
+"""ring_revolutions()(t, v, times, first_needed_s, arrival_s, half, arcs, first, base, keys, lines): see _ring_revolutions
 (WheelLatencyRows.observe)."""

@@ -20,7 +20,7 @@ import numpy as np
 
 from slipdaq.compiled import kernel
 from slipdaq.estimator.params import EstimatorParams
-from slipdaq.estimator.ring import SeriesRing, first_index, local_line_values
+from slipdaq.estimator.ring import LINE_USES, SeriesRing, local_line_values
 
 SPREAD_PARTS = 10
 """The window's parts over which the wheel's speed is taken (50 ms each in a 0.5 s window: an ABS cycle at 7 Hz spans three)."""
@@ -79,7 +79,7 @@ def _spread(t: np.ndarray, v: np.ndarray, t0: float, t1: float, parts: int, half
 
 
 spread_kernel = kernel(_spread, "float64(float64[:], float64[:], float64, float64, int64, int64, float64)",
-                       uses=(first_index, local_line_values))
+                       uses=LINE_USES)
 """spread_kernel()(t, v, t0, t1, parts, half, 2.0): see _spread (slip_spread)."""
 
 

@@ -22,6 +22,10 @@ class SeriesRing:
         self.drop_before = -np.inf
         self.last_t = -np.inf
         """The newest sample's time as a Python float (-inf when empty): readiness checks compare it per frame."""
+        self.dropped = 0
+        """Samples dropped from the front so far: `times[i]` is the (dropped + i)-th sample appended (the key of its
+        line in line_cache)."""
+        self._lines: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def __len__(self) -> int:
         return self._end - self._start
@@ -64,6 +68,14 @@ class SeriesRing:
         slopes = np.empty(len(times))
         local_lines()(self._t[s:e], self._v[s:e], times, half, out, slopes)
         return out, slopes
+
+    def line_cache(self, half: int) -> tuple[np.ndarray, np.ndarray]:
+        """The lines through 2*half+1 samples computed so far (keys, lines: cached_line_values), kept with the ring
+        for the kernels that compute them fix after fix over overlapping times."""
+        cache = self._lines.get(half)
+        if cache is None:
+            cache = self._lines[half] = new_line_cache(LINE_CACHE_SIZE)
+        return cache
 
     def count_from(self, t: float) -> int:
         """Samples at or after t."""
@@ -110,6 +122,7 @@ class SeriesRing:
         t[:n] = self._t[keep_from : self._end]
         v[:n] = self._v[keep_from : self._end]
         self._t, self._v = t, v
+        self.dropped += keep_from - self._start
         self._start, self._end = 0, n
 
 
@@ -129,15 +142,44 @@ MIN_LINE_SPAN_S = 1e-6
 """Samples spanning less than this are one instant to local_linear (a line through them has no slope)."""
 
 
-def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
-                      slopes: np.ndarray) -> None:
-    """out[q]: the least-squares line through samples c - half .. c + half at times[q], c the first sample at or
-    after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for consecutive times
-    that share it. t in time order, as a ring keeps it: from the first time's sample on, each next one is found by
-    stepping from the last (times a step apart are a sample or two apart), not by bisecting the ring again. Samples
+LINE_CACHE_SIZE = 1024
+"""Lines a ring's line_cache holds (a power of two): more than the latency rows' lagged times of one fix span."""
+
+
+def new_line_cache(size: int) -> tuple[np.ndarray, np.ndarray]:
+    """An empty cache of `size` lines (a power of two) for cached_line_values: (keys, lines), every key -1."""
+    return np.full(size, -1, dtype=np.int64), np.empty((size, 3))
+
+
+def line_through(t: np.ndarray, v: np.ndarray, c: int, half: int) -> tuple[float, float, float]:
+    """(mean time, mean value, slope) of the least-squares line through samples c - half .. c + half; slope 0 when
+    they span less than MIN_LINE_SPAN_S (samples all at one instant, a burst stamped together: their mean). Samples
     are indexed by unsigned integers: numba then adds no check for a negative index to each access."""
-    n = len(t)
     k = 2 * half + 1
+    first = np.uint64(c - half)
+    st = sv = 0.0
+    for j in range(np.uint64(k)):
+        st += t[first + j]
+        sv += v[first + j]
+    t_mean, v_mean = st / k, sv / k
+    sxx = sxy = 0.0
+    for j in range(np.uint64(k)):
+        d = t[first + j] - t_mean
+        sxx += d * d
+        sxy += d * (v[first + j] - v_mean)
+    slope = sxy / sxx if t[c + half] - t[c - half] > MIN_LINE_SPAN_S else 0.0
+    return t_mean, v_mean, slope
+
+
+def cached_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, base: int, keys: np.ndarray,
+                       lines: np.ndarray, out: np.ndarray, slopes: np.ndarray) -> None:
+    """local_line_values with each line's (mean time, mean value, slope) kept in a cache (new_line_cache) under the
+    key base + c, c its centre sample: base the count of samples before t[0] (SeriesRing.dropped), so that a key names
+    the same samples, and so the same line, call after call while the ring grows and drops old samples; a line found
+    there is the one line_through gives, the same bits. keys: a power of two of them (a line's slot: key modulo
+    their number; another key in it is replaced)."""
+    n = len(t)
+    mask = len(keys) - 1
     last_c = -1
     t_mean = v_mean = slope = 0.0
     r = 0
@@ -152,26 +194,35 @@ def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int
                 r += 1
         c = min(max(r, half), n - half - 1)
         if c != last_c:
-            first = np.uint64(c - half)
-            st = sv = 0.0
-            for j in range(np.uint64(k)):
-                st += t[first + j]
-                sv += v[first + j]
-            t_mean, v_mean = st / k, sv / k
-            sxx = sxy = 0.0
-            for j in range(np.uint64(k)):
-                d = t[first + j] - t_mean
-                sxx += d * d
-                sxy += d * (v[first + j] - v_mean)
-            # samples all at one instant (a burst stamped together): their mean
-            slope = sxy / sxx if t[c + half] - t[c - half] > MIN_LINE_SPAN_S else 0.0
+            key = base + c
+            slot = key & mask
+            if keys[slot] == key:
+                t_mean, v_mean, slope = lines[slot, 0], lines[slot, 1], lines[slot, 2]
+            else:
+                t_mean, v_mean, slope = line_through(t, v, c, half)
+                keys[slot] = key
+                lines[slot, 0], lines[slot, 1], lines[slot, 2] = t_mean, v_mean, slope
             last_c = c
         out[q] = v_mean + slope * (x - t_mean)
         slopes[q] = slope
 
 
+def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
+                      slopes: np.ndarray) -> None:
+    """out[q]: the least-squares line through samples c - half .. c + half at times[q] (line_through), c the first
+    sample at or after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for
+    consecutive times that share it. t in time order, as a ring keeps it: from the first time's sample on, each next
+    one is found by stepping from the last (times a step apart are a sample or two apart), not by bisecting the ring
+    again. cached_line_values with a cache of one line, kept for this call only."""
+    keys, lines = new_line_cache(1)
+    cached_line_values(t, v, times, half, 0, keys, lines, out, slopes)
+
+
+LINE_USES = (first_index, line_through, new_line_cache, cached_line_values, local_line_values)
+"""The plain functions a kernel that fits local lines calls (its `uses`)."""
+
 local_lines = kernel(local_line_values,
-                     "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])", uses=(first_index,))
+                     "void(float64[:], float64[:], float64[:], int64, float64[:], float64[:])", uses=LINE_USES)
 """local_lines()(t, v, times, half, out, slopes): see local_line_values (SeriesRing.local_lines)."""
 
 
