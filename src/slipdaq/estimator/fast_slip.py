@@ -20,7 +20,7 @@ import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.compiled import kernel
-from slipdaq.estimator.ring import LINE_USES, SeriesRing, cached_line_values, first_index
+from slipdaq.estimator.ring import LINE_USES, SeriesRing, first_index, local_line_values
 from slipdaq.estimator.vehicle_speed import VehicleSpeedFilter
 from slipdaq.estimator.wheel_revolutions import TWO_PI, gap_limit
 from slipdaq.records.fast_rows import FastSlipBatch
@@ -75,21 +75,19 @@ class FastSlipRows:
             return [None] * len(times)
         speeds = np.empty(len(times))
         ok = np.empty(len(times), dtype=np.bool_)
-        line_speeds()(ring.times, ring.values, times, half, TWO_PI * r0_m, speeds, ok, ring.dropped,
-                      *ring.line_cache(half))
+        line_speeds()(ring.times, ring.values, times, half, TWO_PI * r0_m, speeds, ok)
         return [x if good else None for x, good in zip(speeds.tolist(), ok.tolist())]
 
 
 def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, scale: float, speeds: np.ndarray,
-                 ok: np.ndarray, base: int, keys: np.ndarray, lines: np.ndarray) -> None:
+                 ok: np.ndarray) -> None:
     """speeds[q]: scale x the slope of ring.local_lines' line at times[q] (samples t, values v, at least 2*half+1);
     ok[q]: half + 1 samples at or after times[q], half before it, and no interval between the line's samples over
-    gap_limit(t) (an interval that is NaN counts as over, as numpy's max has it). base, keys, lines: the ring's line
-    cache (SeriesRing.dropped, line_cache), which the latency rows' lines of a reference wheel fill too."""
+    gap_limit(t) (an interval that is NaN counts as over, as numpy's max has it)."""
     n = len(t)
     max_gap_s = gap_limit(t)
     values = np.empty(len(times))
-    cached_line_values(t, v, times, half, base, keys, lines, values, speeds)
+    local_line_values(t, v, times, half, values, speeds)
     for q in range(len(times)):
         first = first_index(t, times[q], 0, False)
         c = min(max(first, half), n - half - 1)  # the line's centre sample, as local_line_values takes it
@@ -103,7 +101,6 @@ def _line_speeds(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, sca
 
 
 line_speeds = kernel(_line_speeds,
-                     "void(float64[:], float64[:], float64[:], int64, float64, float64[:], boolean[:], int64, "
-                     "int64[:], float64[:, :])", uses=(*LINE_USES, gap_limit))
-"""line_speeds()(t, v, times, half, scale, speeds, ok, base, keys, lines): see _line_speeds
-(FastSlipRows._wheel_speeds)."""
+                     "void(float64[:], float64[:], float64[:], int64, float64, float64[:], boolean[:])",
+                     uses=(*LINE_USES, gap_limit))
+"""line_speeds()(t, v, times, half, scale, speeds, ok): see _line_speeds (FastSlipRows._wheel_speeds)."""
