@@ -171,39 +171,6 @@ def line_through(t: np.ndarray, v: np.ndarray, c: int, half: int) -> tuple[float
     return t_mean, v_mean, slope
 
 
-def sample_at_or_after(t: np.ndarray, x: float, r: int, first: bool) -> int:
-    """first_index(t, x, 0, False): by bisection for the first of a call's times (first), else stepping from r, the
-    sample found for the time before (times a step apart are a sample or two apart)."""
-    if first:
-        return first_index(t, x, 0, False)
-    n = len(t)
-    while r > 0 and t[r - 1] >= x:
-        r -= 1
-    while r < n and t[r] < x:
-        r += 1
-    return r
-
-
-def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
-                      slopes: np.ndarray) -> None:
-    """out[q]: the least-squares line through samples c - half .. c + half at times[q] (line_through), c the first
-    sample at or after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for
-    consecutive times that share it. t in time order, as a ring keeps it (sample_at_or_after)."""
-    n = len(t)
-    last_c = -1
-    t_mean = v_mean = slope = 0.0
-    r = 0
-    for q in range(len(times)):
-        x = times[q]
-        r = sample_at_or_after(t, x, r, q == 0)
-        c = min(max(r, half), n - half - 1)
-        if c != last_c:
-            t_mean, v_mean, slope = line_through(t, v, c, half)
-            last_c = c
-        out[q] = v_mean + slope * (x - t_mean)
-        slopes[q] = slope
-
-
 def cached_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, base: int, keys: np.ndarray,
                        lines: np.ndarray, out: np.ndarray, slopes: np.ndarray) -> None:
     """local_line_values with each line's (mean time, mean value, slope) kept in a cache (new_line_cache) under the
@@ -218,7 +185,13 @@ def cached_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: in
     r = 0
     for q in range(len(times)):
         x = times[q]
-        r = sample_at_or_after(t, x, r, q == 0)
+        if q == 0:
+            r = first_index(t, x, 0, False)
+        else:  # as first_index(t, x, 0, False) over samples in order
+            while r > 0 and t[r - 1] >= x:
+                r -= 1
+            while r < n and t[r] < x:
+                r += 1
         c = min(max(r, half), n - half - 1)
         if c != last_c:
             key = base + c
@@ -234,7 +207,18 @@ def cached_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: in
         slopes[q] = slope
 
 
-LINE_USES = (first_index, sample_at_or_after, line_through, cached_line_values, local_line_values)
+def local_line_values(t: np.ndarray, v: np.ndarray, times: np.ndarray, half: int, out: np.ndarray,
+                      slopes: np.ndarray) -> None:
+    """out[q]: the least-squares line through samples c - half .. c + half at times[q] (line_through), c the first
+    sample at or after times[q] (kept within the samples); slopes[q]: that line's slope. A line is fitted once for
+    consecutive times that share it. t in time order, as a ring keeps it: from the first time's sample on, each next
+    one is found by stepping from the last (times a step apart are a sample or two apart), not by bisecting the ring
+    again. cached_line_values with a cache of one line, this call's own (its two small arrays: about 30 ns)."""
+    keys, lines = new_line_cache(1)
+    cached_line_values(t, v, times, half, 0, keys, lines, out, slopes)
+
+
+LINE_USES = (first_index, line_through, new_line_cache, cached_line_values, local_line_values)
 """The plain functions a kernel that fits local lines calls (its `uses`)."""
 
 local_lines = kernel(local_line_values,
