@@ -274,7 +274,7 @@ def test_latency_rows_revolutions_with_each_rings_line_cache(cache_size: int) ->
     for compiled_ in (True, False):
         with kernels(compiled_):
             rings = [SeriesRing(64) for _ in series]
-            caches = [r.line_cache(LOCAL_FIT_HALF_SAMPLES) if cache_size == LINE_CACHE_SIZE
+            caches = [r.line_cache(LOCAL_FIT_HALF_SAMPLES, len(lags)) if cache_size == LINE_CACHE_SIZE
                       else new_line_cache(cache_size) for r in rings]
             add = ring_revolutions()
             checked = dropped = 0
@@ -299,3 +299,16 @@ def test_latency_rows_revolutions_with_each_rings_line_cache(cache_size: int) ->
                     checked += 1
                 dropped = rings[0].dropped
             assert checked >= 30 and dropped > 0  # the lines outlived moves of the rings' samples
+
+
+def test_line_cache_holds_twice_a_calls_lines() -> None:
+    """A ring's line cache has room for twice the lines of a call (the latency rows' lagged times: about 420 with the
+    default max_latency_s, 2,021 with the largest), so that a call's lines do not take each other's slots; it grows
+    when a call asks for more, and is kept otherwise."""
+    ring = SeriesRing(8)
+    keys, lines = ring.line_cache(LOCAL_FIT_HALF_SAMPLES, 421)
+    assert len(keys) == LINE_CACHE_SIZE and lines.shape == (LINE_CACHE_SIZE, 3) and (keys == -1).all()
+    bigger, _ = ring.line_cache(LOCAL_FIT_HALF_SAMPLES, 2021)
+    assert len(bigger) == 4096
+    assert ring.line_cache(LOCAL_FIT_HALF_SAMPLES, 10)[0] is bigger
+    assert ring.line_cache(2, 10)[0] is not bigger  # another line length: a cache of its own

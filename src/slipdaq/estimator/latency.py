@@ -288,7 +288,7 @@ class WheelLatencyRows:
         add = ring_revolutions()
         for k, ring in enumerate(rings):
             if not add(ring.times, ring.values, times, first_needed_s, arrival_s, LOCAL_FIT_HALF_SAMPLES, arcs, k == 0,
-                       ring.dropped, *ring.line_cache(LOCAL_FIT_HALF_SAMPLES)):
+                       ring.dropped, *ring.line_cache(LOCAL_FIT_HALF_SAMPLES, len(times))):
                 self._prev = None
                 return
         arcs *= TWO_PI / len(rings)
@@ -349,5 +349,5 @@ def _ring_revolutions(t: np.ndarray, v: np.ndarray, times: np.ndarray, first_nee
 ring_revolutions = kernel(_ring_revolutions, "boolean(float64[:], float64[:], float64[:], float64, float64, int64, "
                           "float64[:], boolean, int64, int64[:], float64[:, :])",
                           uses=(*LINE_USES, longest_gap_of, gap_limit))
-"""ring_revolutions()(t, v, times, first_needed_s, arrival_s, half, arcs, first, base, keys, lines): see _ring_revolutions
-(WheelLatencyRows.observe)."""
+"""ring_revolutions()(t, v, times, first_needed_s, arrival_s, half, arcs, first, base, keys, lines): see
+_ring_revolutions (WheelLatencyRows.observe)."""

@@ -69,12 +69,14 @@ class SeriesRing:
         local_lines()(self._t[s:e], self._v[s:e], times, half, out, slopes)
         return out, slopes
 
-    def line_cache(self, half: int) -> tuple[np.ndarray, np.ndarray]:
+    def line_cache(self, half: int, per_call: int) -> tuple[np.ndarray, np.ndarray]:
         """The lines through 2*half+1 samples computed so far (keys, lines: cached_line_values), kept with the ring
-        for the kernels that compute them fix after fix over overlapping times."""
+        for the kernels that compute them fix after fix over overlapping times; room for at least LINE_CACHE_SIZE
+        lines and twice the times of a call (per_call), so that one call's lines do not take each other's slots."""
         cache = self._lines.get(half)
-        if cache is None:
-            cache = self._lines[half] = new_line_cache(LINE_CACHE_SIZE)
+        if cache is None or len(cache[0]) < 2 * per_call:
+            size = max(LINE_CACHE_SIZE, 1 << (2 * per_call - 1).bit_length())
+            cache = self._lines[half] = new_line_cache(size)
         return cache
 
     def count_from(self, t: float) -> int:
@@ -143,7 +145,8 @@ MIN_LINE_SPAN_S = 1e-6
 
 
 LINE_CACHE_SIZE = 1024
-"""Lines a ring's line_cache holds (a power of two): more than the latency rows' lagged times of one fix span."""
+"""Lines a ring's line_cache holds at least (a power of two): twice the latency rows' lagged times of a fix with the
+default max_latency_s."""
 
 
 def new_line_cache(size: int) -> tuple[np.ndarray, np.ndarray]:
