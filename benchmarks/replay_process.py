@@ -139,8 +139,8 @@ def main() -> int:
           "|---|---:|---:|---:|---:|---:|---:|")
     for name, (w, c, m, f) in med.items():
         print(f"| {name} | {w:.2f} s | {c:.2f} s | {m:.2f} s | {f:.2f} s | {frames / w:,.0f} | {frames / c:,.0f} |")
-    print(f"| this tree / base | {n[0] / b[0]:.2f} | {n[1] / b[1]:.2f} | {n[2] / b[2]:.2f} | {n[3] / b[3]:.2f} | "
-          f"{b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
+    ratios = " | ".join(f"{x / y:.2f}" if y else "—" for x, y in zip(n, b))  # a short log forks no process
+    print(f"| this tree / base | {ratios} | {b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
     return 0
 
 

@@ -5,7 +5,9 @@ collections that walk them free nothing (a fifth of the start-up).
 python-can imports asammdf when it is installed (the `mdf` extra), for its MF4 reader and writer, and asammdf
 imports pandas and sympy: 0.65-1.5 s of a start. Only `import` reads files through python-can, and only an MF4 file
 (`--mf4`, or a `.mf4` log) through asammdf, so every other command imports python-can as if asammdf were absent;
-asammdf itself stays importable (`export --mf4` imports it).
+asammdf itself stays importable (`export --mf4` imports it). `replay`, `report` and `export` import python-can (with
+cantools) only where they parse a DBC (import_cantools): a wheel layout kept in the cache spares them both
+(decode/can_wheels.py).
 
 numpy's OpenBLAS runs on one thread unless OPENBLAS_NUM_THREADS says otherwise: slipdaq's matrix products are
 small, or memory-bound (the maneuver fits' bootstrap: 40 products of a 1920 x n grid by a vector), where a second
@@ -21,9 +23,15 @@ import gc
 import os
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
 PYTHON_CAN_MF4_VERBS = frozenset({"import"})
 """The verbs that may read a file through python-can's LogReader (an .mf4 one needs python-can's MF4Reader)."""
+
+
+PYTHON_CAN_AT_NEED_VERBS = frozenset({"replay", "report", "export"})
+"""The verbs that import python-can only where they need it: with cantools, to parse a DBC whose wheel layout is not
+in the cache (decode/can_wheels.py), or to decode other sensors' signals (import_cantools)."""
 
 
 ALLOCATOR_FIXED_VERBS = frozenset({"run", "demo", "import"})
@@ -57,6 +65,15 @@ def import_python_can(with_mf4: bool) -> None:
             del sys.modules["asammdf"]
 
 
+def import_cantools() -> ModuleType:
+    """cantools, imported where it is first needed (a DBC to parse), python-can with it as import_python_can(False)
+    has it (cantools imports python-can)."""
+    import_python_can(with_mf4=False)
+    import cantools
+
+    return cantools
+
+
 def main() -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when numpy loads OpenBLAS: before any import of numpy
     if verb_of(sys.argv[1:]) in ALLOCATOR_FIXED_VERBS:
@@ -65,7 +82,8 @@ def main() -> int:
         fix_malloc_thresholds()  # before the first large block (slipdaq/allocator.py)
     gc.disable()
     try:
-        import_python_can(with_mf4=reads_mf4(sys.argv[1:]))
+        if verb_of(sys.argv[1:]) not in PYTHON_CAN_AT_NEED_VERBS:
+            import_python_can(with_mf4=reads_mf4(sys.argv[1:]))
         from slipdaq.cli import main as cli_main
 
         gc.freeze()

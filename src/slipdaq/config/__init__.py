@@ -342,7 +342,9 @@ class Config(_Section):
                     from None
         if len(texts) == 1:
             return texts[0]
-        import cantools
+        from slipdaq.__main__ import import_cantools
+
+        cantools = import_cantools()
 
         db = cantools.database.can.Database(strict=False)
         for path, text in zip(paths, texts):

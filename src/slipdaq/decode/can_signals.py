@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import cantools
 import numpy as np
 
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import MPS_PER_UNIT, DbcError, load_dbc
 from slipdaq.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, SENSOR_KINDS, CanFrameBatch, SensorSample
+
+if TYPE_CHECKING:
+    import cantools
 
 REFERENCE, IMU, BRAKE = SENSOR_KINDS[:3]
 STANDARD_GRAVITY_MPS2 = 9.80665

@@ -16,14 +16,19 @@ cantools frame by frame. Either way the signals go through the same unwrap kerne
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cantools
 import numpy as np
 
 from slipdaq import WHEELS
 from slipdaq.config import Config, WheelSourceConfig
+from slipdaq.decode import layout_cache
 from slipdaq.decode.wheel_unwrap import (
     C_FRAMES,
     C_LOST,
@@ -49,6 +54,9 @@ from slipdaq.records import (
     WheelSampleBatch,
 )
 
+if TYPE_CHECKING:
+    import cantools
+
 NOT_WHEEL_DATA = FLAG_EXTENDED | FLAG_ERROR | FLAG_REMOTE
 """Frames that carry no wheel data whatever their ID."""
 
@@ -63,6 +71,9 @@ class DbcError(ValueError):
 
 
 def load_dbc(text: str) -> cantools.database.Database:
+    from slipdaq.__main__ import import_cantools
+
+    cantools = import_cantools()
     try:
         db = cantools.database.load_string(text, database_format="dbc", strict=False)
     except Exception as e:  # cantools raises several parse error types
@@ -72,14 +83,23 @@ def load_dbc(text: str) -> cantools.database.Database:
     return db
 
 
+@dataclass(frozen=True, slots=True)
+class _Named:
+    """A DBC message or signal as a decoder that reads it through a numpy layout needs it: its name (a message's ID
+    too), from the layout cache."""
+
+    name: str
+    frame_id: int = -1
+
+
 @dataclass(slots=True)
 class _Source:
     wheel: str
     index: int
     """in WHEELS."""
     kind: str
-    signal: cantools.database.Signal
-    seq_signal: cantools.database.Signal | None
+    signal: cantools.database.Signal | _Named
+    seq_signal: cantools.database.Signal | _Named | None
 
 
 @dataclass(slots=True)
@@ -93,7 +113,7 @@ class _FastLayout:
 
 @dataclass(slots=True)
 class _Message:
-    message: cantools.database.Message
+    message: cantools.database.Message | _Named
     sources: list[_Source] = field(default_factory=list)
     fast: _FastLayout | None = None
 
@@ -104,12 +124,14 @@ _FAST_BITS = (8, 16, 32)
 def _fast_layout(entry: _Message) -> _FastLayout | None:
     """The precompiled layout when every source is a count on simple signals and it decodes as cantools does."""
     msg = entry.message
+    assert not isinstance(msg, _Named), "a layout is made from the DBC"
     if msg.is_extended_frame or msg.is_multiplexed() or getattr(msg, "is_container", False) or not entry.sources:
         return None
     sigs: dict[str, cantools.database.Signal] = {}
     for src in entry.sources:
         if src.kind != "count":
             return None
+        assert not isinstance(src.signal, _Named) and not isinstance(src.seq_signal, _Named)
         sigs[src.signal.name] = src.signal
         if src.seq_signal is not None:
             sigs[src.seq_signal.name] = src.seq_signal
@@ -164,43 +186,106 @@ def _signal(msg: cantools.database.Message, name: str, wheel: str, key: str) -> 
     raise DbcError(f"wheels.{wheel}.{key}: signal {msg.name}.{name} not found in DBC")
 
 
+LAYOUT_CACHE_NAME = "wheel-layout"
+"""The layout cache's name for a WheelDecoder's messages, sources and parameters."""
+LAYOUT_FORMAT = "1"
+"""The cached layout's form: part of its key."""
+
+
+def _layout_key(config: Config, text: str) -> str:
+    """The layout cache's key: a SHA-256 over the DBC's text, the wheel sources (and what the parameters take from
+    the config), this module's code and the versions of cantools and numpy."""
+    h = hashlib.sha256()
+    sources = [config.wheel_source(w).model_dump(mode="json") for w in WHEELS]
+    h.update(json.dumps([LAYOUT_FORMAT, sources, config.wpt.pulses_per_rev, config.tire.radius_m,
+                         importlib.metadata.version("cantools"), np.__version__], sort_keys=True).encode())
+    h.update(Path(__file__).read_bytes())
+    h.update(text.encode("utf-8", "surrogateescape"))
+    return h.hexdigest()[:24]
+
+
+def _from_dbc(config: Config, text: str) -> tuple[dict[int, _Message], np.ndarray, np.ndarray]:
+    """The wheel messages by frame ID (with their numpy layouts where cantools decodes them the same), and the
+    unwrap kernel's integer and float parameters per wheel, from the DBC (cantools)."""
+    db = load_dbc(text)
+    by_id: dict[int, _Message] = {}
+    params = np.zeros((len(WHEELS), 4), dtype=np.int64)
+    params_f = np.zeros((len(WHEELS), 3), dtype=np.float64)
+    for i, w in enumerate(WHEELS):
+        src = config.wheel_source(w)
+        try:
+            msg = db.get_message_by_name(src.message)
+        except KeyError:
+            raise DbcError(f"wheels.{w}.message: message {src.message} not found in DBC") from None
+        sig = _signal(msg, src.signal, w, "signal")
+        seq = _signal(msg, src.seq_signal, w, "seq_signal") if src.seq_signal else None
+        ppr = src.pulses_per_rev or config.wpt.pulses_per_rev
+        if src.kind == "count":
+            for s, key in ((sig, "signal"), (seq, "seq_signal")):
+                if s is not None and s.length > MAX_COUNT_BITS:
+                    raise DbcError(f"wheels.{w}.{key}: {msg.name}.{s.name} has {s.length} bits; a counter may "
+                                   f"have at most {MAX_COUNT_BITS}")
+            params[i] = (KIND_COUNT, 1 << sig.length, ppr, (1 << seq.length) if seq is not None else 0)
+        else:
+            params[i] = (KIND_SPEED, 0, ppr, 0)
+            params_f[i] = (float(sig.scale), float(sig.offset), _rev_per_s_per_unit(w, src, sig, config.tire.radius_m))
+        entry = by_id.setdefault(msg.frame_id, _Message(msg))
+        entry.sources.append(_Source(w, i, src.kind, sig, seq))
+    for entry in by_id.values():
+        entry.fast = _fast_layout(entry)
+    return by_id, params, params_f
+
+
+Plain = list[tuple[int, str, list[tuple[str, int, str, str, str | None]], tuple[int, list[str], np.dtype]]]
+"""A decoder's messages as plain data (_plain): frame ID, name, sources (wheel, index, kind, signal, Seq signal),
+layout (length, field names, dtype)."""
+
+
+def _plain(by_id: dict[int, _Message]) -> Plain | None:
+    """The messages as plain data where every one reads through its numpy layout; None where cantools decodes some
+    (their decoder needs the DBC's messages)."""
+    if any(e.fast is None for e in by_id.values()):
+        return None
+    return [(fid, e.message.name,
+             [(s.wheel, s.index, s.kind, s.signal.name, s.seq_signal.name if s.seq_signal is not None else None)
+              for s in e.sources],
+             (e.fast.length, e.fast.names, e.fast.dtype))
+            for fid, e in by_id.items() if e.fast is not None]
+
+
+def _from_plain(plain: Plain) -> dict[int, _Message]:
+    return {fid: _Message(_Named(name, fid),
+                          [_Source(w, i, kind, _Named(sig), _Named(seq) if seq is not None else None)
+                           for w, i, kind, sig, seq in sources],
+                          _FastLayout(*fast))
+            for fid, name, sources, fast in plain}
+
+
 class WheelDecoder:
     """Stateful, pure: decode wheel frames in arrival order into cumulative revolutions per wheel
     (decode/wheel_unwrap.py: the unwrap, reset, Seq and integration rule)."""
 
     def __init__(self, config: Config, dbc_text: str | None = None) -> None:
-        db = load_dbc(dbc_text if dbc_text is not None else config.load_dbc_text())
-        self._by_id: dict[int, _Message] = {}
-        self._params = np.zeros((len(WHEELS), 4), dtype=np.int64)
-        self._params_f = np.zeros((len(WHEELS), 3), dtype=np.float64)
-        for i, w in enumerate(WHEELS):
-            src = config.wheel_source(w)
-            try:
-                msg = db.get_message_by_name(src.message)
-            except KeyError:
-                raise DbcError(f"wheels.{w}.message: message {src.message} not found in DBC") from None
-            sig = _signal(msg, src.signal, w, "signal")
-            seq = _signal(msg, src.seq_signal, w, "seq_signal") if src.seq_signal else None
-            ppr = src.pulses_per_rev or config.wpt.pulses_per_rev
-            if src.kind == "count":
-                for s, key in ((sig, "signal"), (seq, "seq_signal")):
-                    if s is not None and s.length > MAX_COUNT_BITS:
-                        raise DbcError(f"wheels.{w}.{key}: {msg.name}.{s.name} has {s.length} bits; a counter may "
-                                       f"have at most {MAX_COUNT_BITS}")
-                self._params[i] = (KIND_COUNT, 1 << sig.length, ppr, (1 << seq.length) if seq is not None else 0)
-            else:
-                self._params[i] = (KIND_SPEED, 0, ppr, 0)
-                self._params_f[i] = (float(sig.scale), float(sig.offset),
-                                     _rev_per_s_per_unit(w, src, sig, config.tire.radius_m))
-            entry = self._by_id.setdefault(msg.frame_id, _Message(msg))
-            entry.sources.append(_Source(w, i, src.kind, sig, seq))
+        """config: the wheel sources and their DBC (dbc_text: that DBC's text where the caller has it). A DBC whose
+        wheel messages all read through numpy layouts is parsed once: the layouts are kept in the cache directory
+        (layout_cache), under a key of the DBC, the wheel sources and cantools' version, and cantools (and
+        python-can) is not imported where they are found there."""
+        text = dbc_text if dbc_text is not None else config.load_dbc_text()
+        key = _layout_key(config, text)
+        cached = layout_cache.load(LAYOUT_CACHE_NAME, key)
+        if cached is not None:
+            plain, self._params, self._params_f = cached
+            self._by_id = _from_plain(plain)
+        else:
+            self._by_id, self._params, self._params_f = _from_dbc(config, text)
+            plain = _plain(self._by_id)
+            if plain is not None:
+                layout_cache.store(LAYOUT_CACHE_NAME, key, (plain, self._params, self._params_f))
         self._state, self._state_f, self._counters = new_state(len(WHEELS))
         self._sample_flags = np.where(self._params[:, P_KIND] == KIND_COUNT, SAMPLE_HAS_COUNT, 0).astype(np.uint8) | \
             np.where(self._params[:, P_SEQ_MODULUS] > 0, SAMPLE_HAS_SEQ, 0).astype(np.uint8)
         """per wheel: the flags of its samples."""
         self.bad_frames = 0
-        for entry in self._by_id.values():
-            entry.fast = _fast_layout(entry)
         self._entries = list(self._by_id.values())
         self._lut = np.full(2048, -1, dtype=np.int64)  # standard ID -> index in _entries
         for i, entry in enumerate(self._entries):
@@ -312,10 +397,12 @@ class WheelDecoder:
 
     def _cantools_columns(self, entry: _Message, batch: CanFrameBatch,
                           sel: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        msg = entry.message
+        assert not isinstance(msg, _Named), "a message cantools decodes is never from the layout cache"
         rows = []
         for i in sel.tolist():
             try:
-                values = entry.message.decode_simple(batch.payload(i), decode_choices=False, scaling=False)
+                values = msg.decode_simple(batch.payload(i), decode_choices=False, scaling=False)
             except Exception:  # wrong DLC or bytes cantools cannot decode
                 self.bad_frames += 1
                 continue
