@@ -16,6 +16,7 @@ cantools frame by frame. Either way the signals go through the same unwrap kerne
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.metadata
 import json
@@ -192,14 +193,20 @@ LAYOUT_FORMAT = "1"
 """The cached layout's form: part of its key."""
 
 
+@functools.cache
+def _code_version() -> bytes:
+    """What a layout depends on besides the DBC and the config, once a process: this module's code and the versions
+    of cantools and numpy."""
+    return hashlib.sha256(Path(__file__).read_bytes() + json.dumps(
+        [LAYOUT_FORMAT, importlib.metadata.version("cantools"), np.__version__]).encode()).digest()
+
+
 def _layout_key(config: Config, text: str) -> str:
     """The layout cache's key: a SHA-256 over the DBC's text, the wheel sources (and what the parameters take from
-    the config), this module's code and the versions of cantools and numpy."""
-    h = hashlib.sha256()
+    the config) and _code_version."""
+    h = hashlib.sha256(_code_version())
     sources = [config.wheel_source(w).model_dump(mode="json") for w in WHEELS]
-    h.update(json.dumps([LAYOUT_FORMAT, sources, config.wpt.pulses_per_rev, config.tire.radius_m,
-                         importlib.metadata.version("cantools"), np.__version__], sort_keys=True).encode())
-    h.update(Path(__file__).read_bytes())
+    h.update(json.dumps([sources, config.wpt.pulses_per_rev, config.tire.radius_m], sort_keys=True).encode())
     h.update(text.encode("utf-8", "surrogateescape"))
     return h.hexdigest()[:24]
 
