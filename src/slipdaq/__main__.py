@@ -29,7 +29,7 @@ PYTHON_CAN_MF4_VERBS = frozenset({"import"})
 """The verbs that may read a file through python-can's LogReader (an .mf4 one needs python-can's MF4Reader)."""
 
 
-PYTHON_CAN_AT_NEED_VERBS = frozenset({"replay", "report", "export"})
+PYTHON_CAN_AT_NEED_VERBS = frozenset({"replay", "report", "export", "batch"})
 """The verbs that import python-can only where they need it: with cantools, to parse a DBC whose wheel layout is not
 in the cache (decode/can_wheels.py), or to decode other sensors' signals (import_cantools)."""
 

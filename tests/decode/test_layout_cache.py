@@ -1,9 +1,11 @@
 """The wheel decoder's layouts kept in the cache directory (decode/layout_cache.py): a decoder built from the cache
 decodes as one built from the DBC; a DBC that cantools decodes is not cached; another DBC is another key; a file
-that does not read back is made again; a replay whose layout is cached imports neither cantools nor python-can."""
+that does not read back is made again; a replay, and a batch's client, whose layout is cached import neither cantools
+nor python-can."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 import sys
@@ -140,3 +142,9 @@ def test_a_replay_whose_layout_is_cached_imports_neither_cantools_nor_python_can
             return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
 
     assert messages("a.mcap") == messages("b.mcap")
+    if importlib.util.find_spec("distributed") is None or importlib.util.find_spec("pyarrow") is None:
+        return  # `batch` needs the fleet extra
+    done = subprocess.run([sys.executable, "-c", PROBE, "batch", str(tmp_path / "d.mcap"), "-o", str(tmp_path / "b"),
+                           "--workers", "1"], capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines()[-1] == "exit 0 False False"  # the client; its worker forked from it
+    assert (tmp_path / "b" / "report" / "index.html").is_file()
