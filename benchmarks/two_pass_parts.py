@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Where a two-pass replay's CPU goes, in one process (imports and numba's kernels warm): the first pass
 (offline.first_pass: the estimator over the log, then the reference speed's smoothing, also timed alone), and the
-second pass with its log written, with no sink, and with no sink and no high-rate slip rows; the imports' objects
-frozen out of the garbage collector's reach (gc.freeze), as the CLI's offline runs hold them. This tree against a
+second pass with its log written, with no sink, and with no sink and no high-rate slip rows, and (a tree with
+offline.decoder_tape) the first pass recording its decoders and the second with no sink playing them back; the
+imports' objects frozen out of the garbage collector's reach (gc.freeze), as the CLI's offline runs hold them. This tree against a
 base revision, each side in its own process (its `src` on PYTHONPATH), the sides in turn per round (the order
 reversed every other round); medians of CPU time (process_time).
 
@@ -33,7 +34,9 @@ from benchmarks.base_revision import ROOT, add_base_argument, resolve, under, un
 from benchmarks.replay_process import MAKE_LOG, python_path
 
 PARTS = ("first pass", "of it: smoothing", "second pass, log written", "second pass, no sink",
-         "second pass, no sink, no high-rate rows")
+         "second pass, no sink, no high-rate rows", "first pass, its decoders recorded",
+         "second pass, no sink, its decoders played back")
+"""The last two: a tree with offline.decoder_tape (a dash for one without)."""
 
 
 def measure(log: Path, out: Path, tile: int) -> dict[str, float]:
@@ -94,6 +97,14 @@ def measure(log: Path, out: Path, tile: int) -> dict[str, float]:
     cpu(PARTS[2], lambda: run.process_to_log(config, iter_raw_batches(log), out, "replay", **second))
     cpu(PARTS[3], lambda: run.process(config, iter_raw_batches(log), [], **second))
     cpu(PARTS[4], lambda: run.process(config, iter_raw_batches(log), [], fast_slip=False, **second))
+    try:
+        from slipdaq.offline.decoder_tape import DecoderTape
+    except ImportError:
+        return got
+    tape = DecoderTape()
+    taped = cpu(PARTS[5], lambda: run.first_pass(config, iter_raw_batches(log), start, str(log), tape=tape))
+    cpu(PARTS[6], lambda: run.process(config, iter_raw_batches(log), [], tape=tape,
+                                      **taped.second_pass() | {"stream": quiet}))
     return got
 
 
@@ -142,13 +153,14 @@ def main() -> int:
             cmd, env = under(sides[name], __file__, "--measure", str(log), str(work / "out.mcap"), "--tile", str(a.tile))
             got[name].append(json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True,
                                                        cwd=ROOT).stdout.strip().splitlines()[-1]))
-            print(f"  round {r + 1} {name}: " + ", ".join(f"{k} {got[name][-1][k]:.2f} s" for k in parts), flush=True)
+            print(f"  round {r + 1} {name}: " + ", ".join(f"{k} {got[name][-1][k]:.2f} s" for k in parts
+                                                          if k in got[name][-1]), flush=True)
     print(f"\nCPU of a two-pass replay's parts, {a.seconds:g} s of 4 × {a.rate_hz:g} Hz + 20 Hz NMEA, in process, "
           f"{a.rounds} rounds, medians\n")
     print("| part | " + " | ".join(sides) + " |\n|---|" + "---:|" * len(sides))
     for part in parts:
         print(f"| {part} | " + " | ".join(f"{statistics.median(g[part] for g in got[name]):.2f} s"
-                                          for name in sides) + " |")
+                                          if part in got[name][0] else "—" for name in sides) + " |")
     return 0
 
 

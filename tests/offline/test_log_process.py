@@ -19,7 +19,7 @@ from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
 from slipdaq.logformat.topics import TOPIC_CAN, TOPIC_NMEA
 from slipdaq.offline.log_process import LogProcessError
-from slipdaq.offline.run import first_pass, process_to_log
+from slipdaq.offline.run import first_pass, process_to_log, replay_two_pass
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
 from slipdaq.records import CanFrame, NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
@@ -98,6 +98,37 @@ def test_an_old_logs_frames_one_message_each_the_same_bytes(drive: tuple[Config,
                 else ((None,), TOPIC_NMEA, "json", dumps({"timestamp_s": r.timestamp_s, "line": r.line}))
                 for r in records]
     _both_ways(cfg, lambda: iter(messages), raw_batches, tmp_path, "old", total=len(records))
+
+
+def _two_pass_both_ways(log: Path, tmp_path: Path, total: int) -> None:
+    """replay_two_pass, its log's process forked before the first pass and reading the log itself: the bytes of the
+    second pass written here."""
+    cfg = config_from_log(log)
+    here, apart = tmp_path / f"{log.stem}-two-pass-here.mcap", tmp_path / f"{log.stem}-two-pass-apart.mcap"
+    first = first_pass(cfg, iter_raw_batches(log), None, str(log), total=total, stream=io.StringIO())
+    before = len(FORKS)
+    p_apart, first_apart = replay_two_pass(cfg, log, apart, None, metadata=FIXED_META, total=total)
+    assert len(FORKS) - before == 2  # the log's process and the summaries'
+    assert first_apart.gps_speeds == first.gps_speeds
+    p_here = process_to_log(cfg, iter_raw_batches(log), here, "replay", metadata=FIXED_META, stream=io.StringIO(),
+                            total=total, **first_apart.second_pass())  # its calibration's time learned the same
+    assert p_apart.estimates == p_here.estimates > 0
+    assert apart.read_bytes() == here.read_bytes()
+    assert children() == []
+
+
+def test_a_two_pass_replay_whose_process_reads_the_log_itself_the_same_bytes(drive: tuple[Config, list[Any]],
+                                                                             tmp_path: Path) -> None:
+    """The simulated drive and the RAV4's capture (its first segment a frame with no wheel sample)."""
+    cfg, records = drive
+    log = tmp_path / "recorded.mcap"
+    process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
+    _two_pass_both_ways(log, tmp_path, len(records))
+    rav4 = tmp_path / "rav4.mcap"
+    assert main(["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea", str(RAV4 / "rav4_ublox.nmea"),
+                 "--config", str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"), "-o", str(rav4),
+                 "--no-calibration"]) == 0
+    _two_pass_both_ways(rav4, tmp_path, raw_record_count(rav4))
 
 
 PARENT = os.getpid()

@@ -1,18 +1,23 @@
-"""A two-pass run reads its log once (offline.run.ReadOnce): the second pass gets the messages the first pass read,
-kept while their data stays within KEEP_BYTES, or reads a longer log again; `replay --two-pass` writes the same log
-either way."""
+"""A two-pass run reads and decodes its log once (offline.read_once.ReadOnce): the second pass gets the first pass's
+items with the messages read for each, kept while they stay within their budgets, or decoded again from the messages
+kept, or from a longer log read again; `replay --two-pass` writes the same log every way, its decoders played back
+from the first pass's tape (offline.decoder_tape) or not."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.logformat.reader import iter_raw_messages
-from slipdaq.offline import run
+from slipdaq.offline import decoder_tape, read_once
+from slipdaq.offline.log_process import reads
+from slipdaq.offline.run import items_of, log_decoder
+from slipdaq.records import CanFrameBatch
 from support.forks import FORKS
 from support.sim_logs import chunked_log
 
@@ -23,20 +28,43 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return chunked_log(tmp_path_factory.mktemp("read-once"), 50.0, 65536, seed=3)
 
 
-def test_the_second_pass_gets_the_messages_kept_or_read_again(log: Path) -> None:
-    every = list(iter_raw_messages(log))
-    size = sum(len(m[-1]) for m in every)
-    for keep, reads_wanted in ((size, [True]), (size - 1, [True, False]), (0, [True, False])):
-        reads: list[bool] = []
+def _plain(item: Any) -> Any:
+    """An item in a form == compares: a batch of frames as its arrays' bytes."""
+    if isinstance(item, CanFrameBatch):
+        return tuple((a.dtype.str, a.shape, a.tobytes()) if isinstance(a, np.ndarray) else a for a in
+                     (item.timestamp_s, item.arbitration_id, item.flags, item.dlc, item.data, item.channel,
+                      item.channels))
+    return item
 
-        def read(scan: bool, reads: list[bool] = reads) -> Any:
-            reads.append(scan)
+
+def _plain_reads(got: Any) -> list[tuple[list[Any], bool, Any]]:
+    return [(pieces, end, _plain(item)) for pieces, end, item in got]
+
+
+def test_the_second_pass_gets_the_reads_kept_decoded_again_or_read_again(log: Path) -> None:
+    decode = items_of(log_decoder(log))
+    every = list(iter_raw_messages(log))
+    decoded = list(reads(decode, iter(every)))
+    expected = _plain_reads(decoded)
+    assert sum(len(p) for p, _, _ in expected) == len(every)
+    size = sum(len(m[-1]) for m in every)
+    items = sum(read_once._bytes_of(item) for _, _, item in decoded)
+    for keep, item_bytes, reads_wanted in ((size, items, [True]), (size, items - 1, [True]),
+                                           (size - 1, items, [True, False]), (0, 0, [True, False])):
+        log_reads: list[bool] = []
+
+        def read(scan: bool, log_reads: list[bool] = log_reads) -> Any:
+            log_reads.append(scan)
             return iter_raw_messages(log)
 
-        messages = run.ReadOnce(read, keep)
-        assert list(messages.first()) == every
-        assert list(messages.second()) == every
-        assert reads == reads_wanted, keep
+        kept = read_once.ReadOnce(read, decode, keep, item_bytes)
+        first = list(kept.first())
+        assert [_plain(item) for item in first] == [item for _, _, item in expected]
+        second = list(kept.second())
+        assert _plain_reads(second) == expected
+        assert log_reads == reads_wanted, (keep, item_bytes)
+        same = [a is b for a, (_, _, b) in zip(first, second, strict=True) if isinstance(a, CanFrameBatch)]
+        assert all(same) if (keep, item_bytes) == (size, items) else not any(same)  # kept, or decoded again
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
@@ -44,18 +72,23 @@ def _messages(path: Path) -> list[tuple[str, int, bytes]]:
         return [(channel.topic, m.log_time, m.data) for _, channel, m in make_reader(f).iter_messages()]
 
 
-def test_a_two_pass_replay_is_the_same_kept_or_read_again(log: Path, tmp_path: Path,
-                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    """The whole log kept (the default), and a log a byte too long to keep: the same messages (the log written
+def test_a_two_pass_replay_is_the_same_kept_decoded_again_or_read_again(log: Path, tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole input kept with its decoders' tape (the default); the tape past its budget (the second pass
+    decodes); the messages kept and decoded again; a log a byte too long to keep: the same messages (the log written
     apart, as a replay of this many records does)."""
     size = sum(len(m[-1]) for m in iter_raw_messages(log))
     outs = []
-    for k, keep in enumerate((run.KEEP_BYTES, size - 1)):
-        monkeypatch.setattr(run, "KEEP_BYTES", keep)
+    budgets = ((read_once.KEEP_BYTES, decoder_tape.TAPE_BYTES), (read_once.KEEP_BYTES, 1),
+               (size - 1, decoder_tape.TAPE_BYTES))
+    for k, (keep, tape) in enumerate(budgets):
+        monkeypatch.setattr(read_once, "KEEP_BYTES", keep)
+        monkeypatch.setattr(decoder_tape, "TAPE_BYTES", tape)
         outs.append(tmp_path / f"out-{k}.mcap")
         before = len(FORKS)
         assert main(["replay", str(log), "-o", str(outs[-1]), "--two-pass", "--no-calibration"]) == 0
         assert len(FORKS) - before == 2  # the log's process and the summaries'
     first = _messages(outs[0])
     assert len(first) > 1000
-    assert _messages(outs[1]) == first
+    for out in outs[1:]:
+        assert _messages(out) == first, out

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator
 from pathlib import Path
 
 from slipdaq.cli.common import (
@@ -183,9 +182,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from slipdaq.logformat.reader import RawMessage, config_from_log, iter_raw_messages, raw_record_count, read_metadata
+    from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_record_count, read_metadata
     from slipdaq.logformat.salvage import ScanResult
-    from slipdaq.offline.run import ReadOnce, first_pass, log_decoder, process_to_log, start_calibration
+    from slipdaq.offline.run import log_decoder, process_to_log, replay_two_pass, start_calibration
     from slipdaq.report.labels import LABEL_PREFIX
 
     cfg = _config(args.config) if args.config else config_from_log(args.log)
@@ -197,18 +196,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
                            logged=start_calibration(meta, args.log))
     scanned = ScanResult(Path(args.log))
     first = None
-    decode = log_decoder(args.log)
-    if args.two_pass:  # the first pass's messages kept for the second (ReadOnce)
-        read = ReadOnce(lambda scan: iter_raw_messages(args.log, scanned if scan else None))
-        first = first_pass(cfg, decode(read.first()), cal.start, str(args.log), total=total)
-        messages: Iterator[RawMessage] = read.second()
-    else:
-        messages = iter_raw_messages(args.log, scanned)
+    written = {"replay_of": str(args.log), "two_pass": "true" if args.two_pass else ""} | labels
     with atomic_output(args.output, inputs=[args.log, *_config_files(cfg)]) as tmp, _imports_frozen():
-        p = process_to_log(cfg, messages, tmp, "replay",
-                           metadata={"replay_of": str(args.log), "two_pass": "true" if first else ""} | labels,
-                           total=total, decode=decode,
-                           **(first.second_pass() if first else {"calibration": cal.start}))
+        if args.two_pass:
+            p, first = replay_two_pass(cfg, args.log, tmp, cal.start, metadata=written, total=total, scanned=scanned)
+        else:
+            p = process_to_log(cfg, iter_raw_messages(args.log, scanned), tmp, "replay", metadata=written, total=total,
+                               decode=log_decoder(args.log), calibration=cal.start)
         records = p.can_frames + p.nmea.lines + p.ubx.frames
         _require(records, f"{args.log}: no raw CAN or GPS records in it to replay", args)
     _unfinished_note(args.log, scanned)

@@ -43,10 +43,36 @@ FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
 INPUT, INPUT_END = "input", "input_end"
 """The input's pieces (a log's raw messages) the run read for its next item, the process decoding the same; the end
 of the input's pieces."""
+BEGIN = "begin"
+"""The first call: the log's sink made (make_sink(**its keyword arguments))."""
+AHEAD_FRAMES = 3 << 20
+"""A log's process that reads its input itself decodes up to this many frames before the run's first call (a
+two-pass run's first pass): about 250 MB of frames and wheel samples, 13 minutes of 4 WPT messages at 1 kHz."""
 
 Item = RawRecord | CanFrameBatch | list[CanFrame]
 Decode = Callable[[Iterable[Any]], Iterable[Item]]
 """The input's items (as Pipeline.process_all gets them) from its pieces: the same function in the run and the process."""
+Read = tuple[list[Any], bool, Item]
+"""An item of the input as decode gave it: (the pieces decode read for it since the item before, whether the pieces had
+run out before it came, the item)."""
+
+
+def reads(decode: Decode, pieces: Iterable[Any]) -> Iterator[Read]:
+    """decode(pieces)'s items, each as a Read."""
+    read: list[Any] = []
+    ended = False
+
+    def tee() -> Iterator[Any]:
+        nonlocal ended
+        for piece in pieces:
+            read.append(piece)
+            yield piece
+        ended = True
+
+    for item in decode(tee()):
+        got = read.copy()
+        read.clear()
+        yield got, ended, item
 
 
 class LogProcessError(RuntimeError):
@@ -84,9 +110,14 @@ class _Input:
     """The input as the log's process decodes it: its CAN frames in the pieces and its other raw records in the order
     the run's calls take them, its wheel frames decoded DECODE_FRAMES at a time."""
 
-    def __init__(self, decode: Decode, config: Config) -> None:
+    def __init__(self, decode: Decode, config: Config, read: Callable[[], Iterable[Any]] | None = None) -> None:
+        """read: the input's pieces, read here (the run sends none); else the run sends them (pieces)."""
         self.pieces = _Pieces()
-        self._items = iter(decode(self.pieces))
+        self._items = iter(decode(self.pieces if read is None else read()))
+        self._reads_itself = read is not None
+        self._ended = False
+        self._ahead = 0
+        """Frames decoded and not yet taken."""
         self._taken = 0
         self._decoder = WheelDecoder(config)
         self._batches: deque[tuple[CanFrameBatch, WheelSampleBatch, int]] = deque()
@@ -97,13 +128,16 @@ class _Input:
         self._samples = WheelSampleBatch.empty()
         """The samples of the frames taken last."""
 
-    def _read(self) -> None:
+    def _read(self, need: bool = True) -> None:
         """Items decoded until DECODE_FRAMES frames or the last item the run has read, their wheel frames decoded at
         once."""
         got: list[CanFrameBatch] = []
         frames, raw = 0, len(self._raw)
-        while frames < DECODE_FRAMES and self._taken < self.pieces.items:
+        while frames < DECODE_FRAMES and (self._reads_itself or self._taken < self.pieces.items):
             item = next(self._items, None)
+            if item is None and self._reads_itself:
+                self._ended = True
+                break
             if item is None:
                 raise LogProcessError("the log's process decoded fewer items of the input than the run read")
             self._taken += 1
@@ -115,7 +149,7 @@ class _Input:
                 got.append(item)
                 frames += len(item)
         if not got:
-            if len(self._raw) == raw:
+            if len(self._raw) == raw and need:
                 raise LogProcessError("the run's calls name more of the input than it has read")
             return
         samples = self._decoder.decode_batch(got[0] if len(got) == 1 else CanFrameBatch.concat(got))
@@ -123,6 +157,15 @@ class _Input:
         for batch in got:
             self._batches.append((batch, samples, first))
             first += len(batch)
+        self._ahead += frames
+
+    def read_ahead(self) -> bool:
+        """Decode the next items (of an input read here) while fewer than AHEAD_FRAMES frames wait; False when no more
+        is to be decoded ahead."""
+        if not self._reads_itself or self._ended or self._ahead >= AHEAD_FRAMES:
+            return False
+        self._read(need=False)
+        return True
 
     def frames(self, n: int, first_s: float) -> CanFrameBatch:
         """The next n frames (a piece of one input batch, as the pipeline cuts them); first_s: the first one's time."""
@@ -135,6 +178,7 @@ class _Input:
                                   f"{first_s!r} s)")
         piece = batch if (a, b) == (0, len(batch)) else batch.slice(a, b)
         self._samples = samples.of_frames(first + a, first + b)
+        self._ahead -= n
         if b == len(batch):
             self._batches.popleft()
             self._pos = 0
@@ -167,23 +211,32 @@ def _mark(samples: WheelSampleBatch) -> tuple[int, int, int, float]:
         (0, 0, 0, 0.0)
 
 
-def _serve(make_sink: Callable[[], Sink], decode: Decode, config: Config, calls: Connection, done: Connection,
-           parent_ends: tuple[Connection, ...]) -> None:
-    """The log's process: the calls, run by run, to the sink, until told to stop (then it is closed) or the run's end
-    of the pipe closes; None back when the log is closed, else the error."""
+def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read: Callable[[], Iterable[Any]] | None,
+           calls: Connection, done: Connection, parent_ends: tuple[Connection, ...]) -> None:
+    """The log's process: the input read ahead (read given) until the run's first call; then the calls, run by run,
+    to the sink (made by the first, BEGIN), until told to stop (then it is closed) or the run's end of the pipe
+    closes; None back when the log is closed, else the error."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
     gc.freeze()
     for end in parent_ends:
         end.close()
+    sink: Sink | None = None
     try:
-        sink = make_sink()
         try:
-            source = _Input(decode, config)
-            take: dict[str, Callable[..., None]] = {name: getattr(sink, name) for name in SINK_CALLS}
-            take[INPUT], take[INPUT_END] = source.pieces.add, source.pieces.end
-            take[FRAMES] = lambda n, t: sink.on_can_batch(source.frames(n, t))
-            take[SAMPLES] = lambda mark: sink.on_wheel_batch(source.samples(mark))
-            take[RAW] = lambda t: sink.on_raw(source.record(t))
+            source = _Input(decode, config, read)
+            while not calls.poll() and source.read_ahead():
+                pass
+            take: dict[str, Callable[..., None]] = {}
+
+            def begin(kwargs: dict[str, Any]) -> None:
+                nonlocal sink
+                sink = out = make_sink(**kwargs)
+                take.update({name: getattr(out, name) for name in SINK_CALLS})
+                take[FRAMES] = lambda n, t: out.on_can_batch(source.frames(n, t))
+                take[SAMPLES] = lambda mark: out.on_wheel_batch(source.samples(mark))
+                take[RAW] = lambda t: out.on_raw(source.record(t))
+
+            take[BEGIN], take[INPUT], take[INPUT_END] = begin, source.pieces.add, source.pieces.end
             while True:
                 try:
                     data = calls.recv_bytes()
@@ -194,7 +247,8 @@ def _serve(make_sink: Callable[[], Sink], decode: Decode, config: Config, calls:
                 for name, args in run:
                     take[name](*args)
         finally:
-            sink.close()
+            if sink is not None:
+                sink.close()
     except BaseException as e:
         e.add_note("in the log's process:\n" + traceback.format_exc())
         calls.close()  # the run's next write fails at once: it then reads this error
@@ -212,7 +266,12 @@ class LogProcess(Sink):
     thread. close() waits for the process to close the log and raises its error, if any; a run that fails calls
     terminate(). Fork it before any thread is started (the summaries' process after it)."""
 
-    def __init__(self, make_sink: Callable[[], Sink], decode: Decode, config: Config) -> None:
+    def __init__(self, make_sink: Callable[..., Sink], decode: Decode, config: Config,
+                 read: Callable[[], Iterable[Any]] | None = None) -> None:
+        """make_sink(**begin's keyword arguments): the log's sink, made there; decode: the input's items from its
+        pieces, as the run has them (items_of); read: the input's pieces, read there, ahead of the run's first call
+        (a two-pass run's first pass, whose second core is idle), and then not sent (input_reads sends nothing);
+        else the run sends them (input, input_reads)."""
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
         calls_in, self._calls = ctx.Pipe(duplex=False)
@@ -221,7 +280,8 @@ class LogProcess(Sink):
                 fcntl.fcntl(self._calls.fileno(), set_size, PIPE_BYTES)
         self._done, done_out = ctx.Pipe(duplex=False)
         self._decode = decode
-        self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, calls_in, done_out,
+        self.reads_itself = read is not None
+        self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, read, calls_in, done_out,
                                                         (self._calls, self._done)), name="slipdaq-log", daemon=True)
         self.process.start()
         calls_in.close()
@@ -235,18 +295,28 @@ class LogProcess(Sink):
 
     def input(self, pieces: Iterable[Any]) -> Iterator[Item]:
         """The run's input: decode(pieces), each item's pieces (those read for it) sent to the process before it."""
-        read: list[Any] = []
+        return self.input_reads(reads(self._decode, pieces))
 
-        def tee() -> Iterator[Any]:
-            for piece in pieces:
-                read.append(piece)
-                yield piece
-            self._call(INPUT_END, ())  # before the last item's pieces: what decode reads past them is the end
+    def begin(self, **kwargs: Any) -> None:
+        """The first call: the log's sink made there, make_sink(**kwargs)."""
+        self._call(BEGIN, (kwargs,))
 
-        for item in self._decode(tee()):
-            self._call(INPUT, (read[:],))
-            read.clear()
+    def input_reads(self, input_reads: Iterable[Read]) -> Iterator[Item]:
+        """The run's input decoded already (reads() with this process's decode): each item's pieces sent to the
+        process before it, the pieces' end before the pieces of the item that came after it (none sent where the
+        process reads the input itself)."""
+        if self.reads_itself:
+            yield from (item for _, _, item in input_reads)
+            return
+        ended = False
+        for got, end, item in input_reads:
+            if end and not ended:
+                self._call(INPUT_END, ())  # what decode read past these pieces is the end
+                ended = True
+            self._call(INPUT, (got,))
             yield item
+        if not ended:
+            self._call(INPUT_END, ())
 
     def _call(self, name: str, args: tuple[Any, ...]) -> None:
         self._run.append((name, args))

@@ -23,7 +23,9 @@ from slipdaq.config.calibration import Calibration, Learned, merged, parse_calib
 from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.maneuver.figures import ManeuverSummary
-from slipdaq.offline.log_process import LogProcess
+from slipdaq.offline.decoder_tape import DecoderTape
+from slipdaq.offline.log_process import Decode, LogProcess
+from slipdaq.offline.read_once import ReadOnce
 from slipdaq.offline.summaries import DetectorFeed, SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import (
@@ -64,6 +66,12 @@ def batched(records: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
         yield r
     if run:
         yield run
+
+
+def items_of(decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]]) -> Decode:
+    """The input's items from its pieces (a log's raw messages): batched(decode(pieces)), as the pipeline and a
+    log's process (LogProcess) take them."""
+    return lambda pieces: batched(decode(pieces))
 
 
 def frame_runs(items: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch]:
@@ -141,18 +149,22 @@ def process(
     maneuvers: bool = True,
     fast_slip: bool = True,
     summaries: Executor | None = None,
+    tape: DecoderTape | None = None,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
     progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
     whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own). fast_slip=False:
     no /slip/fast rows (the first pass). summaries: where the maneuvers' summaries are computed (a SummaryProcess),
-    the sinks' calls after each held back until it is in: the same calls as without.
+    the sinks' calls after each held back until it is in: the same calls as without. tape: the wheel and NMEA
+    decoders' outputs recorded (a first pass) or played back (the second: DecoderTape.attach).
 
     records: raw records and batches of CAN frames (iter_raw_batches); runs of CanFrames are batched here. The
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
     pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
                         maneuvers=maneuvers, fast_slip=fast_slip, maneuver_executor=summaries, hold_output=True)
+    if tape is not None:
+        tape.attach(pipeline)
     compiled.prepare()
     if stream.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -188,6 +200,8 @@ def process_to_log(
     *,
     metadata: dict[str, str] | None = None,
     decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]] | None = None,
+    as_read: bool = False,
+    apart: LogProcess | None = None,
     **options: Any,
 ) -> Pipeline:
     """process() (its keyword options; the description defaults to the mode) into a new MCAP log at out_path; the
@@ -196,22 +210,56 @@ def process_to_log(
     maneuvers in a second process (forked before the log's writer starts its thread), and, given decode (records
     are then the input's pieces, a replay's raw messages, and decode(records) its records), writes its log in a
     process of its own (log_process.LogProcess, forked first), which takes the pieces from the run: the same
-    bytes."""
+    bytes. as_read: records are the input decoded already, its items_of(decode) with their pieces (log_process.Read:
+    ReadOnce.second). apart: the log's process forked already (log_process_for), which the caller closes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
-    make = functools.partial(McapLogSink, out_path, config, mode=mode, metadata=meta)
     beside = worth_a_process(options.get("total"))
     with contextlib.ExitStack() as stack:
-        apart = stack.enter_context(LogProcess(make, lambda pieces: batched(decode(pieces)), config)) \
-            if decode is not None and beside else None
+        if apart is None and decode is not None and beside:
+            apart = stack.enter_context(log_process_for(config, out_path, mode, decode))
         summaries = stack.enter_context(SummaryProcess()) if beside and options.get("maneuvers", True) else None
-        sink = apart or make()
-        items = apart.input(records) if apart is not None else decode(records) if decode is not None else records
+        if apart is not None:
+            apart.begin(metadata=meta)
+        sink = apart or McapLogSink(out_path, config, mode=mode, metadata=meta)
+        items: Iterable[Any]
+        if as_read:
+            items = apart.input_reads(records) if apart is not None else (item for _, _, item in records)
+        else:
+            items = apart.input(records) if apart is not None else decode(records) if decode is not None else records
         try:
             return process(config, items, [sink], **({"description": mode, "summaries": summaries} | options))
         finally:
             if apart is None:
                 sink.close()
+
+
+def log_process_for(config: Config, out_path: Path, mode: str,
+                    decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]],
+                    read: Callable[[], Iterable[Any]] | None = None) -> LogProcess:
+    """The process that writes process_to_log's log at out_path (LogProcess), its input's pieces decoded by decode;
+    read: the pieces, which it reads itself, ahead of the run's first call."""
+    return LogProcess(functools.partial(McapLogSink, out_path, config, mode=mode), items_of(decode), config, read)
+
+
+def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Calibration | None, *,
+                    metadata: dict[str, str], total: int | None, scanned: Any = None) -> tuple[Pipeline, FirstPass]:
+    """`replay --two-pass` of a log into a new log at out_path: the first pass (first_pass), then the second into the
+    log (process_to_log), the input read and decoded once (ReadOnce, its decoders' tape). Where the run is worth a
+    log's process (summaries.worth_a_process), it is forked before the first pass and reads and decodes the log
+    itself meanwhile, on the core the first pass leaves idle; the run then sends it no input. scanned: the
+    logformat.salvage.ScanResult the first read fills."""
+    from slipdaq.logformat.reader import iter_raw_messages
+
+    decode = log_decoder(log)
+    read = ReadOnce(lambda scan: iter_raw_messages(log, scanned if scan else None), items_of(decode))
+    with contextlib.ExitStack() as stack:
+        apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
+                                                    lambda: iter_raw_messages(log))) if worth_a_process(total) else None
+        first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
+        p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, decode=decode,
+                           as_read=True, apart=apart, tape=read.tape, **first.second_pass())
+    return p, first
 
 
 class _FirstPassSink(Sink):
@@ -270,49 +318,14 @@ def log_decoder(log: str | Path) -> Callable[[Iterable[Any]], Iterator[RawRecord
     return lambda messages: guarded(log, raw_batches(messages))
 
 
-KEEP_BYTES = 256 * 1024 * 1024
-"""A two-pass run keeps the raw messages its first pass read, up to this many bytes of their data (about 40 minutes of
-4 WPT messages at 1 kHz), for its second pass; a longer log is read again."""
-
-
-class ReadOnce:
-    """A log's raw messages for the two passes of a run: the first pass's read from the log (read(True): the read
-    whose scan result the caller keeps) and kept while their data stays within keep_bytes (KEEP_BYTES); the second's
-    the kept ones, or, from a longer log, which keeps none, the log read again (read(False))."""
-
-    def __init__(self, read: Callable[[bool], Iterable[Any]], keep_bytes: int | None = None) -> None:
-        self._read = read
-        self._keep_bytes = KEEP_BYTES if keep_bytes is None else keep_bytes
-        self._kept: list[Any] | None = []
-
-    def first(self) -> Iterator[Any]:
-        size = 0
-        for message in self._read(True):
-            if self._kept is not None:
-                size += len(message[-1])
-                if size <= self._keep_bytes:
-                    self._kept.append(message)
-                else:  # read again: a part kept would spare none of the reading (it reads from the start)
-                    self._kept = None
-            yield message
-
-    def second(self) -> Iterator[Any]:
-        """The messages again (once), each kept one let go as it is taken."""
-        if self._kept is None:
-            yield from self._read(False)
-            return
-        kept, self._kept = self._kept[::-1], []
-        while kept:
-            yield kept.pop()
-
-
-def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch], start: Calibration | None,
-               learned_from: str, *, total: int | None = None, stream: TextIO | None = None) -> FirstPass:
+def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch | list[CanFrame]], start: Calibration | None,
+               learned_from: str, *, total: int | None = None, stream: TextIO | None = None,
+               tape: DecoderTape | None = None) -> FirstPass:
     """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix. What
     only the second pass keeps is not made: no maneuver summarized, no high-rate slip row, nothing written."""
     seen = _FirstPassSink(reference_wheels(config))
     p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2",
-                maneuvers=False, fast_slip=False)
+                maneuvers=False, fast_slip=False, tape=tape)
     learned = p.estimator.learned()
     calibration = merged(start, learned, config, learned_from)
     return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))
@@ -419,11 +432,11 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     if total == 0:
         return None
     with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
-        messages, decode = ReadOnce(lambda _: iter_raw_messages(log)), log_decoder(log)
-        first = first_pass(config, decode(messages.first()), start, str(log), total=total, stream=stream)
+        read = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
+        first = first_pass(config, read.first(), start, str(log), total=total, stream=stream, tape=read.tape)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
-        p = process(config, decode(messages.second()), [rows], total=total, stream=stream, maneuvers=False,
-                    **first.second_pass())
+        p = process(config, (item for _, _, item in read.second()), [rows], total=total, stream=stream,
+                    maneuvers=False, tape=read.tape, **first.second_pass())
         if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
             return None
         if rows.feed is not None:

@@ -1,0 +1,133 @@
+"""What a two-pass run's first pass decoded, played back to its second pass: the pipeline's wheel decoder and NMEA
+decoder made into ones that record (the first pass) or play back (the second) their outputs and counters.
+
+Both passes read the same records in the same order, and the pipeline cuts the wheel frames into the same batches in
+both (where a diagnostics snapshot falls due, by the records' times alone), so the second pass's calls are the first
+pass's, one for one: each played call is checked against the recorded one (its batch's frames, its line's time), and a
+call that differs raises TapeMismatch. The counters read between calls (diagnostics) are the ones recorded after the
+call before. A tape holds its outputs within a budget of bytes (TAPE_BYTES); past it, it records nothing more and
+plays nothing (`complete` False): the second pass then decodes, as a single pass does."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from slipdaq.config import Config
+from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.decode.nmea import DROP_REASONS, NmeaDecoder
+from slipdaq.records import CanFrameBatch, GpsFix, NmeaLine, WheelSampleBatch
+
+TAPE_BYTES = 256 * 1024 * 1024
+"""A tape keeps what it recorded while its outputs' arrays stay within this many bytes (about 15 minutes of 4 WPT
+messages at 1 kHz: 58 bytes a wheel sample)."""
+_LINE_BYTES = 200
+"""What a recorded NMEA line's entry is counted as (its fix and counters)."""
+
+
+class TapeMismatch(RuntimeError):
+    """A second pass's decoder call that is not the first pass's."""
+
+
+class DecoderTape:
+    """The pipeline's wheel and NMEA decoders' outputs over a first pass (record) for its second pass (play)."""
+
+    def __init__(self, budget_bytes: int | None = None) -> None:
+        self._budget = TAPE_BYTES if budget_bytes is None else budget_bytes
+        self.bytes = 0
+        self.complete = True
+        """False once the budget was exceeded: nothing is kept, nothing is played."""
+        self.wheels: list[tuple[int, float, WheelSampleBatch, np.ndarray, int]] = []
+        """Per decode_batch call: frames, first frame's time, the samples, the counters and bad frames after it."""
+        self.lines: list[tuple[float, GpsFix | None, tuple[int, ...]]] = []
+        """Per NMEA line: its time, the decoder's fix and its counters after it (TapedNmeaDecoder.COUNTERS)."""
+        self._recorded = False
+
+    def _add(self, nbytes: int) -> bool:
+        """Count nbytes in; False (and the tape dropped) past the budget."""
+        self.bytes += nbytes
+        if self.bytes > self._budget:
+            self.complete = False
+            self.wheels, self.lines = [], []
+        return self.complete
+
+    def attach(self, pipeline: Any) -> None:
+        """Give the pipeline (a fresh one) taped decoders: recording on the first call, playing on the second (when
+        the tape is complete; otherwise the pipeline keeps its own)."""
+        if self._recorded and not self.complete:
+            return
+        play = self._recorded
+        self._recorded = True
+        pipeline.wheels = TapedWheelDecoder(pipeline.config, self, play)
+        pipeline.nmea = TapedNmeaDecoder(self, play)
+
+
+def _batch_key(batch: CanFrameBatch) -> tuple[int, float]:
+    return len(batch), float(batch.timestamp_s[0]) if len(batch) else 0.0
+
+
+def _same(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
+    """a == b, a NaN equal to a NaN."""
+    return a == b or all(x == y or (x != x and y != y) for x, y in zip(a, b, strict=True))
+
+
+def _nbytes(samples: WheelSampleBatch) -> int:
+    return sum(getattr(samples, f.name).nbytes for f in dataclasses.fields(samples))
+
+
+class TapedWheelDecoder(WheelDecoder):
+    """A WheelDecoder whose decode_batch records its outputs on a tape, or plays them back (play) without decoding."""
+
+    def __init__(self, config: Config, tape: DecoderTape, play: bool) -> None:
+        super().__init__(config)
+        self._tape = tape
+        self._play: Iterator[tuple[int, float, WheelSampleBatch, np.ndarray, int]] | None = \
+            iter(tape.wheels) if play else None
+
+    def decode_batch(self, batch: CanFrameBatch, which: np.ndarray | None = None) -> WheelSampleBatch:
+        tape = self._tape
+        if self._play is not None:
+            n, t, samples, counters, bad = next(self._play, (-1, 0.0, WheelSampleBatch.empty(), self._counters, 0))
+            if not _same((n, t), _batch_key(batch)):
+                raise TapeMismatch(f"the second pass decodes {len(batch)} wheel frames where the first pass decoded {n}")
+            self._counters, self.bad_frames = counters, bad
+            return samples
+        samples = super().decode_batch(batch, which)
+        if tape.complete and tape._add(_nbytes(samples) + self._counters.nbytes):
+            tape.wheels.append((*_batch_key(batch), samples, self._counters.copy(), self.bad_frames))
+        return samples
+
+
+class TapedNmeaDecoder(NmeaDecoder):
+    """An NmeaDecoder whose decode records its fix and counters on a tape, or plays them back (play)."""
+
+    COUNTERS = ("lines", "sentences", "ignored_lines", "fixes", "comment_lines", "resynced_lines")
+
+    def __init__(self, tape: DecoderTape, play: bool) -> None:
+        super().__init__()
+        self._tape = tape
+        self._play: Iterator[tuple[float, GpsFix | None, tuple[int, ...]]] | None = iter(tape.lines) if play else None
+        self._dropped_at: tuple[int, ...] = tuple(self.dropped.values())
+
+    def decode(self, line: NmeaLine) -> GpsFix | None:
+        if self._play is not None:
+            t, fix, counters = next(self._play, (-1.0, None, ()))
+            if not counters or not _same((t,), (line.timestamp_s,)):
+                raise TapeMismatch(f"the second pass decodes an NMEA line at {line.timestamp_s} where the first pass "
+                                   f"decoded one at {t}")
+            (self.lines, self.sentences, self.ignored_lines, self.fixes, self.comment_lines,
+             self.resynced_lines) = counters[:6]
+            if counters[6:] != self._dropped_at:
+                self._dropped_at = counters[6:]
+                self.dropped = dict(zip(DROP_REASONS, self._dropped_at))
+            return fix
+        fix = super().decode(line)
+        tape = self._tape
+        if tape.complete and tape._add(_LINE_BYTES):
+            tape.lines.append((line.timestamp_s, fix, (self.lines, self.sentences, self.ignored_lines, self.fixes,
+                                                       self.comment_lines, self.resynced_lines,
+                                                       *self.dropped.values())))
+        return fix
