@@ -63,6 +63,7 @@ def test_the_second_pass_gets_the_reads_kept_decoded_again_or_read_again(log: Pa
         second = list(kept.second())
         assert _plain_reads(second) == expected
         assert log_reads == reads_wanted, (keep, item_bytes)
+        assert kept.tape.complete == (reads_wanted == [True])  # no tape played to a log read again
         same = [a is b for a, (_, _, b) in zip(first, second, strict=True) if isinstance(a, CanFrameBatch)]
         assert all(same) if (keep, item_bytes) == (size, items) else not any(same)  # kept, or decoded again
 

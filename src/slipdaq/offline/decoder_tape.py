@@ -50,9 +50,13 @@ class DecoderTape:
         """Count nbytes in; False (and the tape dropped) past the budget."""
         self.bytes += nbytes
         if self.bytes > self._budget:
-            self.complete = False
-            self.wheels, self.lines = [], []
+            self.drop()
         return self.complete
+
+    def drop(self) -> None:
+        """Keep nothing, play nothing (a second pass over records read again, which need not be the same)."""
+        self.complete = False
+        self.wheels, self.lines = [], []
 
     def attach(self, pipeline: Any) -> None:
         """Give the pipeline (a fresh one) taped decoders: recording on the first call, playing on the second (when

@@ -30,7 +30,8 @@ class ReadOnce:
     result the caller keeps); the second pass's are the same items, each with the messages decode read for it (a
     log_process.Read): kept from the first pass, or decoded again from the messages kept, or from the log read again
     (read(False)) where their data passed keep_bytes (KEEP_BYTES; the items' own: item_bytes, the same by default).
-    `tape` records the first pass's decoders for the second (process's tape; tape_bytes: its budget)."""
+    `tape` records the first pass's decoders for the second (process's tape; tape_bytes: its budget), but for a log
+    read again."""
 
     def __init__(self, read: Callable[[bool], Iterable[Any]], decode: Decode, keep_bytes: int | None = None,
                  item_bytes: int | None = None, tape_bytes: int | None = None) -> None:
@@ -54,6 +55,7 @@ class ReadOnce:
                 message_bytes += sum(len(m[-1]) for m in got)
                 if message_bytes > self._keep_bytes:  # read again: a part kept would spare none of the reading
                     self._again, self._reads, self._messages = True, None, None
+                    self.tape.drop()  # the log read again is decoded again: it need not be the same (still written)
                 elif self._reads is not None:
                     item_bytes += _bytes_of(item)
                     if item_bytes <= self._item_budget:
