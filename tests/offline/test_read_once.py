@@ -1,21 +1,19 @@
 """A two-pass run reads and decodes its log once (offline.read_once.ReadOnce): the second pass gets the first pass's
-items with the messages read for each, kept while they stay within their budgets, or decoded again from the messages
-kept, or from a longer log read again; `replay --two-pass` writes the same log every way, its decoders played back
-from the first pass's tape (offline.decoder_tape) or not."""
+items, kept while the messages they came from stay within KEEP_BYTES, or the log read and decoded again; `replay
+--two-pass` writes the same log either way, its decoders played back from the first pass's tape (offline.decoder_tape)
+or not."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.logformat.reader import iter_raw_messages
 from slipdaq.offline import decoder_tape, read_once
-from slipdaq.offline.log_process import reads
 from slipdaq.offline.run import items_of, log_decoder
 from slipdaq.records import CanFrameBatch
 from support.forks import FORKS
@@ -31,41 +29,31 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _plain(item: Any) -> Any:
     """An item in a form == compares: a batch of frames as its arrays' bytes."""
     if isinstance(item, CanFrameBatch):
-        return tuple((a.dtype.str, a.shape, a.tobytes()) if isinstance(a, np.ndarray) else a for a in
-                     (item.timestamp_s, item.arbitration_id, item.flags, item.dlc, item.data, item.channel,
-                      item.channels))
+        return (item.timestamp_s.tobytes(), item.arbitration_id.tobytes(), item.flags.tobytes(), item.dlc.tobytes(),
+                item.data.tobytes(), item.channel.tobytes(), item.channels)
     return item
 
 
-def _plain_reads(got: Any) -> list[tuple[list[Any], bool, Any]]:
-    return [(pieces, end, _plain(item)) for pieces, end, item in got]
-
-
-def test_the_second_pass_gets_the_reads_kept_decoded_again_or_read_again(log: Path) -> None:
+def test_the_second_pass_gets_the_items_kept_or_the_log_read_again(log: Path) -> None:
     decode = items_of(log_decoder(log))
-    every = list(iter_raw_messages(log))
-    decoded = list(reads(decode, iter(every)))
-    expected = _plain_reads(decoded)
-    assert sum(len(p) for p, _, _ in expected) == len(every)
-    size = sum(len(m[-1]) for m in every)
-    items = sum(read_once._bytes_of(item) for _, _, item in decoded)
-    for keep, item_bytes, reads_wanted in ((size, items, [True]), (size, items - 1, [True]),
-                                           (size - 1, items, [True, False]), (0, 0, [True, False])):
+    expected = [_plain(item) for item in decode(iter_raw_messages(log))]
+    size = sum(len(m[-1]) for m in iter_raw_messages(log))
+    for keep, reads_wanted in ((size, [True]), (size - 1, [True, False]), (0, [True, False])):
         log_reads: list[bool] = []
 
         def read(scan: bool, log_reads: list[bool] = log_reads) -> Any:
             log_reads.append(scan)
             return iter_raw_messages(log)
 
-        kept = read_once.ReadOnce(read, decode, keep, item_bytes)
+        kept = read_once.ReadOnce(read, decode, keep)
         first = list(kept.first())
-        assert [_plain(item) for item in first] == [item for _, _, item in expected]
+        assert [_plain(item) for item in first] == expected
         second = list(kept.second())
-        assert _plain_reads(second) == expected
-        assert log_reads == reads_wanted, (keep, item_bytes)
-        assert kept.tape.complete == (reads_wanted == [True])  # no tape played to a log read again
-        same = [a is b for a, (_, _, b) in zip(first, second, strict=True) if isinstance(a, CanFrameBatch)]
-        assert all(same) if (keep, item_bytes) == (size, items) else not any(same)  # kept, or decoded again
+        assert [_plain(item) for item in second] == expected
+        assert log_reads == reads_wanted, keep
+        assert kept.tape.complete == (keep == size)  # no tape played to a log read again
+        same = [a is b for a, b in zip(first, second, strict=True) if isinstance(a, CanFrameBatch)]
+        assert all(same) if keep == size else not any(same)  # the first pass's own, or decoded again
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
@@ -76,8 +64,8 @@ def _messages(path: Path) -> list[tuple[str, int, bytes]]:
 def test_a_two_pass_replay_is_the_same_kept_decoded_again_or_read_again(log: Path, tmp_path: Path,
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """The whole input kept with its decoders' tape (the default); the tape past its budget (the second pass
-    decodes); the messages kept and decoded again; a log a byte too long to keep: the same messages (the log written
-    apart, as a replay of this many records does)."""
+    decodes); a log a byte too long to keep, read and decoded again: the same messages (the log written apart, as a
+    replay of this many records does)."""
     size = sum(len(m[-1]) for m in iter_raw_messages(log))
     outs = []
     budgets = ((read_once.KEEP_BYTES, decoder_tape.TAPE_BYTES), (read_once.KEEP_BYTES, 1),

@@ -1,10 +1,11 @@
 """A replay's log written in a process of its own (LogProcess): the run's sink calls go, in order, to a forked process
 that makes the log's sink and calls it. The CAN frames, their wheel samples and the other raw records, most of what a
 sink gets, are not sent as records: the run sends its input as it read it (a log's raw messages, the bytes as read),
-the process decodes it as the run does and decodes the wheel frames as the pipeline does (the decoder gives the same
-samples however the frames are cut), and a call names only how many frames or samples, with the first frame's or
-the record's time, or the samples' first and last frame and last revolutions, which the process checks against what
-it decoded. The sink gets the same calls with the same records: the same log."""
+or the process reads the input itself (a two-pass run's, ahead, while the first pass runs); the process decodes it as
+the run does and decodes the wheel frames as the pipeline does (the decoder gives the same samples however the frames
+are cut), and a call names only how many frames or samples, with the first frame's or the record's time, or the
+samples' first and last frame and last revolutions, which the process checks against what it decoded. The sink gets
+the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
@@ -52,27 +53,6 @@ two-pass run's first pass): about 250 MB of frames and wheel samples, 13 minutes
 Item = RawRecord | CanFrameBatch | list[CanFrame]
 Decode = Callable[[Iterable[Any]], Iterable[Item]]
 """The input's items (as Pipeline.process_all gets them) from its pieces: the same function in the run and the process."""
-Read = tuple[list[Any], bool, Item]
-"""An item of the input as decode gave it: (the pieces decode read for it since the item before, whether the pieces had
-run out before it came, the item)."""
-
-
-def reads(decode: Decode, pieces: Iterable[Any]) -> Iterator[Read]:
-    """decode(pieces)'s items, each as a Read."""
-    read: list[Any] = []
-    ended = False
-
-    def tee() -> Iterator[Any]:
-        nonlocal ended
-        for piece in pieces:
-            read.append(piece)
-            yield piece
-        ended = True
-
-    for item in decode(tee()):
-        got = read.copy()
-        read.clear()
-        yield got, ended, item
 
 
 class LogProcessError(RuntimeError):
@@ -226,7 +206,10 @@ def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read:
             source = _Input(decode, config, read)
             while not calls.poll() and source.read_ahead():
                 pass
-            take: dict[str, Callable[..., None]] = {}
+            def unbegun(*_: Any) -> None:
+                raise LogProcessError("the run called the log's sink before it was made (LogProcess.begin)")
+
+            take: dict[str, Callable[..., None]] = dict.fromkeys((*SINK_CALLS, FRAMES, SAMPLES, RAW), unbegun)
 
             def begin(kwargs: dict[str, Any]) -> None:
                 nonlocal sink
@@ -261,17 +244,18 @@ def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read:
 
 
 class LogProcess(Sink):
-    """A sink in a forked process (make_sink()'s there) whose raw records come from the run's input as input() reads
-    it, decoded there by decode: its calls are pickled here, RUN_CALLS at a time, and written to the pipe by a
-    thread. close() waits for the process to close the log and raises its error, if any; a run that fails calls
-    terminate(). Fork it before any thread is started (the summaries' process after it)."""
+    """A sink in a forked process (make_sink()'s there, made by the first call: begin) whose raw records come from the
+    run's input as input() reads it, or as the process reads it itself (read), decoded there by decode: its calls are
+    pickled here, RUN_CALLS at a time, and written to the pipe by a thread. close() waits for the process to close the
+    log and raises its error, if any; a run that fails calls terminate(). Fork it before any thread is started (the
+    summaries' process after it)."""
 
     def __init__(self, make_sink: Callable[..., Sink], decode: Decode, config: Config,
                  read: Callable[[], Iterable[Any]] | None = None) -> None:
         """make_sink(**begin's keyword arguments): the log's sink, made there; decode: the input's items from its
         pieces, as the run has them (items_of); read: the input's pieces, read there, ahead of the run's first call
-        (a two-pass run's first pass, whose second core is idle), and then not sent (input_reads sends nothing);
-        else the run sends them (input, input_reads)."""
+        (a two-pass run's first pass, whose second core is idle), the run then sending none; else the run sends
+        them (input)."""
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
         calls_in, self._calls = ctx.Pipe(duplex=False)
@@ -295,28 +279,22 @@ class LogProcess(Sink):
 
     def input(self, pieces: Iterable[Any]) -> Iterator[Item]:
         """The run's input: decode(pieces), each item's pieces (those read for it) sent to the process before it."""
-        return self.input_reads(reads(self._decode, pieces))
+        read: list[Any] = []
+
+        def tee() -> Iterator[Any]:
+            for piece in pieces:
+                read.append(piece)
+                yield piece
+            self._call(INPUT_END, ())  # before the last item's pieces: what decode reads past them is the end
+
+        for item in self._decode(tee()):
+            self._call(INPUT, (read[:],))
+            read.clear()
+            yield item
 
     def begin(self, **kwargs: Any) -> None:
         """The first call: the log's sink made there, make_sink(**kwargs)."""
         self._call(BEGIN, (kwargs,))
-
-    def input_reads(self, input_reads: Iterable[Read]) -> Iterator[Item]:
-        """The run's input decoded already (reads() with this process's decode): each item's pieces sent to the
-        process before it, the pieces' end before the pieces of the item that came after it (none sent where the
-        process reads the input itself)."""
-        if self.reads_itself:
-            yield from (item for _, _, item in input_reads)
-            return
-        ended = False
-        for got, end, item in input_reads:
-            if end and not ended:
-                self._call(INPUT_END, ())  # what decode read past these pieces is the end
-                ended = True
-            self._call(INPUT, (got,))
-            yield item
-        if not ended:
-            self._call(INPUT_END, ())
 
     def _call(self, name: str, args: tuple[Any, ...]) -> None:
         self._run.append((name, args))

@@ -200,7 +200,6 @@ def process_to_log(
     *,
     metadata: dict[str, str] | None = None,
     decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]] | None = None,
-    as_read: bool = False,
     apart: LogProcess | None = None,
     **options: Any,
 ) -> Pipeline:
@@ -210,8 +209,8 @@ def process_to_log(
     maneuvers in a second process (forked before the log's writer starts its thread), and, given decode (records
     are then the input's pieces, a replay's raw messages, and decode(records) its records), writes its log in a
     process of its own (log_process.LogProcess, forked first), which takes the pieces from the run: the same
-    bytes. as_read: records are the input decoded already, its items_of(decode) with their pieces (log_process.Read:
-    ReadOnce.second). apart: the log's process forked already (log_process_for), which the caller closes."""
+    bytes. apart: the log's process forked already, which reads the input itself (log_process_for with read; records
+    are then the input's items, decoded already), and which the caller closes."""
     calibration = options.get("calibration")
     meta = (metadata or {}) | {"calibration_toml": to_toml(calibration) if calibration is not None else ""}
     beside = worth_a_process(options.get("total"))
@@ -222,11 +221,8 @@ def process_to_log(
         if apart is not None:
             apart.begin(metadata=meta)
         sink = apart or McapLogSink(out_path, config, mode=mode, metadata=meta)
-        items: Iterable[Any]
-        if as_read:
-            items = apart.input_reads(records) if apart is not None else (item for _, _, item in records)
-        else:
-            items = apart.input(records) if apart is not None else decode(records) if decode is not None else records
+        items = records if apart is not None and apart.reads_itself else apart.input(records) if apart is not None \
+            else decode(records) if decode is not None else records
         try:
             return process(config, items, [sink], **({"description": mode, "summaries": summaries} | options))
         finally:
@@ -257,8 +253,8 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
         apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
                                                     lambda: iter_raw_messages(log))) if worth_a_process(total) else None
         first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
-        p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, decode=decode,
-                           as_read=True, apart=apart, tape=read.tape, **first.second_pass())
+        p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, apart=apart,
+                           tape=read.tape, **first.second_pass())
     return p, first
 
 
@@ -435,8 +431,8 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
         read = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
         first = first_pass(config, read.first(), start, str(log), total=total, stream=stream, tape=read.tape)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
-        p = process(config, (item for _, _, item in read.second()), [rows], total=total, stream=stream,
-                    maneuvers=False, tape=read.tape, **first.second_pass())
+        p = process(config, read.second(), [rows], total=total, stream=stream, maneuvers=False, tape=read.tape,
+                    **first.second_pass())
         if p.can_frames + p.nmea.lines + p.ubx.frames == 0:
             return None
         if rows.feed is not None:
