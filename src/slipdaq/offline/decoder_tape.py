@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterator
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import DROP_REASONS, NmeaDecoder
+from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrameBatch, GpsFix, NmeaLine, WheelSampleBatch
 
 TAPE_BYTES = 256 * 1024 * 1024
@@ -46,8 +48,8 @@ class DecoderTape:
         """Per NMEA line: its time, the decoder's fix and its counters after it (TapedNmeaDecoder.COUNTERS)."""
         self._recorded = False
 
-    def _add(self, nbytes: int) -> bool:
-        """Count nbytes in; False (and the tape dropped) past the budget."""
+    def room_for(self, nbytes: int) -> bool:
+        """Count nbytes in: whether the tape keeps them (False, and the tape dropped, past the budget)."""
         self.bytes += nbytes
         if self.bytes > self._budget:
             self.drop()
@@ -58,7 +60,7 @@ class DecoderTape:
         self.complete = False
         self.wheels, self.lines = [], []
 
-    def attach(self, pipeline: Any) -> None:
+    def attach(self, pipeline: Pipeline) -> None:
         """Give the pipeline (a fresh one) taped decoders: recording on the first call, playing on the second (when
         the tape is complete; otherwise the pipeline keeps its own)."""
         if self._recorded and not self.complete:
@@ -96,11 +98,12 @@ class TapedWheelDecoder(WheelDecoder):
         if self._play is not None:
             n, t, samples, counters, bad = next(self._play, (-1, 0.0, WheelSampleBatch.empty(), self._counters, 0))
             if not _same((n, t), _batch_key(batch)):
-                raise TapeMismatch(f"the second pass decodes {len(batch)} wheel frames where the first pass decoded {n}")
+                raise TapeMismatch(f"the second pass decodes other wheel frames than the first pass: {len(batch)} from "
+                                   f"{_batch_key(batch)[1]} s against {n} from {t} s")
             self._counters, self.bad_frames = counters, bad
             return samples
         samples = super().decode_batch(batch, which)
-        if tape.complete and tape._add(_nbytes(samples) + self._counters.nbytes):
+        if tape.complete and tape.room_for(_nbytes(samples) + self._counters.nbytes):
             tape.wheels.append((*_batch_key(batch), samples, self._counters.copy(), self.bad_frames))
         return samples
 
@@ -109,6 +112,7 @@ class TapedNmeaDecoder(NmeaDecoder):
     """An NmeaDecoder whose decode records its fix and counters on a tape, or plays them back (play)."""
 
     COUNTERS = ("lines", "sentences", "ignored_lines", "fixes", "comment_lines", "resynced_lines")
+    """The counters recorded after each line, then `dropped`'s values (DROP_REASONS)."""
 
     def __init__(self, tape: DecoderTape, play: bool) -> None:
         super().__init__()
@@ -122,16 +126,18 @@ class TapedNmeaDecoder(NmeaDecoder):
             if not counters or not _same((t,), (line.timestamp_s,)):
                 raise TapeMismatch(f"the second pass decodes an NMEA line at {line.timestamp_s} where the first pass "
                                    f"decoded one at {t}")
-            (self.lines, self.sentences, self.ignored_lines, self.fixes, self.comment_lines,
-             self.resynced_lines) = counters[:6]
-            if counters[6:] != self._dropped_at:
-                self._dropped_at = counters[6:]
+            k = len(self.COUNTERS)
+            for name, value in zip(self.COUNTERS, counters[:k]):
+                setattr(self, name, value)
+            if counters[k:] != self._dropped_at:
+                self._dropped_at = counters[k:]
                 self.dropped = dict(zip(DROP_REASONS, self._dropped_at))
             return fix
         fix = super().decode(line)
         tape = self._tape
-        if tape.complete and tape._add(_LINE_BYTES):
-            tape.lines.append((line.timestamp_s, fix, (self.lines, self.sentences, self.ignored_lines, self.fixes,
-                                                       self.comment_lines, self.resynced_lines,
-                                                       *self.dropped.values())))
+        if tape.complete and tape.room_for(_LINE_BYTES):
+            tape.lines.append((line.timestamp_s, fix, (*_nmea_counters(self), *self.dropped.values())))
         return fix
+
+
+_nmea_counters = attrgetter(*TapedNmeaDecoder.COUNTERS)
