@@ -1,7 +1,8 @@
 """A replay's log written in a process of its own (offline.log_process): the same bytes as the log written in the run's
-process, for frames one by one, a log's raw messages, a second pass, a real capture and an old log's frames one
-message each; records decoded otherwise in the process and an error where the log is written each end the run with
-their error and leave no process behind (a run that stops: test_summary_process.py)."""
+process, for frames one by one, a log's raw messages, a second pass, a real capture, an old log's frames one message
+each, and a two-pass replay whose log's process reads the log itself; records decoded otherwise in the process and an
+error where the log is written each end the run with their error and leave no process behind (a run that stops:
+test_summary_process.py)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from slipdaq.config import Config, load_config
 from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
 from slipdaq.logformat.topics import TOPIC_CAN, TOPIC_NMEA
+from slipdaq.offline import log_process
 from slipdaq.offline.log_process import LogProcessError
 from slipdaq.offline.run import first_pass, process_to_log, replay_two_pass
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
@@ -117,13 +119,17 @@ def _two_pass_both_ways(log: Path, tmp_path: Path, total: int) -> None:
     assert children() == []
 
 
-def test_a_two_pass_replay_whose_process_reads_the_log_itself_the_same_bytes(drive: tuple[Config, list[Any]],
-                                                                             tmp_path: Path) -> None:
-    """The simulated drive and the RAV4's capture (its first segment a frame with no wheel sample)."""
+def test_a_two_pass_replay_whose_process_reads_the_log_itself_the_same_bytes(
+        drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The simulated drive, read ahead whole and then a piece ahead only (the rest decoded as the run's calls ask
+    for it), and the RAV4's capture (its first segment a frame with no wheel sample)."""
     cfg, records = drive
     log = tmp_path / "recorded.mcap"
     process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
     _two_pass_both_ways(log, tmp_path, len(records))
+    monkeypatch.setattr(log_process, "AHEAD_FRAMES", 1)
+    _two_pass_both_ways(log, tmp_path, len(records))
+    monkeypatch.undo()
     rav4 = tmp_path / "rav4.mcap"
     assert main(["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea", str(RAV4 / "rav4_ublox.nmea"),
                  "--config", str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"), "-o", str(rav4),
