@@ -209,6 +209,8 @@ class NmeaDecoder:
 
     VTG_ONLY_AFTER_S = 1.5
     """VTG gives the speed only when no RMC has come for this long (no double counting)."""
+    COUNTERS = ("lines", "sentences", "ignored_lines", "fixes", "comment_lines", "resynced_lines")
+    """Its running counts (ints), besides `dropped` (by DROP_REASONS)."""
 
     def __init__(self, fast_path: bool = True) -> None:
         """fast_path=False sends every sentence through pynmea2 (the reference the fast path is tested against)."""

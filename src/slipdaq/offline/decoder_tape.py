@@ -45,7 +45,7 @@ class DecoderTape:
         self.wheels: list[tuple[int, float, WheelSampleBatch, np.ndarray, int]] = []
         """Per decode_batch call: frames, first frame's time, the samples, the counters and bad frames after it."""
         self.lines: list[tuple[float, GpsFix | None, tuple[int, ...]]] = []
-        """Per NMEA line: its time, the decoder's fix and its counters after it (TapedNmeaDecoder.COUNTERS)."""
+        """Per NMEA line: its time, the decoder's fix and its counters after it (NmeaDecoder.COUNTERS, `dropped`)."""
         self._recorded = False
 
     def room_for(self, nbytes: int) -> bool:
@@ -109,10 +109,8 @@ class TapedWheelDecoder(WheelDecoder):
 
 
 class TapedNmeaDecoder(NmeaDecoder):
-    """An NmeaDecoder whose decode records its fix and counters on a tape, or plays them back (play)."""
-
-    COUNTERS = ("lines", "sentences", "ignored_lines", "fixes", "comment_lines", "resynced_lines")
-    """The counters recorded after each line, then `dropped`'s values (DROP_REASONS)."""
+    """An NmeaDecoder whose decode records its fix and counters on a tape (COUNTERS, then `dropped`'s values), or
+    plays them back (play)."""
 
     def __init__(self, tape: DecoderTape, play: bool) -> None:
         super().__init__()
@@ -140,4 +138,4 @@ class TapedNmeaDecoder(NmeaDecoder):
         return fix
 
 
-_nmea_counters = attrgetter(*TapedNmeaDecoder.COUNTERS)
+_nmea_counters = attrgetter(*NmeaDecoder.COUNTERS)

@@ -221,8 +221,13 @@ def process_to_log(
         if apart is not None:
             apart.begin(metadata=meta)
         sink = apart or McapLogSink(out_path, config, mode=mode, metadata=meta)
-        items = records if apart is not None and apart.reads_itself else apart.input(records) if apart is not None \
-            else decode(records) if decode is not None else records
+        items: Iterable[Any]
+        if apart is not None and not apart.reads_itself:
+            items = apart.input(records)
+        elif decode is not None and apart is None:
+            items = decode(records)
+        else:  # records as they are, or the input's items for a log's process that reads the input itself
+            items = records
         try:
             return process(config, items, [sink], **({"description": mode, "summaries": summaries} | options))
         finally:
