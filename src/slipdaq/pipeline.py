@@ -328,12 +328,7 @@ class Pipeline:
         """Frames of which at most the last may make a diagnostics snapshot due (frame k of batch is frame
         offset + k of the run that `parts` cut)."""
         n = len(batch)
-        if self._ahead.contains(self.can_frames):
-            assert self._ahead.covers(self.can_frames, n), "a segment beyond the frames decoded ahead"
-            which, samples = self._ahead.take(self.can_frames, n)
-        else:
-            which = self.wheels.wheel_frames(batch)
-            samples = self.wheels.decode_batch(batch, which)
+        which, samples = self._segment_samples(batch)
         self.can_frames += n
         error = (batch.flags & FLAG_ERROR) != 0
         self.error_frames += int(np.count_nonzero(error))
@@ -375,6 +370,14 @@ class Pipeline:
         if self.estimator.events:
             self._events()
         self._tick(float(ts[-1]))
+
+    def _segment_samples(self, batch: CanFrameBatch) -> tuple[np.ndarray, WheelSampleBatch]:
+        """The segment's wheel frames and samples (WheelDecoder's wheel_frames, decode_batch): decoded ahead, or now."""
+        if self._ahead.contains(self.can_frames):
+            assert self._ahead.covers(self.can_frames, len(batch)), "a segment beyond the frames decoded ahead"
+            return self._ahead.take(self.can_frames, len(batch))
+        which = self.wheels.wheel_frames(batch)
+        return which, self.wheels.decode_batch(batch, which)
 
     def _estimate(self, e: Estimate, log_time_s: float) -> None:
         self.estimates += 1

@@ -1,11 +1,14 @@
 """A two-pass run's second pass plays back what its first pass's wheel and NMEA decoders made (offline.decoder_tape):
 every sink call the same as with decoders of its own (estimates, fixes, wheel samples, diagnostics with the decoders'
-counters, raw records), a tape past its budget plays nothing, and a second pass over other records is refused."""
+counters, raw records), a tape past its budget plays nothing, and a second pass over other records is refused. A
+DecodingPipeline (offline.first_pass_feed) makes the same decoder calls as a pass that estimates, and a tape fed them
+run by run plays them to both passes, the same calls as decoding."""
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from typing import Any
 
 import numpy as np
@@ -15,7 +18,9 @@ from slipdaq.config import Config, load_config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.decode.nmea import NmeaDecoder
 from slipdaq.offline.decoder_tape import DecoderTape, TapedNmeaDecoder, TapedWheelDecoder, TapeMismatch
-from slipdaq.offline.run import first_pass, process
+from slipdaq.offline.first_pass_feed import DecodingPipeline, FeedSender
+from slipdaq.offline.items import batched, read_ahead
+from slipdaq.offline.run import FirstPass, first_pass, process
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrameBatch, Estimate, GpsFix, NmeaLine, RawRecord, WheelSampleBatch
 from slipdaq.sim.emit import SimSettings, generate
@@ -49,11 +54,13 @@ class _Calls(Sink):
 
 
 def _records(cfg: Config) -> list[Any]:
-    """40 s of the cycle drive, with NMEA lines the decoder drops or counts (a bad checksum, a comment, an unused
-    sentence, noise before a sentence) and frames cut into batches of 100."""
+    """40 s of the cycle drive, its frames jittered and its lines late (neither on the other's time grid: the
+    diagnostics snapshots fall due at frames and at lines), with NMEA lines the decoder drops or counts (a bad
+    checksum, a comment, an unused sentence, noise before a sentence) and frames cut into batches of 100."""
     records: list[Any] = []
     frames: list[Any] = []
-    for k, ev in enumerate(e for e in generate(cfg, "cycle", "paved", SimSettings(seed=7), duration_s=40.0)
+    settings = SimSettings(seed=7, gps_latency_s=0.047, can_jitter_s=0.0003)  # frames and lines off a common grid
+    for k, ev in enumerate(e for e in generate(cfg, "cycle", "paved", settings, duration_s=40.0)
                            if e.record is not None):
         r = ev.record
         if isinstance(r, NmeaLine):
@@ -131,11 +138,81 @@ def test_a_second_pass_over_other_records_is_refused(cfg: Config, change: str) -
 def test_a_played_wheel_decoder_gives_the_recorded_counters_between_calls(cfg: Config) -> None:
     records = [r for r in _records(cfg) if isinstance(r, CanFrameBatch)][:20]
     tape = DecoderTape()
-    rec = TapedWheelDecoder(cfg, tape, play=False)
+    rec = TapedWheelDecoder(cfg, tape, play=None)
     seen = [(rec.decode_batch(b), rec.frames, rec.bad_frames) for b in records]
-    tape._recorded = True
-    play = TapedWheelDecoder(cfg, tape, play=True)
+    play = TapedWheelDecoder(cfg, tape, play=iter(tape.wheels))
     for b, (samples, frames, bad) in zip(records, seen, strict=True):
         assert play.decode_batch(b) is samples
         assert (play.frames, play.bad_frames) == (frames, bad)
     assert np.sum(list(seen[-1][1].values())) > 0
+
+
+def _entries(tape: DecoderTape) -> tuple[list[Any], list[Any]]:
+    """The tape's entries in a form == compares."""
+    wheels = [(n, t, *(getattr(s, f.name).tobytes() for f in dataclasses.fields(s)), c.tobytes(), bad)
+              for n, t, s, c, bad in tape.wheels]
+    return wheels, list(tape.lines)
+
+
+def test_a_decoding_pipeline_makes_the_decoder_calls_of_a_pass_that_estimates(cfg: Config) -> None:
+    """The same items in the same runs: the same calls, cut where the diagnostics snapshots fall, with the same
+    outputs and counters, as the first pass's (which estimates and takes the snapshots)."""
+    records = _records(cfg)
+    tape = DecoderTape()
+    with open(os.devnull, "w") as quiet:
+        first_pass(cfg, records, None, "test", stream=quiet, tape=tape)
+    decoding = DecodingPipeline(cfg, [], maneuvers=False, fast_slip=False)
+    made = DecoderTape(sys.maxsize)
+    made.attach(decoding)
+    for run in read_ahead(batched(records)):
+        decoding.process_all(run)
+    assert decoding.estimator.status() == DecodingPipeline(cfg, []).estimator.status()  # nothing estimated
+    assert len(tape.wheels) > 40 and len(tape.lines) > 400  # cut at each second's snapshot, at least
+    assert _entries(made) == _entries(tape)
+
+
+def _fed_passes(cfg: Config, records: list[Any], tape: DecoderTape) -> tuple[FirstPass, _Calls, Pipeline]:
+    """The first pass fed by a FeedSender (its runs' entries into tape as the pass takes them), the second with
+    tape."""
+    fed = 0
+
+    def send(message: tuple[Any, ...]) -> None:
+        nonlocal fed
+        if message[0] is not None:
+            tape.feed(*message[1:])
+            fed += 1
+
+    with open(os.devnull, "w") as quiet:
+        first = first_pass(cfg, FeedSender(cfg, send, None).runs(records), None, "test", stream=quiet, tape=tape)
+        calls = _Calls()
+        p = process(cfg, records, [calls], stream=quiet, maneuvers=False, tape=tape, **first.second_pass())
+    assert fed > 2  # run by run
+    return first, calls, p
+
+
+@pytest.mark.parametrize("budget", [None, 100_000])
+def test_a_fed_tape_plays_to_both_passes_what_decoding_gives(cfg: Config, budget: int | None) -> None:
+    """The first pass learns the same and the second's sink calls are the same as decoding's; a tape past its budget
+    still plays what it is fed to the first pass, and the second pass decodes."""
+    records = _records(cfg)
+    with open(os.devnull, "w") as quiet:
+        own_first = first_pass(cfg, records, None, "test", stream=quiet)
+    own, _ = _second(cfg, records, None)
+    tape = DecoderTape(budget, fed=True)
+    first, calls, p = _fed_passes(cfg, records, tape)
+    assert first.gps_speeds == own_first.gps_speeds and first.learned == own_first.learned
+    assert calls.calls == own.calls
+    assert tape.complete is (budget is None)
+    assert type(p.wheels) is (TapedWheelDecoder if budget is None else WheelDecoder)
+
+
+def test_a_fed_first_pass_over_other_records_is_refused(cfg: Config) -> None:
+    """The entries fed are checked against the first pass's calls: a pass over records with one CAN batch left out
+    (the feed made from them all) raises TapeMismatch."""
+    records = _records(cfg)
+    tape = DecoderTape(fed=True)
+    sender = FeedSender(cfg, lambda m: tape.feed(*m[1:]) if m[0] is not None else None, None)
+    k = next(i for i, r in enumerate(records) if isinstance(r, CanFrameBatch))
+    with open(os.devnull, "w") as quiet, pytest.raises(TapeMismatch):
+        first_pass(cfg, (r for i, r in enumerate(sender.runs(records)) if i != k), None, "test", stream=quiet,
+                   tape=tape)

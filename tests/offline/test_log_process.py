@@ -13,13 +13,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.config import Config, load_config
+from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.logformat import reader
 from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
+from slipdaq.logformat.salvage import ScanResult
 from slipdaq.logformat.topics import TOPIC_CAN, TOPIC_NMEA
-from slipdaq.offline import log_process
+from slipdaq.offline import log_process, run
 from slipdaq.offline.log_process import LogProcessError
 from slipdaq.offline.run import first_pass, process_to_log, replay_two_pass
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
@@ -102,14 +106,31 @@ def test_an_old_logs_frames_one_message_each_the_same_bytes(drive: tuple[Config,
     _both_ways(cfg, lambda: iter(messages), raw_batches, tmp_path, "old", total=len(records))
 
 
-def _two_pass_both_ways(log: Path, tmp_path: Path, total: int) -> None:
+def _two_pass_both_ways(log: Path, tmp_path: Path, total: int, monkeypatch: pytest.MonkeyPatch,
+                        fed: bool = True) -> None:
     """replay_two_pass, its log's process forked before the first pass and reading the log itself: the bytes of the
-    second pass written here."""
+    second pass written here. fed: the run's process decodes no wheel frame and reads no message of the log (the log's
+    process feeds it: first_pass_feed)."""
     cfg = config_from_log(log)
     here, apart = tmp_path / f"{log.stem}-two-pass-here.mcap", tmp_path / f"{log.stem}-two-pass-apart.mcap"
     first = first_pass(cfg, iter_raw_batches(log), None, str(log), total=total, stream=io.StringIO())
     before = len(FORKS)
-    p_apart, first_apart = replay_two_pass(cfg, log, apart, None, metadata=FIXED_META, total=total)
+    here_calls = {"decode_batch": 0, "messages": 0}
+
+    def counted(name: str, f: Any) -> Any:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            here_calls[name] += os.getpid() == PARENT
+            return f(*args, **kwargs)
+        return call
+
+    with monkeypatch.context() as m:
+        m.setattr(WheelDecoder, "decode_batch", counted("decode_batch", WheelDecoder.decode_batch))
+        m.setattr(reader, "iter_raw_messages", counted("messages", reader.iter_raw_messages))
+        scanned = ScanResult(log)
+        p_apart, first_apart = replay_two_pass(cfg, log, apart, None, metadata=FIXED_META, total=total,
+                                               scanned=scanned)
+    assert (here_calls["decode_batch"] == here_calls["messages"] == 0) is fed
+    assert scanned.has_summary and scanned.messages > 0  # the scan made where the log is read
     assert len(FORKS) - before == 2  # the log's process and the summaries'
     assert first_apart.gps_speeds == first.gps_speeds
     p_here = process_to_log(cfg, iter_raw_batches(log), here, "replay", metadata=FIXED_META, stream=io.StringIO(),
@@ -121,20 +142,22 @@ def _two_pass_both_ways(log: Path, tmp_path: Path, total: int) -> None:
 
 def test_a_two_pass_replay_whose_process_reads_the_log_itself_the_same_bytes(
         drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The simulated drive, read ahead whole and then a piece ahead only (the rest decoded as the run's calls ask
-    for it), and the RAV4's capture (its first segment a frame with no wheel sample)."""
+    """The simulated drive, read ahead whole and fed to the first pass, and then a piece ahead only (a log too long
+    to feed: the rest decoded as the run's calls ask for it), and the RAV4's capture (its first segment a frame with
+    no wheel sample)."""
     cfg, records = drive
     log = tmp_path / "recorded.mcap"
     process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
-    _two_pass_both_ways(log, tmp_path, len(records))
+    _two_pass_both_ways(log, tmp_path, len(records), monkeypatch)
     monkeypatch.setattr(log_process, "AHEAD_FRAMES", 1)
-    _two_pass_both_ways(log, tmp_path, len(records))
+    monkeypatch.setattr(run, "FEED_RECORDS", len(records) - 1)  # a log too long to feed
+    _two_pass_both_ways(log, tmp_path, len(records), monkeypatch, fed=False)
     monkeypatch.undo()
     rav4 = tmp_path / "rav4.mcap"
     assert main(["import", "--can", str(RAV4 / "rav4_bus0.candump.log"), "--nmea", str(RAV4 / "rav4_ublox.nmea"),
                  "--config", str(ROOT / "config" / "examples" / "rav4-comma2k19.toml"), "-o", str(rav4),
                  "--no-calibration"]) == 0
-    _two_pass_both_ways(rav4, tmp_path, raw_record_count(rav4))
+    _two_pass_both_ways(rav4, tmp_path, raw_record_count(rav4), monkeypatch)
 
 
 PARENT = os.getpid()
@@ -204,5 +227,44 @@ def test_an_error_where_the_log_is_written_is_the_runs(drive: tuple[Config, list
     with pytest.raises(IsADirectoryError) as raised:
         process_to_log(cfg, iter(records), out, "replay", stream=io.StringIO(), total=len(records),
                        decode=_records)
+    assert "in the log's process" in "".join(raised.value.__notes__)
+    assert children() == []
+
+
+def test_a_torn_logs_feed_brings_the_scan_and_a_failing_feed_the_processs_error(
+        drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A log cut short (killed while writing), fed to the first pass: the scan the run gets is the one made where the
+    log is read, the same as reading it here; the output as without the feed. The log's process failing while it feeds
+    the first pass: the run ends with its error, and leaves no process behind."""
+    cfg, records = drive
+    log = tmp_path / "recorded.mcap"
+    process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.8)])
+    here = ScanResult(torn)
+    assert sum(1 for _ in iter_raw_messages(torn, here)) > 100
+    assert not here.has_summary and here.stopped_because
+    total = len(records)  # as the CLI counts a log without its summary: an estimate, for progress
+    outs = []
+    for feed in (len(records), 0):
+        monkeypatch.setattr(run, "FEED_RECORDS", feed)
+        scanned = ScanResult(torn)
+        replay_two_pass(cfg, torn, out := tmp_path / f"out-{feed}.mcap", None, metadata=FIXED_META, total=total,
+                        scanned=scanned)
+        with out.open("rb") as f:  # the messages (the metadata's calibration says when it was learned)
+            outs.append([(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()])
+        assert scanned == here  # with the feed, the scan made where the log is read
+    assert outs[0] == outs[1] and len(outs[0]) > 1000
+    monkeypatch.setattr(run, "FEED_RECORDS", len(records))
+
+    def failing(messages: Any) -> Any:
+        for k, r in enumerate(raw_batches(messages)):
+            if k == 500 and os.getpid() != PARENT:
+                raise ValueError("a record that cannot be decoded")
+            yield r
+
+    monkeypatch.setattr(run, "log_decoder", lambda _: failing)
+    with pytest.raises(ValueError, match="cannot be decoded") as raised:
+        replay_two_pass(cfg, log, tmp_path / "failed.mcap", None, metadata=FIXED_META, total=len(records))
     assert "in the log's process" in "".join(raised.value.__notes__)
     assert children() == []

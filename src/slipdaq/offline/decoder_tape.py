@@ -6,11 +6,16 @@ both (where a diagnostics snapshot falls due, by the records' times alone), so t
 pass's, one for one: each played call is checked against the recorded one (its batch's frames, its line's time), and a
 call that differs raises TapeMismatch. The counters read between calls (diagnostics) are the ones recorded after the
 call before. A tape holds its outputs within a budget of bytes (TAPE_BYTES); past it, it records nothing more and
-plays nothing (`complete` False): the second pass then decodes, as a single pass does."""
+plays nothing (`complete` False): the second pass then decodes, as a single pass does.
+
+A tape can also be fed (DecoderTape(fed=True), feed): the first pass's entries recorded in another process that makes
+the same decoder calls over the same items (first_pass_feed), played to the first pass as they come and kept for the
+second within the budget."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from collections.abc import Iterator
 from operator import attrgetter
 from typing import Any
@@ -30,6 +35,12 @@ _LINE_BYTES = 200
 """What a recorded NMEA line's entry is counted as (its fix and counters)."""
 
 
+WheelEntry = tuple[int, float, WheelSampleBatch, np.ndarray, int]
+"""A decode_batch call: its frames, first frame's time, the samples, the counters and bad frames after it."""
+LineEntry = tuple[float, GpsFix | None, tuple[int, ...]]
+"""An NMEA line: its time, the decoder's fix and its counters after it (NmeaDecoder.COUNTERS, `dropped`)."""
+
+
 class TapeMismatch(RuntimeError):
     """A second pass's decoder call that is not the first pass's."""
 
@@ -37,16 +48,19 @@ class TapeMismatch(RuntimeError):
 class DecoderTape:
     """The pipeline's wheel and NMEA decoders' outputs over a first pass (record) for its second pass (play)."""
 
-    def __init__(self, budget_bytes: int | None = None) -> None:
+    def __init__(self, budget_bytes: int | None = None, *, fed: bool = False) -> None:
+        """fed: the first pass plays what feed gives it (entries another process recorded), not its decoders."""
         self._budget = TAPE_BYTES if budget_bytes is None else budget_bytes
         self.bytes = 0
         self.complete = True
         """False once the budget was exceeded: nothing is kept, nothing is played."""
-        self.wheels: list[tuple[int, float, WheelSampleBatch, np.ndarray, int]] = []
+        self.wheels: list[WheelEntry] = []
         """Per decode_batch call: frames, first frame's time, the samples, the counters and bad frames after it."""
-        self.lines: list[tuple[float, GpsFix | None, tuple[int, ...]]] = []
+        self.lines: list[LineEntry] = []
         """Per NMEA line: its time, the decoder's fix and its counters after it (NmeaDecoder.COUNTERS, `dropped`)."""
         self._recorded = False
+        self._fed: tuple[deque[WheelEntry], deque[LineEntry]] | None = (deque(), deque()) if fed else None
+        """A fed tape's entries not yet played to the first pass."""
 
     def room_for(self, nbytes: int) -> bool:
         """Count nbytes in: whether the tape keeps them (False, and the tape dropped, past the budget)."""
@@ -60,15 +74,40 @@ class DecoderTape:
         self.complete = False
         self.wheels, self.lines = [], []
 
+    def feed(self, wheels: list[WheelEntry], lines: list[LineEntry]) -> None:
+        """A fed tape's next entries (a run's decoder calls, recorded elsewhere): played to the first pass, kept for the
+        second within the budget."""
+        assert self._fed is not None, "feed on a tape that records its first pass"
+        self._fed[0].extend(wheels)
+        self._fed[1].extend(lines)
+        if self.complete and self.room_for(sum(_nbytes(w[2]) + w[3].nbytes for w in wheels) + _LINE_BYTES * len(lines)):
+            self.wheels.extend(wheels)
+            self.lines.extend(lines)
+
     def attach(self, pipeline: Pipeline) -> None:
-        """Give the pipeline (a fresh one) taped decoders: recording on the first call, playing on the second (when
-        the tape is complete; otherwise the pipeline keeps its own)."""
+        """Give the pipeline (a fresh one) taped decoders: recording on the first call (a fed tape: playing what is
+        fed), playing on the second (when the tape is complete; otherwise the pipeline keeps its own)."""
         if self._recorded and not self.complete:
             return
-        play = self._recorded
-        self._recorded = True
-        pipeline.wheels = TapedWheelDecoder(pipeline.config, self, play)
-        pipeline.nmea = TapedNmeaDecoder(self, play)
+        first, self._recorded = not self._recorded, True
+        wheels: Iterator[WheelEntry] | None = _Taken(self._fed[0]) if first and self._fed else \
+            None if first else iter(self.wheels)
+        lines: Iterator[LineEntry] | None = _Taken(self._fed[1]) if first and self._fed else \
+            None if first else iter(self.lines)
+        pipeline.wheels = TapedWheelDecoder(pipeline.config, self, wheels)
+        pipeline.nmea = TapedNmeaDecoder(self, lines)
+
+
+class _Taken(Iterator[Any]):
+    """A fed tape's entries, each let go as it is played (empty until fed: a call then finds no entry)."""
+
+    def __init__(self, entries: deque[Any]) -> None:
+        self._entries = entries
+
+    def __next__(self) -> Any:
+        if not self._entries:
+            raise StopIteration
+        return self._entries.popleft()
 
 
 def _batch_key(batch: CanFrameBatch) -> tuple[int, float]:
@@ -85,13 +124,13 @@ def _nbytes(samples: WheelSampleBatch) -> int:
 
 
 class TapedWheelDecoder(WheelDecoder):
-    """A WheelDecoder whose decode_batch records its outputs on a tape, or plays them back (play) without decoding."""
+    """A WheelDecoder whose decode_batch records its outputs on a tape, or plays them back (play: the entries) without
+    decoding."""
 
-    def __init__(self, config: Config, tape: DecoderTape, play: bool) -> None:
+    def __init__(self, config: Config, tape: DecoderTape, play: Iterator[WheelEntry] | None) -> None:
         super().__init__(config)
         self._tape = tape
-        self._play: Iterator[tuple[int, float, WheelSampleBatch, np.ndarray, int]] | None = \
-            iter(tape.wheels) if play else None
+        self._play = play
 
     def decode_batch(self, batch: CanFrameBatch, which: np.ndarray | None = None) -> WheelSampleBatch:
         tape = self._tape
@@ -110,12 +149,12 @@ class TapedWheelDecoder(WheelDecoder):
 
 class TapedNmeaDecoder(NmeaDecoder):
     """An NmeaDecoder whose decode records its fix and counters on a tape (COUNTERS, then `dropped`'s values), or
-    plays them back (play)."""
+    plays them back (play: the entries)."""
 
-    def __init__(self, tape: DecoderTape, play: bool) -> None:
+    def __init__(self, tape: DecoderTape, play: Iterator[LineEntry] | None) -> None:
         super().__init__()
         self._tape = tape
-        self._play: Iterator[tuple[float, GpsFix | None, tuple[int, ...]]] | None = iter(tape.lines) if play else None
+        self._play = play
         self._dropped_at: tuple[int, ...] = tuple(self.dropped.values())
 
     def decode(self, line: NmeaLine) -> GpsFix | None:

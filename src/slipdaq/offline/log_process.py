@@ -22,11 +22,14 @@ from collections.abc import Callable, Iterable, Iterator
 from multiprocessing import get_context
 from multiprocessing.connection import Connection
 from types import TracebackType
-from typing import Any
+from typing import Any, NoReturn
 
 from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.offline.decoder_tape import DecoderTape
+from slipdaq.offline.first_pass_feed import FeedSender, sending
+from slipdaq.offline.items import Decode, Item
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord, WheelSampleBatch
 from slipdaq.sinks import SINK_CALLS, Sink
 
@@ -49,11 +52,6 @@ BEGIN = "begin"
 AHEAD_FRAMES = 3 << 20
 """A log's process that reads its input itself decodes up to this many frames before the run's first call (a
 two-pass run's first pass): about 250 MB of frames and wheel samples, 13 minutes of 4 WPT messages at 1 kHz."""
-
-Item = RawRecord | CanFrameBatch | list[CanFrame]
-Decode = Callable[[Iterable[Any]], Iterable[Item]]
-"""The input's items (as Pipeline.process_all gets them) from its pieces: the same function in the run and the process."""
-
 
 class LogProcessError(RuntimeError):
     """The log's process read other records than the run's, or ended without saying why."""
@@ -90,10 +88,15 @@ class _Input:
     """The input as the log's process decodes it: its CAN frames in the pieces and its other raw records in the order
     the run's calls take them, its wheel frames decoded DECODE_FRAMES at a time."""
 
-    def __init__(self, decode: Decode, config: Config, read: Callable[[], Iterable[Any]] | None = None) -> None:
-        """read: the input's pieces, read here (the run sends none); else the run sends them (pieces)."""
+    def __init__(self, decode: Decode, config: Config, read: Callable[[], Iterable[Any]] | None = None,
+                 feed: FeedSender | None = None) -> None:
+        """read: the input's pieces, read here (the run sends none); else the run sends them (pieces). feed: the items
+        read, fed to the run's first pass (first_pass_feed), all of them read ahead."""
         self.pieces = _Pieces()
         self._items = iter(decode(self.pieces if read is None else read()))
+        if feed is not None:
+            self._items = feed.runs(self._items)
+        self._feeds = feed is not None
         self._reads_itself = read is not None
         self._ended = False
         self._ahead = 0
@@ -140,9 +143,9 @@ class _Input:
         self._ahead += frames
 
     def read_ahead(self) -> bool:
-        """Decode the next items (of an input read here) while fewer than AHEAD_FRAMES frames wait; False when no more
-        is to be decoded ahead."""
-        if not self._reads_itself or self._ended or self._ahead >= AHEAD_FRAMES:
+        """Decode the next items (of an input read here) while fewer than AHEAD_FRAMES frames wait (all, feeding the
+        run); False when no more is to be decoded ahead."""
+        if not self._reads_itself or self._ended or (self._ahead >= AHEAD_FRAMES and not self._feeds):
             return False
         self._read(need=False)
         return True
@@ -192,10 +195,12 @@ def _mark(samples: WheelSampleBatch) -> tuple[int, int, int, float]:
 
 
 def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read: Callable[[], Iterable[Any]] | None,
-           calls: Connection, done: Connection, parent_ends: tuple[Connection, ...]) -> None:
-    """The log's process: the input read ahead (read given) until the run's first call; then the calls, run by run,
-    to the sink (made by the first, BEGIN), until told to stop (then it is closed) or the run's end of the pipe
-    closes; None back when the log is closed, else the error."""
+           feed: tuple[Connection, Callable[[], Any] | None] | None, calls: Connection, done: Connection,
+           parent_ends: tuple[Connection, ...]) -> None:
+    """The log's process: the input read ahead (read given) until the run's first call (feed: all of it, fed to the
+    run's first pass, FeedSender); then the calls, run by run, to the sink (made by the first, BEGIN), until told to
+    stop (then it is closed) or the run's end of the pipe closes; None back when the log is closed, else the
+    error."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
     gc.freeze()
     for end in parent_ends:
@@ -203,7 +208,7 @@ def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read:
     sink: Sink | None = None
     try:
         try:
-            source = _Input(decode, config, read)
+            source = _Input(decode, config, read, FeedSender(config, sending(feed[0]), feed[1]) if feed else None)
             while not calls.poll() and source.read_ahead():
                 pass
             def unbegun(*_: Any) -> None:
@@ -251,25 +256,38 @@ class LogProcess(Sink):
     summaries' process after it)."""
 
     def __init__(self, make_sink: Callable[..., Sink], decode: Decode, config: Config,
-                 read: Callable[[], Iterable[Any]] | None = None) -> None:
+                 read: Callable[[], Iterable[Any]] | None = None, *, feed: bool = False,
+                 feed_end: Callable[[], Any] | None = None) -> None:
         """make_sink(**begin's keyword arguments): the log's sink, made there; decode: the input's items from its
         pieces, as the run has them (items_of); read: the input's pieces, read there, ahead of the run's first call
         (a two-pass run's first pass, whose second core is idle), the run then sending none; else the run sends
-        them (input)."""
+        them (input). feed (with read): the items read there fed to the run's first pass (fed), with its decoders'
+        calls; feed_end: what the process sends at the feed's end (fed_end), called there."""
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
         calls_in, self._calls = ctx.Pipe(duplex=False)
-        if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux: fewer writes and wake-ups
-            with contextlib.suppress(OSError):
-                fcntl.fcntl(self._calls.fileno(), set_size, PIPE_BYTES)
         self._done, done_out = ctx.Pipe(duplex=False)
+        self._feed: Connection | None = None
+        feed_out: Connection | None = None
+        if feed:
+            self._feed, feed_out = ctx.Pipe(duplex=False)
+        if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux: fewer writes and wake-ups
+            for pipe in (self._calls, self._feed):
+                with contextlib.suppress(OSError):
+                    if pipe is not None:
+                        fcntl.fcntl(pipe.fileno(), set_size, PIPE_BYTES)
         self._decode = decode
         self.reads_itself = read is not None
-        self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, read, calls_in, done_out,
-                                                        (self._calls, self._done)), name="slipdaq-log", daemon=True)
+        self.fed_end: Any = None
+        """What the process sent at the feed's end (feed_end's value there), once fed() has given every item."""
+        ends = tuple(c for c in (self._calls, self._done, self._feed) if c is not None)
+        feeding = (feed_out, feed_end) if feed_out is not None else None
+        self.process = ctx.Process(target=_serve, args=(make_sink, decode, config, read, feeding, calls_in, done_out,
+                                                        ends), name="slipdaq-log", daemon=True)
         self.process.start()
-        calls_in.close()
-        done_out.close()
+        for end in (calls_in, done_out, feed_out):
+            if end is not None:
+                end.close()
         self._run: list[tuple[str, tuple[Any, ...]]] = []
         self._outbox: queue.Queue[bytes | None] = queue.Queue(QUEUED_RUNS)
         self._sender: threading.Thread | None = None
@@ -291,6 +309,22 @@ class LogProcess(Sink):
             self._call(INPUT, (read[:],))
             read.clear()
             yield item
+
+    def fed(self, tape: DecoderTape) -> Iterator[Item]:
+        """The input's items as the process feeds them (feed), each run's decoder calls fed to tape before it (a fed
+        DecoderTape: the first pass's); then fed_end is what it sent last."""
+        assert self._feed is not None, "fed() of a log's process that feeds nothing"
+        while True:
+            try:
+                data = self._feed.recv_bytes()
+            except EOFError:  # the process has ended without the feed's end
+                self._raise_ended()
+            run, *rest = pickle.loads(data)
+            if run is None:
+                self.fed_end = rest[0]
+                return
+            tape.feed(*rest)
+            yield from run
 
     def begin(self, **kwargs: Any) -> None:
         """The first call: the log's sink made there, make_sink(**kwargs)."""
@@ -329,7 +363,7 @@ class LogProcess(Sink):
             error = LogProcessError(f"the log's process ended (exit status {self.process.exitcode})")
         return error
 
-    def _raise_ended(self) -> None:
+    def _raise_ended(self) -> NoReturn:
         """The process's error (it has ended, or ends now)."""
         error = self._outcome()
         self.terminate()
@@ -358,8 +392,9 @@ class LogProcess(Sink):
         self._sender.join()
         error = self._outcome()
         self.process.join()
-        self._calls.close()
-        self._done.close()
+        for end in (self._calls, self._done, self._feed):
+            if end is not None:
+                end.close()
         if error is not None:
             raise error
 
@@ -372,8 +407,9 @@ class LogProcess(Sink):
         self._outbox.put(None)
         if self._sender is not None:
             self._sender.join()
-        self._calls.close()
-        self._done.close()
+        for end in (self._calls, self._done, self._feed):
+            if end is not None:
+                end.close()
 
     def __enter__(self) -> LogProcess:
         return self

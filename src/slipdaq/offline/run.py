@@ -24,7 +24,9 @@ from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.log_process import Decode, LogProcess
+from slipdaq.offline.first_pass_feed import FEED_RECORDS
+from slipdaq.offline.items import BATCH_FRAMES, batched, items_of, read_ahead
+from slipdaq.offline.log_process import LogProcess
 from slipdaq.offline.read_once import ReadOnce
 from slipdaq.offline.summaries import DetectorFeed, SummaryProcess, worth_a_process
 from slipdaq.pipeline import Pipeline
@@ -41,37 +43,6 @@ from slipdaq.records import (
 from slipdaq.records.fast_rows import FastRows, FastSlipBatch
 from slipdaq.sinks import Sink
 from slipdaq.sinks.mcap_log import McapLogSink
-
-BATCH_FRAMES = 512
-"""Consecutive CAN frames of an input go through the pipeline in batches of up to this many."""
-READ_AHEAD_FRAMES = 4096
-"""The pipeline gets the input in runs of about this many CAN frames (Pipeline.process_all joins consecutive ones)."""
-READ_AHEAD_ITEMS = 1024
-
-
-def batched(records: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
-            ) -> Iterator[RawRecord | CanFrameBatch | list[CanFrame]]:
-    """Runs of consecutive CanFrames as lists (up to BATCH_FRAMES); everything else as it comes."""
-    run: list[CanFrame] = []
-    for r in records:
-        if isinstance(r, CanFrame):
-            run.append(r)
-            if len(run) >= BATCH_FRAMES:
-                yield run
-                run = []
-            continue
-        if run:
-            yield run
-            run = []
-        yield r
-    if run:
-        yield run
-
-
-def items_of(decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]]) -> Decode:
-    """The input's items from its pieces (a log's raw messages): batched(decode(pieces)), as the pipeline and a
-    log's process (LogProcess) take them."""
-    return lambda pieces: batched(decode(pieces))
 
 
 def frame_runs(items: Iterable[RawRecord | CanFrameBatch]) -> Iterator[RawRecord | CanFrameBatch]:
@@ -117,22 +88,6 @@ def _piece(parts: list[CanFrameBatch]) -> CanFrameBatch:
         if width < b.data.shape[1]:
             b = dataclasses.replace(b, data=b.data[:, :width])
     return b
-
-
-def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
-               ) -> Iterator[list[RawRecord | CanFrameBatch | list[CanFrame]]]:
-    """The items in runs of about READ_AHEAD_FRAMES CAN frames (or READ_AHEAD_ITEMS items), for Pipeline.process_all."""
-    run: list[RawRecord | CanFrameBatch | list[CanFrame]] = []
-    frames = 0
-    for it in items:
-        run.append(it)
-        if isinstance(it, (list, CanFrameBatch)):
-            frames += len(it)
-        if frames >= READ_AHEAD_FRAMES or len(run) >= READ_AHEAD_ITEMS:
-            yield run
-            run, frames = [], 0
-    if run:
-        yield run
 
 
 def process(
@@ -237,10 +192,11 @@ def process_to_log(
 
 def log_process_for(config: Config, out_path: Path, mode: str,
                     decode: Callable[[Iterable[Any]], Iterable[RawRecord | CanFrameBatch]],
-                    read: Callable[[], Iterable[Any]] | None = None) -> LogProcess:
+                    read: Callable[[], Iterable[Any]] | None = None, **feed: Any) -> LogProcess:
     """The process that writes process_to_log's log at out_path (LogProcess), its input's pieces decoded by decode;
-    read: the pieces, which it reads itself, ahead of the run's first call."""
-    return LogProcess(functools.partial(McapLogSink, out_path, config, mode=mode), items_of(decode), config, read)
+    read: the pieces, which it reads itself, ahead of the run's first call (feed, feed_end: LogProcess's)."""
+    return LogProcess(functools.partial(McapLogSink, out_path, config, mode=mode), items_of(decode), config, read,
+                      **feed)
 
 
 def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Calibration | None, *,
@@ -255,9 +211,17 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     decode = log_decoder(log)
     read = ReadOnce(lambda scan: iter_raw_messages(log, scanned if scan else None), items_of(decode))
     with contextlib.ExitStack() as stack:
-        apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
-                                                    lambda: iter_raw_messages(log))) if worth_a_process(total) else None
+        apart = None
+        if worth_a_process(total):
+            feed = total is not None and total <= FEED_RECORDS
+            apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
+                                                        functools.partial(iter_raw_messages, log, scanned if feed else None),
+                                                        feed=feed, feed_end=lambda: scanned))
+            if feed:
+                read = ReadOnce.fed(apart.fed)
         first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
+        if apart is not None and apart.fed_end is not None and scanned is not None:  # the scan made there
+            vars(scanned).update(vars(apart.fed_end))
         p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, apart=apart,
                            tape=read.tape, **first.second_pass())
     return p, first
