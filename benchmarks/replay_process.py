@@ -7,7 +7,8 @@ NMEA from the simulator's cycle is written once by the base's code (so both read
 `python -m slipdaq replay RAW -o OUT` runs once for each side (the order reversed every other round, so that a busy
 spell of the machine falls on both), each side's `src` on PYTHONPATH (the base from `git archive`). Wall time and
 CPU time (user + system, of the child) per run; the table shows medians, frames/s of the median wall time, and the
-ratio. The CPU is also split: the main thread's (time.thread_time at its exit, start-up included) and that of the
+ratio (with --two-pass also the first pass's wall time). The CPU is also split: the main thread's (time.thread_time
+at its exit, start-up included) and that of the
 processes it forks (the log's and the maneuver summaries'), which share the machine's other core: with both near the
 wall time, neither side can go faster by moving work to the other. The child runs slipdaq's `__main__` as `-m` does
 (runpy), with that reading at its exit. Each side's output is kept for the guard (benchmarks/replay_check.py compares
@@ -67,19 +68,30 @@ SPLIT = """
 import resource, runpy, sys, time
 out = sys.argv.pop(1)
 sys.argv[0] = "slipdaq"
+first = [0.0]
+if "--two-pass" in sys.argv:  # the first pass's wall time (offline.run.first_pass, as replay_two_pass calls it)
+    from slipdaq.offline import run
+    def timed(*args, _first_pass=run.first_pass, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return _first_pass(*args, **kwargs)
+        finally:
+            first[0] = time.perf_counter() - t0
+    run.first_pass = timed
 try:
     runpy.run_module("slipdaq", run_name="__main__", alter_sys=True)
 finally:
     forked = resource.getrusage(resource.RUSAGE_CHILDREN)
     with open(out, "w") as f:
-        f.write(f"{time.thread_time()} {forked.ru_utime + forked.ru_stime}")
+        f.write(f"{time.thread_time()} {forked.ru_utime + forked.ru_stime} {first[0]}")
 """
-"""The child: `python -m slipdaq ARGS` as runpy runs it, then its main thread's CPU and its forked processes' into
-the file named first."""
+"""The child: `python -m slipdaq ARGS` as runpy runs it, then its main thread's CPU, its forked processes' and (with
+--two-pass) the first pass's wall time into the file named first."""
 
 
-def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float, float, float]:
-    """(wall s, CPU s of the child, of its main thread, of the processes it forked) of one `slipdaq replay`."""
+def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, float, float, float, float]:
+    """(wall s, CPU s of the child, of its main thread, of the processes it forked, the first pass's wall s or 0) of
+    one `slipdaq replay`."""
     split = out.with_suffix(".cpu")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -87,9 +99,9 @@ def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, flo
                    env=dict(os.environ, PYTHONPATH=python_path(src)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    main_thread, forked = (float(x) for x in split.read_text().split())
+    main_thread, forked, first = (float(x) for x in split.read_text().split())
     split.unlink()
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), main_thread, forked
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), main_thread, forked, first
 
 
 def main() -> int:
@@ -123,23 +135,25 @@ def main() -> int:
     print(f"{raw.name}: {frames:,} frames, {raw.stat().st_size / 1e6:.1f} MB", flush=True)
     for src in sides.values():  # numba's cache for each tree, imports warm
         run_replay(src, raw, work / "warm.mcap", *flags)
-    got: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in sides}
+    got: dict[str, list[tuple[float, float, float, float, float]]] = {name: [] for name in sides}
     for r in range(a.rounds):
         for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
             got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
-            w, c, m, f = got[name][-1]
-            print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)",
-                  flush=True)
-    med = {name: tuple(statistics.median(x[k] for x in v) for k in range(4)) for name, v in got.items()}
+            w, c, m, f, p1 = got[name][-1]
+            print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)"
+                  + f", first pass {p1:.2f} s" * a.two_pass, flush=True)
+    med = {name: tuple(statistics.median(x[k] for x in v) for k in range(5)) for name, v in got.items()}
     b, n = med[f"base {base}"], med["this tree"]
     print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "
           f"+ 20 Hz NMEA ({frames:,} frames{', a recorded log: every derived topic in it' * a.recorded}), "
           f"{a.rounds} interleaved rounds, medians\n")
-    print("| side | wall | CPU (user + sys) | main thread | forked processes | frames/s (wall) | frames/s (CPU) |\n"
-          "|---|---:|---:|---:|---:|---:|---:|")
-    for name, (w, c, m, f) in med.items():
-        print(f"| {name} | {w:.2f} s | {c:.2f} s | {m:.2f} s | {f:.2f} s | {frames / w:,.0f} | {frames / c:,.0f} |")
-    ratios = " | ".join(f"{x / y:.2f}" if y else "—" for x, y in zip(n, b))  # a short log forks no process
+    first = " first pass (wall) |" * a.two_pass
+    print(f"| side | wall | CPU (user + sys) | main thread | forked processes |{first} frames/s (wall) | frames/s (CPU) |"
+          "\n|---|---:|---:|---:|---:|" + "---:|" * a.two_pass + "---:|---:|")
+    for name, (w, c, m, f, p1) in med.items():
+        print(f"| {name} | {w:.2f} s | {c:.2f} s | {m:.2f} s | {f:.2f} s |" + f" {p1:.2f} s |" * a.two_pass
+              + f" {frames / w:,.0f} | {frames / c:,.0f} |")
+    ratios = " | ".join(f"{x / y:.2f}" if y else "—" for x, y in zip(n[:4 + a.two_pass], b))  # a short log: no fork
     print(f"| this tree / base | {ratios} | {b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
     return 0
 

@@ -2,7 +2,8 @@
 """Where a two-pass replay's CPU goes, in one process (imports and numba's kernels warm): the first pass
 (offline.first_pass: the estimator over the log, then the reference speed's smoothing, also timed alone), and the
 second pass with its log written, with no sink, and with no sink and no high-rate slip rows, and (a tree with
-offline.decoder_tape) the first pass recording its decoders and the second with no sink playing them back; the
+offline.decoder_tape) the first pass recording its decoders and the second with no sink playing them back, and (a
+tree with offline.first_pass_feed) the first pass over its records in memory playing a fed tape; the
 imports' objects frozen out of the garbage collector's reach (gc.freeze), as the CLI's offline runs hold them. This tree against a
 base revision, each side in its own process (its `src` on PYTHONPATH), the sides in turn per round (the order
 reversed every other round); medians of CPU time (process_time).
@@ -35,8 +36,9 @@ from benchmarks.replay_process import MAKE_LOG, python_path
 
 PARTS = ("first pass", "of it: smoothing", "second pass, log written", "second pass, no sink",
          "second pass, no sink, no high-rate rows", "first pass, its decoders recorded",
-         "second pass, no sink, its decoders played back")
-"""The last two: a tree with offline.decoder_tape (a dash for one without)."""
+         "second pass, no sink, its decoders played back", "first pass, its records in memory, its decoders fed")
+"""The last three: a tree with offline.decoder_tape (a dash for one without); the last, one with
+offline.first_pass_feed (the fed first pass but for taking the runs from the log's process)."""
 
 
 def measure(log: Path, out: Path, tile: int) -> dict[str, float]:
@@ -105,6 +107,13 @@ def measure(log: Path, out: Path, tile: int) -> dict[str, float]:
     taped = cpu(PARTS[5], lambda: run.first_pass(config, iter_raw_batches(log), start, str(log), tape=tape))
     cpu(PARTS[6], lambda: run.process(config, iter_raw_batches(log), [], tape=tape,
                                       **taped.second_pass() | {"stream": quiet}))
+    try:
+        fed = DecoderTape(fed=True)  # a tree without the feed: TypeError
+    except TypeError:
+        return got
+    items = list(iter_raw_batches(log))
+    fed.feed(tape.wheels, tape.lines)  # what the log's process sends, all at once
+    cpu(PARTS[7], lambda: run.first_pass(config, items, start, str(log), tape=fed))
     return got
 
 

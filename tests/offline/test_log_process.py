@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mcap.reader import make_reader
 
 from slipdaq.cli import main
 from slipdaq.config import Config, load_config
@@ -23,7 +22,7 @@ from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
 from slipdaq.logformat.salvage import ScanResult
 from slipdaq.logformat.topics import TOPIC_CAN, TOPIC_NMEA
-from slipdaq.offline import log_process, run
+from slipdaq.offline import first_pass_feed, log_process, run
 from slipdaq.offline.log_process import LogProcessError
 from slipdaq.offline.run import first_pass, process_to_log, replay_two_pass
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
@@ -150,7 +149,7 @@ def test_a_two_pass_replay_whose_process_reads_the_log_itself_the_same_bytes(
     process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
     _two_pass_both_ways(log, tmp_path, len(records), monkeypatch)
     monkeypatch.setattr(log_process, "AHEAD_FRAMES", 1)
-    monkeypatch.setattr(run, "FEED_RECORDS", len(records) - 1)  # a log too long to feed
+    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)  # a log too long to feed
     _two_pass_both_ways(log, tmp_path, len(records), monkeypatch, fed=False)
     monkeypatch.undo()
     rav4 = tmp_path / "rav4.mcap"
@@ -231,31 +230,26 @@ def test_an_error_where_the_log_is_written_is_the_runs(drive: tuple[Config, list
     assert children() == []
 
 
-def test_a_torn_logs_feed_brings_the_scan_and_a_failing_feed_the_processs_error(
+def test_a_feed_brings_the_scan_a_torn_log_is_not_fed_and_a_failing_feed_is_the_runs_error(
         drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A log cut short (killed while writing), fed to the first pass: the scan the run gets is the one made where the
-    log is read, the same as reading it here; the output as without the feed. The log's process failing while it feeds
-    the first pass: the run ends with its error, and leaves no process behind."""
+    """A log fed to the first pass: the scan the run gets is the one made where the log is read, the same as reading it
+    here. A log cut short (killed while writing: its size unknown without its summary) is not fed: the run reads it,
+    and its scan says where it stopped. The log's process failing while it feeds the first pass: the run ends with its
+    error, and leaves no process behind."""
     cfg, records = drive
     log = tmp_path / "recorded.mcap"
     process_to_log(cfg, iter(records), log, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
     torn = tmp_path / "torn.mcap"
     torn.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.8)])
-    here = ScanResult(torn)
-    assert sum(1 for _ in iter_raw_messages(torn, here)) > 100
-    assert not here.has_summary and here.stopped_because
-    total = len(records)  # as the CLI counts a log without its summary: an estimate, for progress
-    outs = []
-    for feed in (len(records), 0):
-        monkeypatch.setattr(run, "FEED_RECORDS", feed)
-        scanned = ScanResult(torn)
-        replay_two_pass(cfg, torn, out := tmp_path / f"out-{feed}.mcap", None, metadata=FIXED_META, total=total,
+    assert first_pass_feed.fed_whole(log) and not first_pass_feed.fed_whole(torn)
+    for path in (log, torn):
+        here = ScanResult(path)
+        assert sum(1 for _ in iter_raw_messages(path, here)) > 100
+        assert here.has_summary is (path == log) and bool(here.stopped_because) is (path == torn)
+        scanned = ScanResult(path)
+        replay_two_pass(cfg, path, tmp_path / f"out-{path.stem}.mcap", None, metadata=FIXED_META, total=len(records),
                         scanned=scanned)
-        with out.open("rb") as f:  # the messages (the metadata's calibration says when it was learned)
-            outs.append([(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()])
-        assert scanned == here  # with the feed, the scan made where the log is read
-    assert outs[0] == outs[1] and len(outs[0]) > 1000
-    monkeypatch.setattr(run, "FEED_RECORDS", len(records))
+        assert scanned == here
 
     def failing(messages: Any) -> Any:
         for k, r in enumerate(raw_batches(messages)):

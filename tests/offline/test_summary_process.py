@@ -223,8 +223,8 @@ def _tree(root: Path) -> dict[str, bytes]:
 def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
         drive: tuple[Config, list[Any]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`slipdaq report` of a log's raw records two-pass: its maneuvers decided as the second pass makes the rows and
-    summarized in the second process (DetectorFeed, what `slipdaq report` does) give the same report, file for file,
-    as decided afterwards."""
+    summarized in the second process (DetectorFeed, what `slipdaq report` does), its passes fed by a process that
+    reads the log (FedPasses), give the same report, file for file, as decided afterwards."""
     from slipdaq.offline import summaries
     from slipdaq.report.build import make_report, read_log
 
@@ -238,11 +238,11 @@ def test_the_report_is_the_same_with_its_summaries_beside_the_second_pass(
     assert FORKS[before:] == []
     monkeypatch.setattr(summaries, "MIN_RAW_RECORDS", 1)
     beside = make_report([log], tmp_path / "beside", two_pass=True, summaries_beside=True)
-    assert FORKS[before:] == [os.getpid()]
+    assert FORKS[before:] == [os.getpid()] * 2  # the feed's process (first_pass_feed.FedPasses) and the summaries'
     assert [len(x.logs[0].maneuvers) for x in (after, beside)] == [len(after.logs[0].maneuvers)] * 2
     assert len(after.logs[0].maneuvers) >= 8  # accelerate, cruise and brake
     assert _tree(tmp_path / "beside") == _tree(tmp_path / "after")
     before = len(FORKS)
     make_report([log], tmp_path / "default", two_pass=True)  # `slipdaq report`: summaries beside the pass
-    assert FORKS[before:] == [os.getpid()]
+    assert FORKS[before:] == [os.getpid()] * 2
     assert _tree(tmp_path / "default") == _tree(tmp_path / "after")

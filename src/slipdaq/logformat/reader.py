@@ -46,7 +46,8 @@ from slipdaq.logformat.topics import (
 )
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame, XbusBytes
 
-__all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "is_finished", "iter_estimates",
+__all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "data_bytes", "is_finished",
+           "iter_estimates",
            "iter_raw_batches", "iter_raw_messages", "iter_raw_records", "iter_topic", "raw_batches", "raw_record_count",
            "read_metadata"]
 
@@ -254,14 +255,29 @@ def iter_estimates(path: str | Path, scan_result: ScanResult | None = None) -> I
         yield d
 
 
-def raw_record_count(path: str | Path) -> int | None:
-    """Number of raw CAN and NMEA messages (a batch is one), from the file's summary (None when it has none)."""
+def _summary(path: str | Path) -> Any:
+    """The file's summary (mcap's Summary), None when it has none or it does not read."""
     with _open(path) as f:
         try:
-            summary = make_reader(f).get_summary()
+            return make_reader(f).get_summary()
         except Exception:
             return None
+
+
+def raw_record_count(path: str | Path) -> int | None:
+    """Number of raw CAN and NMEA messages (a batch is one), from the file's summary (None when it has none)."""
+    summary = _summary(path)
     if summary is None or summary.statistics is None:
         return None
     ids = [c.id for c in summary.channels.values() if c.topic in RAW_TOPICS]
     return sum(summary.statistics.channel_message_counts.get(i, 0) for i in ids)
+
+
+def data_bytes(path: str | Path) -> int | None:
+    """The messages' records' size uncompressed, every topic, from the file's chunk indexes (None without a summary,
+    or with messages outside any indexed chunk)."""
+    summary = _summary(path)
+    if summary is None or (not summary.chunk_indexes and (summary.statistics is None or
+                                                           summary.statistics.message_count)):
+        return None
+    return sum(c.uncompressed_size for c in summary.chunk_indexes)

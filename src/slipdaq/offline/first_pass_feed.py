@@ -1,29 +1,50 @@
-"""A two-pass run's first pass fed by the log's process, which reads the log anyway (LogProcess with read): that
-process decodes the input's items and makes the pipeline's wheel and NMEA decoder calls over them
-(DecodingPipeline: Pipeline's own cuts, no estimator), and sends the run each run of items (items.read_ahead) with
-those calls' tape entries (decoder_tape) before it takes the run further. The first pass then neither reads nor
-decodes: it plays the entries as they come (DecoderTape(fed=True)), and the second plays them again. Both pipelines
-get the same items in the same runs, and Pipeline cuts the wheel frames by the records' times alone, so the calls are
-the same one for one; a played call is checked against its entry (TapeMismatch)."""
+"""A two-pass run's passes fed by a process that reads the log: the log's process, which reads it anyway (LogProcess
+with read, feed), or one of its own (FeedProcess, FedPasses). That process decodes the input's items and makes the
+pipeline's wheel and NMEA decoder calls over them (DecodingPipeline: Pipeline's own cuts, no estimator), and sends
+the run each run of items (items.read_ahead) with those calls' tape entries (decoder_tape) before it takes the run
+further. The pass then neither reads nor decodes: it plays the entries as they come (DecoderTape(fed=True)); the
+second pass plays them again, or is fed again (a log too long to keep). Both pipelines get the same items in the
+same runs, and Pipeline cuts the wheel frames by the records' times alone, so the calls are the same one for one; a
+played call is checked against its entry (TapeMismatch)."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import gc
 import pickle
+import signal
 import sys
-from collections.abc import Callable, Iterable, Iterator
+import traceback
+from collections.abc import Callable, Generator, Iterable, Iterator
+from multiprocessing import get_context
 from multiprocessing.connection import Connection
-from typing import Any
+from pathlib import Path
+from types import TracebackType
+from typing import Any, NoReturn
 
+from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.decode.timemark import TimeMark
+from slipdaq.logformat.reader import data_bytes
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.items import Item, read_ahead
+from slipdaq.offline.items import Decode, Item, read_ahead
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrameBatch, GpsFix, SensorSample
 
-FEED_RECORDS = 3 << 20
-"""A log is fed to its first pass up to this many raw records (the log's process then keeps every frame it reads for
-the second pass: LogProcess's AHEAD_FRAMES; the run keeps them too: read_once.KEEP_BYTES)."""
+FEED_BYTES = 128 << 20
+"""A log is fed whole up to this many bytes of messages uncompressed (logformat.reader.data_bytes, every topic: 300 s
+of 4 WPT messages at 1 kHz and 20 Hz NMEA take 32 MB raw, 122 MB as a run records them): the first pass's items are
+kept for the second (in the run and, a log's process feeding them, there too: about twice the raw data in each). A
+log's process feeds no longer log; FedPasses feeds its second pass again."""
+PIPE_BYTES = 1 << 20
+"""The feed's pipe's size where the system lets it be set (fewer writes and wake-ups than the default 64 kB)."""
+
+
+def fed_whole(log: str | Path) -> bool:
+    """The log is at most FEED_BYTES of messages (FEED_BYTES)."""
+    size = data_bytes(log)
+    return size is not None and size <= FEED_BYTES
 
 
 class DecodingPipeline(Pipeline):
@@ -73,3 +94,127 @@ class FeedSender:
 def sending(feed: Connection) -> Callable[[tuple[Any, ...]], None]:
     """A FeedSender's send over a pipe (LogProcess.fed reads it)."""
     return lambda message: feed.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def sized_pipe() -> tuple[Connection, Connection]:
+    """(reading end, writing end) of a pipe of PIPE_BYTES where the system lets it be set."""
+    reading, writing = get_context("fork").Pipe(duplex=False)
+    if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux
+        with contextlib.suppress(OSError):
+            fcntl.fcntl(writing.fileno(), set_size, PIPE_BYTES)
+    return reading, writing
+
+
+def received(feed: Connection, tape: DecoderTape, lost: Callable[[], NoReturn]) -> Generator[Item, None, Any]:
+    """The items a FeedSender sends, each run's entries fed to tape before its items; returns the end's value, raises
+    the error sent in its place (FeedProcess), or lost()'s (the sender's end closed without either)."""
+    while True:
+        try:
+            data = feed.recv_bytes()
+        except EOFError:
+            lost()
+        run, *rest = pickle.loads(data)
+        if run is None:
+            if len(rest) > 1:
+                raise rest[1]
+            return rest[0]
+        tape.feed(*rest)
+        yield from run
+
+
+def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, feed: Connection,
+          parent_end: Connection) -> None:
+    """A FeedProcess: the input read, decoded and sent run by run; an error sent in place of the end."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
+    gc.freeze()
+    parent_end.close()
+    send = sending(feed)
+    try:
+        for _ in FeedSender(config, send, None).runs(decode(read())):
+            pass
+    except BaseException as e:
+        e.add_note("in the feed's process:\n" + traceback.format_exc())
+        try:
+            send((None, None, e))
+        except Exception:  # an error that does not pickle
+            send((None, None, RuntimeError(f"{e!r} in the feed's process")))
+
+
+class FeedProcess:
+    """A forked process that reads an input (read()), decodes it (decode) and feeds it to a pass: items(tape). It
+    reads ahead only as far as the pipe holds. close() ends it where it is (a pass that stopped early)."""
+
+    def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode) -> None:
+        compiled.prepare()  # the kernels loaded once, before the fork
+        self._feed, writing = sized_pipe()
+        self.process = get_context("fork").Process(target=_feed, args=(config, read, decode, writing, self._feed),
+                                                   name="slipdaq-feed", daemon=True)
+        self.process.start()
+        writing.close()
+
+    def items(self, tape: DecoderTape) -> Iterator[Item]:
+        """The input's items, each run's decoder calls fed to tape (a fed DecoderTape) before its items."""
+        yield from received(self._feed, tape, self._lost)
+
+    def _lost(self) -> NoReturn:
+        self.process.join()
+        raise RuntimeError(f"the feed's process ended without its input's end (exit status {self.process.exitcode})")
+
+    def close(self) -> None:
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join()
+        self._feed.close()
+
+    def __enter__(self) -> FeedProcess:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+class FedPasses:
+    """A two-pass run's input (as ReadOnce: first(), second(), tape), each pass fed by a FeedProcess forked here
+    (before any thread: the summaries' process after it): the first pass's items, and its fed tape, kept for the
+    second (keep: a log fed whole, fed_whole), else the second pass fed again by a second process (forked here too;
+    it reads only as far as its pipe holds until the second pass takes its items)."""
+
+    def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool,
+                 tape_bytes: int | None = None) -> None:
+        self.tape = DecoderTape(tape_bytes, fed=True)
+        self._feeds = [FeedProcess(config, read, decode)]
+        self._keep = keep
+        if not self._keep:
+            self._feeds.append(FeedProcess(config, read, decode))
+            self.tape.drop()  # nothing kept: played to the first pass as it is fed, then fed again to the second
+        self._items: list[Item] = []
+
+    def first(self) -> Iterator[Item]:
+        keep = self._keep
+        for item in self._feeds[0].items(self.tape):
+            if keep:
+                self._items.append(item)
+            yield item
+        self._feeds[0].close()
+        if not keep:
+            self.tape.feed_again()
+
+    def second(self) -> Iterator[Item]:
+        if not self._keep:
+            yield from self._feeds[-1].items(self.tape)
+            return
+        kept, self._items = self._items[::-1], []
+        while kept:
+            yield kept.pop()
+
+    def close(self) -> None:
+        for feed in self._feeds:
+            feed.close()
+
+    def __enter__(self) -> FedPasses:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()

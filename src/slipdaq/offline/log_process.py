@@ -28,7 +28,7 @@ from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.first_pass_feed import FeedSender, sending
+from slipdaq.offline.first_pass_feed import FeedSender, received, sending
 from slipdaq.offline.items import Decode, Item
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord, WheelSampleBatch
 from slipdaq.sinks import SINK_CALLS, Sink
@@ -314,17 +314,7 @@ class LogProcess(Sink):
         """The input's items as the process feeds them (feed), each run's decoder calls fed to tape before it (a fed
         DecoderTape: the first pass's); then fed_end is what it sent last."""
         assert self._feed is not None, "fed() of a log's process that feeds nothing"
-        while True:
-            try:
-                data = self._feed.recv_bytes()
-            except EOFError:  # the process has ended without the feed's end
-                self._raise_ended()
-            run, *rest = pickle.loads(data)
-            if run is None:
-                self.fed_end = rest[0]
-                return
-            tape.feed(*rest)
-            yield from run
+        self.fed_end = yield from received(self._feed, tape, self._raise_ended)
 
     def begin(self, **kwargs: Any) -> None:
         """The first call: the log's sink made there, make_sink(**kwargs)."""

@@ -34,7 +34,7 @@ class ReadOnce:
     @classmethod
     def fed(cls, items: Callable[[DecoderTape], Iterable[Item]], tape_bytes: int | None = None) -> ReadOnce:
         """The items as another process decodes them, items(tape) feeding their decoders' calls to the tape
-        (LogProcess.fed): every one kept (the caller bounds the log: first_pass_feed.FEED_RECORDS)."""
+        (LogProcess.fed): every one kept (the caller bounds the log: first_pass_feed.FEED_BYTES)."""
         once = cls(lambda _: items(once.tape), lambda fed: fed, keep_bytes=0, tape_bytes=tape_bytes)
         once.tape = DecoderTape(tape_bytes, fed=True)
         once._size = lambda _: 0

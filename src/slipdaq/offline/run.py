@@ -24,7 +24,7 @@ from slipdaq.estimator.force import driven_wheels
 from slipdaq.estimator.gps_track import MAX_GPS_GAP_S, smooth_arrival_times
 from slipdaq.maneuver.figures import ManeuverSummary
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.first_pass_feed import FEED_RECORDS
+from slipdaq.offline.first_pass_feed import FedPasses, fed_whole
 from slipdaq.offline.items import BATCH_FRAMES, batched, items_of, read_ahead
 from slipdaq.offline.log_process import LogProcess
 from slipdaq.offline.read_once import ReadOnce
@@ -213,7 +213,7 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     with contextlib.ExitStack() as stack:
         apart = None
         if worth_a_process(total):
-            feed = total is not None and total <= FEED_RECORDS
+            feed = fed_whole(log)
             apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
                                                         functools.partial(iter_raw_messages, log, scanned if feed else None),
                                                         feed=feed, feed_end=lambda: scanned))
@@ -388,7 +388,8 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     """A log's estimates (and high-rate slip) post-processed two-pass (as `replay --two-pass`, in memory), as its
     /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
     maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
-    beside the second pass (DetectorFeed; Rows.maneuvers)."""
+    beside the second pass (DetectorFeed; Rows.maneuvers), and its passes fed by processes that read and decode the
+    log (first_pass_feed.FedPasses)."""
     from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_record_count, read_metadata
 
     config = config_from_log(log)
@@ -396,8 +397,13 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     total = raw_record_count(log)
     if total == 0:
         return None
-    with SummaryProcess() if maneuvers and worth_a_process(total) else contextlib.nullcontext() as summaries:
-        read = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
+    beside = maneuvers and worth_a_process(total)
+    with contextlib.ExitStack() as stack:
+        read: ReadOnce | FedPasses = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
+        if beside:  # the passes fed by processes that read the log (forked first), the maneuvers summarized beside
+            read = stack.enter_context(FedPasses(config, lambda: iter_raw_messages(log), items_of(log_decoder(log)),
+                                                 fed_whole(log)))
+        summaries = stack.enter_context(SummaryProcess()) if beside else None
         first = first_pass(config, read.first(), start, str(log), total=total, stream=stream, tape=read.tape)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)
         p = process(config, read.second(), [rows], total=total, stream=stream, maneuvers=False, tape=read.tape,

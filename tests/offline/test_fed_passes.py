@@ -1,0 +1,111 @@
+"""A report's two passes fed by processes that read and decode the log (offline.first_pass_feed.FedPasses): the same
+rows as passes that read and decode it themselves, with the first pass's items kept and with the second pass fed
+again (a log too long to keep); the run's process then calls no wheel decoder and reads no message of the log; a feed
+that fails ends the run with its error, and a run that fails leaves no process behind."""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from slipdaq.config import load_config
+from slipdaq.decode.can_wheels import WheelDecoder
+from slipdaq.logformat import reader
+from slipdaq.logformat.reader import raw_batches, raw_record_count
+from slipdaq.offline import first_pass_feed, run
+from slipdaq.offline.run import Rows, process_to_log, two_pass_rows
+from slipdaq.offline.summaries import MIN_RAW_RECORDS
+from slipdaq.sim.emit import SimSettings, generate
+from support.forks import FORKS, children
+from support.paths import CONFIG
+from support.sim_logs import FIXED_META
+
+PARENT = os.getpid()
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """45 s of the braking drive, its frames jittered and its lines late, as a run records it: a log worth processes
+    beside the run."""
+    cfg = load_config(CONFIG)
+    settings = SimSettings(seed=11, gps_latency_s=0.047, can_jitter_s=0.0003)
+    records = [e.record for e in generate(cfg, "brake", "paved", settings, duration_s=45.0) if e.record is not None]
+    path = tmp_path_factory.mktemp("fed") / "drive.mcap"
+    process_to_log(cfg, iter(records), path, "import", metadata=FIXED_META, stream=io.StringIO(), total=len(records))
+    assert (raw_record_count(path) or 0) >= MIN_RAW_RECORDS
+    return path
+
+
+def _rows(log: Path, monkeypatch: pytest.MonkeyPatch, *, maneuvers: bool) -> tuple[Rows, dict[str, int], int]:
+    """two_pass_rows, with the calls of the wheel decoder and the log's reader made in this process, and the
+    processes forked."""
+    here = {"decode_batch": 0, "messages": 0}
+
+    def counted(name: str, f: Any) -> Any:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            here[name] += os.getpid() == PARENT
+            return f(*args, **kwargs)
+        return call
+
+    before = len(FORKS)
+    with monkeypatch.context() as m:
+        m.setattr(WheelDecoder, "decode_batch", counted("decode_batch", WheelDecoder.decode_batch))
+        m.setattr(reader, "iter_raw_messages", counted("messages", reader.iter_raw_messages))
+        rows = two_pass_rows(log, stream=io.StringIO(), maneuvers=maneuvers)
+    assert rows is not None and children() == []
+    return rows, here, len(FORKS) - before
+
+
+def _same(a: Rows, b: Rows) -> None:
+    """The same rows, bit for bit (a NaN the same as a NaN)."""
+    assert len(a.rows) == len(b.rows) > 200 and len(a.fast) == len(b.fast) > 1000
+    for x, y in ((a.rows, b.rows), (a.sensors, b.sensors), (a.diagnostics, b.diagnostics), (list(a.fast), list(b.fast))):
+        assert pickle.dumps(x) == pickle.dumps(y)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_fed_passes_give_the_rows_of_passes_that_decode(log: Path, monkeypatch: pytest.MonkeyPatch,
+                                                        kept: bool) -> None:
+    """Kept: one process feeds the first pass, and the second takes its items and calls again. Not kept (a log past
+    FEED_BYTES): a second process feeds the second pass."""
+    own, here, forks = _rows(log, monkeypatch, maneuvers=False)
+    assert here["decode_batch"] > 0 and here["messages"] > 0 and forks == 0
+    if not kept:
+        monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
+    fed, here, forks = _rows(log, monkeypatch, maneuvers=True)
+    assert here == {"decode_batch": 0, "messages": 0}
+    assert forks == (2 if kept else 3)  # the feeds and the summaries' process
+    _same(fed, own)
+    assert fed.maneuvers and any(m.phase == "brake" for m in fed.maneuvers)
+
+
+def test_a_feed_that_fails_ends_the_run_with_its_error(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def failing(messages: Any) -> Any:
+        for k, r in enumerate(raw_batches(messages)):
+            if k == 300 and os.getpid() != PARENT:
+                raise ValueError("a record that cannot be decoded")
+            yield r
+
+    monkeypatch.setattr(run, "log_decoder", lambda _: failing)
+    with pytest.raises(ValueError, match="cannot be decoded") as raised:
+        two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
+    assert "in the feed's process" in "".join(raised.value.__notes__)
+    assert children() == []
+
+
+def test_a_run_that_fails_leaves_no_feed_behind(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The second pass's feed (a log too long to keep) is waiting when the first pass fails: both end with the run."""
+    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
+
+    def broken(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("the first pass failed")
+
+    monkeypatch.setattr(run, "first_pass", broken)
+    with pytest.raises(RuntimeError, match="first pass failed"):
+        two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
+    assert children() == []
