@@ -1,7 +1,8 @@
-"""A report's two passes fed by processes that read and decode the log (offline.first_pass_feed.FedPasses): the same
-rows as passes that read and decode it themselves, with the first pass's items kept and with the second pass fed
-again (a log too long to keep); the run's process then calls no wheel decoder and reads no message of the log; a feed
-that fails ends the run with its error, and a run that fails leaves no process behind."""
+"""A report's first pass fed by a process that reads and decodes the log (offline.first_pass_feed.FedPasses): the
+same rows as passes that read and decode it themselves, with the first pass's items kept for the second (the run's
+process then calling no wheel decoder and reading no message of the log) and with a log too long to keep (the second
+pass reading and decoding it); a feed that fails ends the run with its error, and a run that fails leaves no process
+behind."""
 
 from __future__ import annotations
 
@@ -71,15 +72,16 @@ def _same(a: Rows, b: Rows) -> None:
 @pytest.mark.parametrize("kept", [True, False])
 def test_fed_passes_give_the_rows_of_passes_that_decode(log: Path, monkeypatch: pytest.MonkeyPatch,
                                                         kept: bool) -> None:
-    """Kept: one process feeds the first pass, and the second takes its items and calls again. Not kept (a log past
-    FEED_BYTES): a second process feeds the second pass."""
+    """Kept: the first pass fed, the second takes its items and calls again. Not kept (a log past FEED_BYTES): the
+    second pass reads and decodes the log here."""
     own, here, forks = _rows(log, monkeypatch, maneuvers=False)
     assert here["decode_batch"] > 0 and here["messages"] > 0 and forks == 0
     if not kept:
         monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
     fed, here, forks = _rows(log, monkeypatch, maneuvers=True)
-    assert here == {"decode_batch": 0, "messages": 0}
-    assert forks == (2 if kept else 3)  # the feeds and the summaries' process
+    assert (here == {"decode_batch": 0, "messages": 0}) is kept
+    assert here["messages"] == (0 if kept else 1)  # the second pass's read
+    assert forks == 2  # the feed's process and the summaries'
     _same(fed, own)
     assert fed.maneuvers and any(m.phase == "brake" for m in fed.maneuvers)
 
@@ -99,13 +101,19 @@ def test_a_feed_that_fails_ends_the_run_with_its_error(log: Path, monkeypatch: p
 
 
 def test_a_run_that_fails_leaves_no_feed_behind(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The second pass's feed (a log too long to keep) is waiting when the first pass fails: both end with the run."""
-    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
+    """The first pass fails after a few runs, the feed waiting to send more: it ends with the run."""
+    process = run.process
 
-    def broken(*args: Any, **kwargs: Any) -> Any:
-        raise RuntimeError("the first pass failed")
+    def failing(config: Any, records: Any, *args: Any, **kwargs: Any) -> Any:
+        def some() -> Any:
+            for k, r in enumerate(records):
+                if k == 2000:
+                    raise RuntimeError("the first pass failed")
+                yield r
+        return process(config, some(), *args, **kwargs)
 
-    monkeypatch.setattr(run, "first_pass", broken)
+    monkeypatch.setattr(run, "process", failing)
+    before = len(FORKS)
     with pytest.raises(RuntimeError, match="first pass failed"):
         two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
-    assert children() == []
+    assert len(FORKS) - before == 2 and children() == []

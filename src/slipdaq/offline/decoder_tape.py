@@ -84,12 +84,6 @@ class DecoderTape:
             self.wheels.extend(wheels)
             self.lines.extend(lines)
 
-    def feed_again(self) -> None:
-        """A fed tape's next pass fed too (its input fed again: first_pass_feed.FedPasses): its attach plays what feed
-        gives it then (the pass before plays what it was fed to its end, its decoders made already)."""
-        assert self._fed is not None, "feed_again on a tape not fed"
-        self._recorded = False
-
     def attach(self, pipeline: Pipeline) -> None:
         """Give the pipeline (a fresh one) taped decoders: recording on the first call (a fed tape: playing what is
         fed), playing on the second (when the tape is complete; otherwise the pipeline keeps its own)."""

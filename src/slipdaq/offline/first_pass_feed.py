@@ -1,11 +1,12 @@
-"""A two-pass run's passes fed by a process that reads the log: the log's process, which reads it anyway (LogProcess
-with read, feed), or one of its own (FeedProcess, FedPasses). That process decodes the input's items and makes the
-pipeline's wheel and NMEA decoder calls over them (DecodingPipeline: Pipeline's own cuts, no estimator), and sends
-the run each run of items (items.read_ahead) with those calls' tape entries (decoder_tape) before it takes the run
-further. The pass then neither reads nor decodes: it plays the entries as they come (DecoderTape(fed=True)); the
-second pass plays them again, or is fed again (a log too long to keep). Both pipelines get the same items in the
-same runs, and Pipeline cuts the wheel frames by the records' times alone, so the calls are the same one for one; a
-played call is checked against its entry (TapeMismatch)."""
+"""A two-pass run's first pass fed by a process that reads the log, on the core that pass leaves idle: the log's
+process, which reads it anyway (LogProcess with read, feed), or one of its own (FeedProcess, FedPasses: the
+report's). That process decodes the input's items and makes the pipeline's wheel and NMEA decoder calls over them
+(DecodingPipeline: Pipeline's own cuts, no estimator), and sends the run each run of items (items.read_ahead) with
+those calls' tape entries (decoder_tape) before it takes the run further. The pass then neither reads nor decodes:
+it plays the entries as they come (DecoderTape(fed=True)); the second pass plays them again (a log fed whole), or
+reads and decodes the log itself. Both pipelines get the same items in the same runs, and Pipeline cuts the wheel
+frames by the records' times alone, so the calls are the same one for one; a played call is checked against its
+entry (TapeMismatch)."""
 
 from __future__ import annotations
 
@@ -36,9 +37,10 @@ FEED_BYTES = 128 << 20
 """A log is fed whole up to this many bytes of messages uncompressed (logformat.reader.data_bytes, every topic: 300 s
 of 4 WPT messages at 1 kHz and 20 Hz NMEA take 32 MB raw, 122 MB as a run records them): the first pass's items are
 kept for the second (in the run and, a log's process feeding them, there too: about twice the raw data in each). A
-log's process feeds no longer log; FedPasses feeds its second pass again."""
+log's process feeds no longer log; past it, FedPasses's second pass reads and decodes the log itself."""
 PIPE_BYTES = 1 << 20
-"""The feed's pipe's size where the system lets it be set (fewer writes and wake-ups than the default 64 kB)."""
+"""The size of the pipes to and from a process beside the run (a feed's, a log's process's calls) where the system
+lets it be set (the default, 64 kB, takes 16 writes a megabyte)."""
 
 
 def fed_whole(log: str | Path) -> bool:
@@ -82,6 +84,7 @@ class FeedSender:
         self._end = end
 
     def runs(self, items: Iterable[Item]) -> Iterator[Item]:
+        """The items, each run of them sent (with its calls' entries) before it is given."""
         tape = self._tape
         for run in read_ahead(items):
             self._pipeline.process_all(run)
@@ -166,51 +169,42 @@ class FeedProcess:
         self.process.join()
         self._feed.close()
 
-    def __enter__(self) -> FeedProcess:
-        return self
-
-    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()
-
 
 class FedPasses:
-    """A two-pass run's input (as ReadOnce: first(), second(), tape), each pass fed by a FeedProcess forked here
-    (before any thread: the summaries' process after it): the first pass's items, and its fed tape, kept for the
-    second (keep: a log fed whole, fed_whole), else the second pass fed again by a second process (forked here too;
-    it reads only as far as its pipe holds until the second pass takes its items)."""
+    """A two-pass run's input (as ReadOnce: first(), second(), tape), the first pass fed by a FeedProcess forked here
+    (before any thread: the summaries' process after it), on the core that pass leaves idle: its items, and its fed
+    tape, kept for the second (keep: a log fed whole, fed_whole); else the second pass reads and decodes the log
+    itself (decode(read())), as a pass of a log too long to keep does (read_once.ReadOnce); feeding it too would
+    take the core the maneuvers' summaries take then."""
 
     def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool,
                  tape_bytes: int | None = None) -> None:
         self.tape = DecoderTape(tape_bytes, fed=True)
-        self._feeds = [FeedProcess(config, read, decode)]
+        self._feed = FeedProcess(config, read, decode)
+        self._read, self._decode = read, decode
         self._keep = keep
-        if not self._keep:
-            self._feeds.append(FeedProcess(config, read, decode))
-            self.tape.drop()  # nothing kept: played to the first pass as it is fed, then fed again to the second
+        if not keep:
+            self.tape.drop()  # nothing kept: played to the first pass as it is fed; the second decodes
         self._items: list[Item] = []
 
     def first(self) -> Iterator[Item]:
         keep = self._keep
-        for item in self._feeds[0].items(self.tape):
+        for item in self._feed.items(self.tape):
             if keep:
                 self._items.append(item)
             yield item
-        self._feeds[0].close()
-        if not keep:
-            self.tape.feed_again()
+        self._feed.close()
 
     def second(self) -> Iterator[Item]:
         if not self._keep:
-            yield from self._feeds[-1].items(self.tape)
+            yield from self._decode(self._read())
             return
         kept, self._items = self._items[::-1], []
         while kept:
             yield kept.pop()
 
     def close(self) -> None:
-        for feed in self._feeds:
-            feed.close()
+        self._feed.close()
 
     def __enter__(self) -> FedPasses:
         return self

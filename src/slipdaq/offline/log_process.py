@@ -9,8 +9,6 @@ the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import gc
 import pickle
 import queue
@@ -28,7 +26,7 @@ from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.first_pass_feed import FeedSender, received, sending
+from slipdaq.offline.first_pass_feed import FeedSender, received, sending, sized_pipe
 from slipdaq.offline.items import Decode, Item
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord, WheelSampleBatch
 from slipdaq.sinks import SINK_CALLS, Sink
@@ -40,8 +38,6 @@ QUEUED_RUNS = 256
 DECODE_FRAMES = 8192
 """The log's process decodes the wheel frames of this many frames (of whole batches) at once (numpy's cost per call
 paid once for many, as Pipeline.process_all does)."""
-PIPE_BYTES = 1 << 20
-"""The calls' pipe's size where the system lets it be set (the default, 64 kB, takes 16 writes a megabyte)."""
 FRAMES, SAMPLES, RAW = "frames", "samples", "raw"
 """The calls whose records the process takes from the input it decodes: on_can_batch, on_wheel_batch, on_raw."""
 INPUT, INPUT_END = "input", "input_end"
@@ -265,17 +261,12 @@ class LogProcess(Sink):
         calls; feed_end: what the process sends at the feed's end (fed_end), called there."""
         compiled.prepare()  # the kernels loaded once, before the fork
         ctx = get_context("fork")
-        calls_in, self._calls = ctx.Pipe(duplex=False)
+        calls_in, self._calls = sized_pipe()
         self._done, done_out = ctx.Pipe(duplex=False)
         self._feed: Connection | None = None
         feed_out: Connection | None = None
         if feed:
-            self._feed, feed_out = ctx.Pipe(duplex=False)
-        if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux: fewer writes and wake-ups
-            for pipe in (self._calls, self._feed):
-                with contextlib.suppress(OSError):
-                    if pipe is not None:
-                        fcntl.fcntl(pipe.fileno(), set_size, PIPE_BYTES)
+            self._feed, feed_out = sized_pipe()
         self._decode = decode
         self.reads_itself = read is not None
         self.fed_end: Any = None
