@@ -47,9 +47,8 @@ from slipdaq.logformat.topics import (
 from slipdaq.records import CanFrame, CanFrameBatch, NmeaLine, RawRecord, RtcmFrame, UbxFrame, XbusBytes
 
 __all__ = ["DamageError", "LogError", "ScanResult", "can_channels", "config_from_log", "data_bytes", "is_finished",
-           "iter_estimates",
-           "iter_raw_batches", "iter_raw_messages", "iter_raw_records", "iter_topic", "raw_batches", "raw_record_count",
-           "read_metadata"]
+           "iter_estimates", "iter_raw_batches", "iter_raw_messages", "iter_raw_records", "iter_topic", "raw_batches",
+           "raw_record_count", "read_metadata"]
 
 
 def _open(path: str | Path):

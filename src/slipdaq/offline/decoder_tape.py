@@ -89,11 +89,13 @@ class DecoderTape:
         fed), playing on the second (when the tape is complete; otherwise the pipeline keeps its own)."""
         if self._recorded and not self.complete:
             return
-        first, self._recorded = not self._recorded, True
-        wheels: Iterator[WheelEntry] | None = _Taken(self._fed[0]) if first and self._fed else \
-            None if first else iter(self.wheels)
-        lines: Iterator[LineEntry] | None = _Taken(self._fed[1]) if first and self._fed else \
-            None if first else iter(self.lines)
+        wheels: Iterator[WheelEntry] | None = None  # the first call records
+        lines: Iterator[LineEntry] | None = None
+        if self._recorded:  # the second plays what was kept
+            wheels, lines = iter(self.wheels), iter(self.lines)
+        elif self._fed is not None:  # a fed tape's first plays what is fed
+            wheels, lines = _Taken(self._fed[0]), _Taken(self._fed[1])
+        self._recorded = True
         pipeline.wheels = TapedWheelDecoder(pipeline.config, self, wheels)
         pipeline.nmea = TapedNmeaDecoder(self, lines)
 

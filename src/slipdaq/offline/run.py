@@ -204,8 +204,9 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     """`replay --two-pass` of a log into a new log at out_path: the first pass (first_pass), then the second into the
     log (process_to_log), the input read and decoded once (ReadOnce, its decoders' tape). Where the run is worth a
     log's process (summaries.worth_a_process), it is forked before the first pass and reads and decodes the log
-    itself meanwhile, on the core the first pass leaves idle; the run then sends it no input. scanned: the
-    logformat.salvage.ScanResult the first read fills."""
+    itself meanwhile, on the core the first pass leaves idle; the run then sends it no input. A log fed whole
+    (first_pass_feed.fed_whole): that process feeds the first pass the items and the decoders' calls (LogProcess.fed),
+    and the scan comes back with them. scanned: the logformat.salvage.ScanResult the first read fills."""
     from slipdaq.logformat.reader import iter_raw_messages
 
     decode = log_decoder(log)
@@ -388,8 +389,8 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     """A log's estimates (and high-rate slip) post-processed two-pass (as `replay --two-pass`, in memory), as its
     /estimate (/slip/fast, /can/sensors) rows, and the last diagnostics; None when the log has no raw records.
     maneuvers: with a log worth a second process (summaries.worth_a_process), its maneuvers decided and summarized
-    beside the second pass (DetectorFeed; Rows.maneuvers), and its passes fed by processes that read and decode the
-    log (first_pass_feed.FedPasses)."""
+    beside the second pass (DetectorFeed; Rows.maneuvers), and its first pass fed by a process that reads and decodes
+    the log (first_pass_feed.FedPasses)."""
     from slipdaq.logformat.reader import config_from_log, iter_raw_messages, raw_record_count, read_metadata
 
     config = config_from_log(log)
@@ -400,7 +401,7 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     beside = maneuvers and worth_a_process(total)
     with contextlib.ExitStack() as stack:
         read: ReadOnce | FedPasses = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
-        if beside:  # the passes fed by processes that read the log (forked first), the maneuvers summarized beside
+        if beside:  # the first pass fed by a process that reads the log (forked first), the maneuvers summarized beside
             read = stack.enter_context(FedPasses(config, lambda: iter_raw_messages(log), items_of(log_decoder(log)),
                                                  fed_whole(log)))
         summaries = stack.enter_context(SummaryProcess()) if beside else None
