@@ -7,7 +7,6 @@ behind."""
 from __future__ import annotations
 
 import io
-import os
 import pickle
 from pathlib import Path
 from typing import Any
@@ -15,18 +14,14 @@ from typing import Any
 import pytest
 
 from slipdaq.config import load_config
-from slipdaq.decode.can_wheels import WheelDecoder
-from slipdaq.logformat import reader
 from slipdaq.logformat.reader import raw_batches, raw_record_count
 from slipdaq.offline import first_pass_feed, run
 from slipdaq.offline.run import Rows, process_to_log, two_pass_rows
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
 from slipdaq.sim.emit import SimSettings, generate
-from support.forks import FORKS, children
+from support.forks import FORKS, children, failing_in_a_child, made_here
 from support.paths import CONFIG
 from support.sim_logs import FIXED_META
-
-PARENT = os.getpid()
 
 
 @pytest.fixture(scope="module")
@@ -45,18 +40,8 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _rows(log: Path, monkeypatch: pytest.MonkeyPatch, *, maneuvers: bool) -> tuple[Rows, dict[str, int], int]:
     """two_pass_rows, with the calls of the wheel decoder and the log's reader made in this process, and the
     processes forked."""
-    here = {"decode_batch": 0, "messages": 0}
-
-    def counted(name: str, f: Any) -> Any:
-        def call(*args: Any, **kwargs: Any) -> Any:
-            here[name] += os.getpid() == PARENT
-            return f(*args, **kwargs)
-        return call
-
     before = len(FORKS)
-    with monkeypatch.context() as m:
-        m.setattr(WheelDecoder, "decode_batch", counted("decode_batch", WheelDecoder.decode_batch))
-        m.setattr(reader, "iter_raw_messages", counted("messages", reader.iter_raw_messages))
+    with made_here(monkeypatch) as here:
         rows = two_pass_rows(log, stream=io.StringIO(), maneuvers=maneuvers)
     assert rows is not None and children() == []
     return rows, here, len(FORKS) - before
@@ -87,13 +72,7 @@ def test_fed_passes_give_the_rows_of_passes_that_decode(log: Path, monkeypatch: 
 
 
 def test_a_feed_that_fails_ends_the_run_with_its_error(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    def failing(messages: Any) -> Any:
-        for k, r in enumerate(raw_batches(messages)):
-            if k == 300 and os.getpid() != PARENT:
-                raise ValueError("a record that cannot be decoded")
-            yield r
-
-    monkeypatch.setattr(run, "log_decoder", lambda _: failing)
+    monkeypatch.setattr(run, "log_decoder", lambda _: failing_in_a_child(raw_batches, 300))
     with pytest.raises(ValueError, match="cannot be decoded") as raised:
         two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
     assert "in the feed's process" in "".join(raised.value.__notes__)

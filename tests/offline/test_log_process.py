@@ -16,8 +16,6 @@ import pytest
 
 from slipdaq.cli import main
 from slipdaq.config import Config, load_config
-from slipdaq.decode.can_wheels import WheelDecoder
-from slipdaq.logformat import reader
 from slipdaq.logformat.json_codec import can_frame_to_dict, dumps
 from slipdaq.logformat.reader import config_from_log, iter_raw_batches, iter_raw_messages, raw_batches, raw_record_count
 from slipdaq.logformat.salvage import ScanResult
@@ -28,7 +26,7 @@ from slipdaq.offline.run import first_pass, process_to_log, replay_two_pass
 from slipdaq.offline.summaries import MIN_RAW_RECORDS
 from slipdaq.records import CanFrame, NmeaLine
 from slipdaq.sim.emit import SimSettings, generate
-from support.forks import FORKS, children
+from support.forks import FORKS, children, failing_in_a_child, made_here
 from support.paths import CONFIG, DATA, ROOT
 from support.sim_logs import FIXED_META
 
@@ -114,17 +112,7 @@ def _two_pass_both_ways(log: Path, tmp_path: Path, total: int, monkeypatch: pyte
     here, apart = tmp_path / f"{log.stem}-two-pass-here.mcap", tmp_path / f"{log.stem}-two-pass-apart.mcap"
     first = first_pass(cfg, iter_raw_batches(log), None, str(log), total=total, stream=io.StringIO())
     before = len(FORKS)
-    here_calls = {"decode_batch": 0, "messages": 0}
-
-    def counted(name: str, f: Any) -> Any:
-        def call(*args: Any, **kwargs: Any) -> Any:
-            here_calls[name] += os.getpid() == PARENT
-            return f(*args, **kwargs)
-        return call
-
-    with monkeypatch.context() as m:
-        m.setattr(WheelDecoder, "decode_batch", counted("decode_batch", WheelDecoder.decode_batch))
-        m.setattr(reader, "iter_raw_messages", counted("messages", reader.iter_raw_messages))
+    with made_here(monkeypatch) as here_calls:
         scanned = ScanResult(log)
         p_apart, first_apart = replay_two_pass(cfg, log, apart, None, metadata=FIXED_META, total=total,
                                                scanned=scanned)
@@ -251,13 +239,7 @@ def test_a_feed_brings_the_scan_a_torn_log_is_not_fed_and_a_failing_feed_is_the_
                         scanned=scanned)
         assert scanned == here
 
-    def failing(messages: Any) -> Any:
-        for k, r in enumerate(raw_batches(messages)):
-            if k == 500 and os.getpid() != PARENT:
-                raise ValueError("a record that cannot be decoded")
-            yield r
-
-    monkeypatch.setattr(run, "log_decoder", lambda _: failing)
+    monkeypatch.setattr(run, "log_decoder", lambda _: failing_in_a_child(raw_batches, 500))
     with pytest.raises(ValueError, match="cannot be decoded") as raised:
         replay_two_pass(cfg, log, tmp_path / "failed.mcap", None, metadata=FIXED_META, total=len(records))
     assert "in the log's process" in "".join(raised.value.__notes__)
