@@ -44,7 +44,8 @@ lets it be set (the default, 64 kB, takes 16 writes a megabyte)."""
 
 
 def fed_whole(log: str | Path) -> bool:
-    """The log is at most FEED_BYTES of messages (FEED_BYTES)."""
+    """The log's messages take at most FEED_BYTES uncompressed (its summary's chunk indexes); False for a log without
+    a summary (not finished: its size is not known before it is read)."""
     size = data_bytes(log)
     return size is not None and size <= FEED_BYTES
 
@@ -72,9 +73,9 @@ class DecodingPipeline(Pipeline):
 
 
 class FeedSender:
-    """In the log's process: the items it reads, each run decoded by a DecodingPipeline and sent to the run,
-    send((run, its wheel entries, its line entries)), before the process takes it; last send((None, end())) (a
-    scan's result)."""
+    """In the process that reads the log (the log's process, a FeedProcess): the items it reads, each run decoded by a
+    DecodingPipeline and sent to the run, send((run, its wheel entries, its line entries)), before the process takes
+    it further; last send((None, end())) (a scan's result)."""
 
     def __init__(self, config: Config, send: Callable[[tuple[Any, ...]], None], end: Callable[[], Any] | None) -> None:
         self._tape = DecoderTape(sys.maxsize)  # the entries go to the run: the run's tape keeps them within its budget
