@@ -10,13 +10,8 @@ entry (TapeMismatch)."""
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
-import gc
 import pickle
-import signal
 import sys
-import traceback
 from collections.abc import Callable, Generator, Iterable, Iterator
 from multiprocessing import get_context
 from multiprocessing.connection import Connection
@@ -29,7 +24,8 @@ from slipdaq.config import Config
 from slipdaq.decode.timemark import TimeMark
 from slipdaq.logformat.reader import data_bytes
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.items import Decode, Item, read_ahead
+from slipdaq.offline.forked import send_error, sized_pipe, started
+from slipdaq.offline.items import Decode, Item, let_go, read_ahead
 from slipdaq.pipeline import Pipeline
 from slipdaq.records import CanFrameBatch, GpsFix, SensorSample
 
@@ -38,10 +34,6 @@ FEED_BYTES = 128 << 20
 of 4 WPT messages at 1 kHz and 20 Hz NMEA take 32 MB raw, 122 MB as a run records them): the first pass's items are
 kept for the second (in the run and, a log's process feeding them, there too: about twice the raw data in each). A
 log's process feeds no longer log; past it, FedPasses's second pass reads and decodes the log itself."""
-PIPE_BYTES = 1 << 20
-"""The size of the pipes to and from a process beside the run (a feed's, a log's process's calls) where the system
-lets it be set (the default, 64 kB, takes 16 writes a megabyte)."""
-
 
 def fed_whole(log: str | Path) -> bool:
     """The log's messages take at most FEED_BYTES uncompressed (its summary's chunk indexes); False for a log without
@@ -100,15 +92,6 @@ def sending(feed: Connection) -> Callable[[tuple[Any, ...]], None]:
     return lambda message: feed.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
 
 
-def sized_pipe() -> tuple[Connection, Connection]:
-    """(reading end, writing end) of a pipe of PIPE_BYTES where the system lets it be set."""
-    reading, writing = get_context("fork").Pipe(duplex=False)
-    if (set_size := getattr(fcntl, "F_SETPIPE_SZ", None)) is not None:  # Linux
-        with contextlib.suppress(OSError):
-            fcntl.fcntl(writing.fileno(), set_size, PIPE_BYTES)
-    return reading, writing
-
-
 def received(feed: Connection, tape: DecoderTape, lost: Callable[[], NoReturn]) -> Generator[Item, None, Any]:
     """The items a FeedSender sends, each run's entries fed to tape before its items; returns the end's value, raises
     the error sent in its place (FeedProcess), or lost()'s (the sender's end closed without either)."""
@@ -129,19 +112,13 @@ def received(feed: Connection, tape: DecoderTape, lost: Callable[[], NoReturn]) 
 def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, feed: Connection,
           parent_end: Connection) -> None:
     """A FeedProcess: the input read, decoded and sent run by run; an error sent in place of the end."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
-    gc.freeze()
-    parent_end.close()
+    started((parent_end,))
     send = sending(feed)
     try:
         for _ in FeedSender(config, send, None).runs(decode(read())):
             pass
     except BaseException as e:
-        e.add_note("in the feed's process:\n" + traceback.format_exc())
-        try:
-            send((None, None, e))
-        except Exception:  # an error that does not pickle
-            send((None, None, RuntimeError(f"{e!r} in the feed's process")))
+        send_error(lambda error: send((None, None, error)), e, "the feed's process", RuntimeError)
 
 
 class FeedProcess:
@@ -172,40 +149,49 @@ class FeedProcess:
 
 
 class FedPasses:
-    """A two-pass run's input (as ReadOnce: first(), second(), tape), the first pass fed by a FeedProcess forked here
-    (before any thread: the summaries' process after it), on the core that pass leaves idle: its items, and its fed
-    tape, kept for the second (keep: a log fed whole, fed_whole); else the second pass reads and decodes the log
-    itself (decode(read())), as a pass of a log too long to keep does (read_once.ReadOnce); feeding it too would
-    take the core the maneuvers' summaries take then."""
+    """A two-pass run's input (as read_once.ReadOnce: first(), second(), tape), the first pass fed by fed(tape) (a log's
+    process's LogProcess.fed, or a FeedProcess's: forked), on the core that pass leaves idle: its items, and its fed
+    tape, kept for the second; or, given again (a log too long to keep), the second pass reads and decodes the log
+    itself (again()), as a pass of a log too long to keep does (ReadOnce): feeding it too would take the core the
+    maneuvers' summaries take then."""
 
-    def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool,
+    def __init__(self, fed: Callable[[DecoderTape], Iterable[Item]], again: Callable[[], Iterable[Item]] | None = None,
                  tape_bytes: int | None = None) -> None:
         self.tape = DecoderTape(tape_bytes, fed=True)
-        self._feed = FeedProcess(config, read, decode)
-        self._read, self._decode = read, decode
-        self._keep = keep
-        if not keep:
+        self._fed, self._again = fed, again
+        if again is not None:
             self.tape.drop()  # nothing kept: played to the first pass as it is fed; the second decodes
         self._items: list[Item] = []
+        self._feed: FeedProcess | None = None
+        """The process that feeds the first pass, where it is this run's own (forked)."""
+
+    @classmethod
+    def forked(cls, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool) -> FedPasses:
+        """The first pass fed by a FeedProcess forked here (before any thread: the summaries' process after it);
+        keep: a log fed whole (fed_whole), else the second pass reads and decodes decode(read())."""
+        feed = FeedProcess(config, read, decode)
+        passes = cls(feed.items, None if keep else lambda: decode(read()))
+        passes._feed = feed
+        return passes
 
     def first(self) -> Iterator[Item]:
-        keep = self._keep
-        for item in self._feed.items(self.tape):
+        keep = self._again is None
+        for item in self._fed(self.tape):
             if keep:
                 self._items.append(item)
             yield item
-        self._feed.close()
+        self.close()
 
     def second(self) -> Iterator[Item]:
-        if not self._keep:
-            yield from self._decode(self._read())
+        if self._again is not None:
+            yield from self._again()
             return
-        kept, self._items = self._items[::-1], []
-        while kept:
-            yield kept.pop()
+        kept, self._items = self._items, []
+        yield from let_go(kept)
 
     def close(self) -> None:
-        self._feed.close()
+        if self._feed is not None:
+            self._feed.close()
 
     def __enter__(self) -> FedPasses:
         return self

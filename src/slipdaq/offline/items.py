@@ -58,3 +58,10 @@ def read_ahead(items: Iterable[RawRecord | CanFrameBatch | list[CanFrame]]
             run, frames = [], 0
     if run:
         yield run
+
+
+def let_go(items: list[Item]) -> Iterator[Item]:
+    """The items in order, each let go by the list as it is taken (a second pass over a first pass's items)."""
+    items.reverse()
+    while items:
+        yield items.pop()

@@ -9,12 +9,9 @@ the same calls with the same records: the same log."""
 
 from __future__ import annotations
 
-import gc
 import pickle
 import queue
-import signal
 import threading
-import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from multiprocessing import get_context
@@ -26,7 +23,8 @@ from slipdaq import compiled
 from slipdaq.config import Config
 from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.first_pass_feed import FeedSender, received, sending, sized_pipe
+from slipdaq.offline.first_pass_feed import FeedSender, received, sending
+from slipdaq.offline.forked import send_error, sized_pipe, started
 from slipdaq.offline.items import Decode, Item
 from slipdaq.records import CanFrame, CanFrameBatch, RawRecord, WheelSampleBatch
 from slipdaq.sinks import SINK_CALLS, Sink
@@ -197,10 +195,7 @@ def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read:
     run's first pass, FeedSender); then the calls, run by run, to the sink (made by the first, BEGIN), until told to
     stop (then it is closed) or the run's end of the pipe closes; None back when the log is closed, else the
     error."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
-    gc.freeze()
-    for end in parent_ends:
-        end.close()
+    started(parent_ends)
     sink: Sink | None = None
     try:
         try:
@@ -234,12 +229,8 @@ def _serve(make_sink: Callable[..., Sink], decode: Decode, config: Config, read:
             if sink is not None:
                 sink.close()
     except BaseException as e:
-        e.add_note("in the log's process:\n" + traceback.format_exc())
         calls.close()  # the run's next write fails at once: it then reads this error
-        try:
-            done.send(e)
-        except Exception:  # an error that does not pickle
-            done.send(LogProcessError(f"{e!r} in the log's process"))
+        send_error(done.send, e, "the log's process", LogProcessError)
         return
     done.send(None)
 

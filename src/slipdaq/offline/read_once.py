@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from slipdaq.offline.decoder_tape import DecoderTape
-from slipdaq.offline.items import Decode, Item
+from slipdaq.offline.items import Decode, Item, let_go
 
 KEEP_BYTES = 256 * 1024 * 1024
 """A two-pass run keeps the records its first pass decoded while the raw messages they came from stay within this
@@ -29,16 +29,6 @@ class ReadOnce:
         self._items: list[Item] | None = []
         """The first pass's items; None once the messages passed the budget (read again)."""
         self.tape = DecoderTape(tape_bytes)
-        self._size: Callable[[Any], int] = _data_bytes
-
-    @classmethod
-    def fed(cls, items: Callable[[DecoderTape], Iterable[Item]], tape_bytes: int | None = None) -> ReadOnce:
-        """The items as another process decodes them, items(tape) feeding their decoders' calls to the tape
-        (LogProcess.fed): every one kept (the caller bounds the log: first_pass_feed.FEED_BYTES)."""
-        once = cls(lambda _: items(once.tape), lambda fed: fed, keep_bytes=0, tape_bytes=tape_bytes)
-        once.tape = DecoderTape(tape_bytes, fed=True)
-        once._size = lambda _: 0
-        return once
 
     def first(self) -> Iterator[Item]:
         size = 0
@@ -47,7 +37,7 @@ class ReadOnce:
             nonlocal size
             for message in self._read(True):
                 if self._items is not None:
-                    size += self._size(message)
+                    size += len(message[-1])
                     if size > self._keep_bytes:  # read again: a part kept would spare none of the reading
                         self._items = None
                         self.tape.drop()  # the log read again is decoded again: it need not be the same (written)
@@ -63,11 +53,5 @@ class ReadOnce:
         if self._items is None:
             yield from self._decode(self._read(False))
             return
-        kept, self._items = self._items[::-1], []
-        while kept:
-            yield kept.pop()
-
-
-def _data_bytes(message: Any) -> int:
-    """A raw message's data (logformat.reader.iter_raw_messages's last field)."""
-    return len(message[-1])
+        kept, self._items = self._items, []
+        yield from let_go(kept)

@@ -210,7 +210,7 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     from slipdaq.logformat.reader import iter_raw_messages
 
     decode = log_decoder(log)
-    read = ReadOnce(lambda scan: iter_raw_messages(log, scanned if scan else None), items_of(decode))
+    read: ReadOnce | FedPasses = ReadOnce(lambda scan: iter_raw_messages(log, scanned if scan else None), items_of(decode))
     with contextlib.ExitStack() as stack:
         apart = None
         if worth_a_process(total):
@@ -219,7 +219,7 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
                                                         functools.partial(iter_raw_messages, log, scanned if feed else None),
                                                         feed=feed, feed_end=lambda: scanned))
             if feed:
-                read = ReadOnce.fed(apart.fed)
+                read = FedPasses(apart.fed)
         first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
         if apart is not None and apart.fed_end is not None and scanned is not None:  # the scan made there
             vars(scanned).update(vars(apart.fed_end))
@@ -402,8 +402,8 @@ def two_pass_rows(log: str | Path, *, stream: TextIO | None = None, maneuvers: b
     with contextlib.ExitStack() as stack:
         read: ReadOnce | FedPasses = ReadOnce(lambda _: iter_raw_messages(log), items_of(log_decoder(log)))
         if beside:  # the first pass fed by a process that reads the log (forked first), the maneuvers summarized beside
-            read = stack.enter_context(FedPasses(config, lambda: iter_raw_messages(log), items_of(log_decoder(log)),
-                                                 fed_whole(log)))
+            read = stack.enter_context(FedPasses.forked(config, lambda: iter_raw_messages(log),
+                                                        items_of(log_decoder(log)), fed_whole(log)))
         summaries = stack.enter_context(SummaryProcess()) if beside else None
         first = first_pass(config, read.first(), start, str(log), total=total, stream=stream, tape=read.tape)
         rows = Rows(DetectorFeed(config, summaries) if summaries is not None else None)

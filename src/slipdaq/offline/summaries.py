@@ -11,11 +11,9 @@ run's process dies (the pipe closes)."""
 from __future__ import annotations
 
 import dataclasses
-import gc
 import itertools
 import os
 import queue
-import signal
 import threading
 import traceback
 from collections.abc import Callable
@@ -31,6 +29,7 @@ from slipdaq.config import Config
 from slipdaq.maneuver.detector import Job, ManeuverDetector, TimeOrderFeed
 from slipdaq.maneuver.events import PHASES
 from slipdaq.maneuver.figures import ManeuverSummary
+from slipdaq.offline.forked import started
 from slipdaq.records.fast_rows import FastSlipBatch
 
 MIN_RAW_RECORDS = 2_000
@@ -50,10 +49,7 @@ def worth_a_process(raw_records: int | None) -> bool:
 def _serve(jobs: Connection, results: Connection, parent_ends: tuple[Connection, ...]) -> None:
     """The second process: each job's result (or the error it raised) back, in turn, until told to stop or the run's
     end of the pipe closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a ^C is the run's to handle: it terminates this process
-    gc.freeze()  # what the run made before the fork: never walked here by the collector (nor copied for it)
-    for end in parent_ends:
-        end.close()
+    started(parent_ends)
     while True:
         try:
             job = jobs.recv()
