@@ -192,3 +192,44 @@ def test_slip_spread_residuals_squared_as_python_squares() -> None:
     for compiled_ in (True, False):
         with kernels(compiled_):
             assert [slip_spread(ring, t0, t0 + 0.5) for t0 in starts] == want
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data(), capacity=st.sampled_from([4, 8, 64]), batches=st.integers(1, 6))
+def test_wheel_windows_append_is_append_one_by_one(data, capacity, batches) -> None:  # type: ignore[no-untyped-def]
+    """WheelWindows.append of batches of samples (some not kept, rings small enough to fill, drop_before set on the
+    way) keeps in each ring the samples, last time and count dropped that SeriesRing.append one by one keeps; compiled
+    and as Python."""
+    from slipdaq.estimator.wheel_revolutions import WheelWindows
+
+    cuts = []
+    t = 0.0
+    for _ in range(batches):
+        n = data.draw(st.integers(1, 40))
+        some = data.draw(st.lists(st.integers(0, 3), min_size=1, max_size=4, unique=True))  # one ring may fill alone
+        wheel = np.array(data.draw(st.lists(st.sampled_from(some), min_size=n, max_size=n)), dtype=np.int64)
+        keep = np.array(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)), dtype=np.bool_)
+        times = t + np.cumsum(data.draw(st.lists(st.floats(0.0, 0.01), min_size=n, max_size=n)))
+        t = float(times[-1])
+        start = data.draw(st.integers(0, n - 1))
+        stop = data.draw(st.integers(start + 1, n))
+        cuts.append((wheel, times, times * 3.0, keep, start, stop, data.draw(st.floats(0.0, t))))
+
+    def state(rings: list[SeriesRing]) -> list[tuple[list[float], list[float], float, int]]:
+        return [(r.times.tolist(), r.values.tolist(), r.last_t, r.dropped) for r in rings]
+
+    want = [SeriesRing(capacity) for _ in range(4)]
+    for wheel, times, revs, keep, start, stop, drop in cuts:
+        for i in range(start, stop):
+            if keep[i]:
+                want[wheel[i]].append(float(times[i]), float(revs[i]))
+        for r in want:
+            r.drop_before = drop
+    for compiled_ in (True, False):
+        with kernels(compiled_):
+            ww = WheelWindows()
+            ww.rings[:] = [SeriesRing(capacity) for _ in range(4)]
+            for wheel, times, revs, keep, start, stop, drop in cuts:
+                ww.append(wheel, times, revs, keep, start, stop)
+                ww.drop_before(drop)
+            assert state(ww.rings) == state(want)
