@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from slipdaq.compiled import kernel
@@ -126,6 +128,61 @@ class SeriesRing:
         self._t, self._v = t, v
         self.dropped += keep_from - self._start
         self._start, self._end = 0, n
+
+
+def append_each(rings: Sequence[SeriesRing], ring: np.ndarray, ts: np.ndarray, vs: np.ndarray, keep: np.ndarray,
+                start: int, stop: int) -> bool:
+    """Each kept sample start..stop (keep: bool) appended to its ring of the four (ring: int64 indices), in order, as
+    SeriesRing.append one by one: at once where every ring has room for its samples (extend's fast path); False,
+    nothing appended, where one has not (or an index is not 0-3)."""
+    a, b, c, d = rings
+    ends = np.array((a._end, b._end, c._end, d._end), dtype=np.int64)
+    last = np.empty(4)
+    if not scatter_kept()(ring, ts, vs, keep, start, stop, a._t, a._v, b._t, b._v, c._t, c._v, d._t, d._v, ends,
+                          last):
+        return False
+    for r, end, t in zip(rings, ends.tolist(), last.tolist()):
+        if end != r._end:
+            r._end = end
+            r.last_t = t
+    return True
+
+
+def _scatter_kept(ring: np.ndarray, ts: np.ndarray, vs: np.ndarray, keep: np.ndarray, start: int, stop: int,
+                  t0: np.ndarray, v0: np.ndarray, t1: np.ndarray, v1: np.ndarray, t2: np.ndarray, v2: np.ndarray,
+                  t3: np.ndarray, v3: np.ndarray, ends: np.ndarray, last: np.ndarray) -> bool:
+    """append_each's samples written after each ring's end (ends[k]; ring k's arrays t_k, v_k) in order; ends moved
+    past them, last[k] the newest time written to ring k. False, nothing written, where an index is not 0-3 or a
+    ring has no room for all of its samples."""
+    n = np.zeros(4, dtype=np.int64)
+    for i in range(start, stop):
+        if keep[i]:
+            k = ring[i]
+            if k < 0 or k > 3:
+                return False
+            n[k] += 1
+    if ends[0] + n[0] > len(t0) or ends[1] + n[1] > len(t1) or ends[2] + n[2] > len(t2) or ends[3] + n[3] > len(t3):
+        return False
+    for i in range(start, stop):
+        if keep[i]:
+            k = ring[i]
+            e = ends[k]
+            if k == 0:
+                t0[e], v0[e] = ts[i], vs[i]
+            elif k == 1:
+                t1[e], v1[e] = ts[i], vs[i]
+            elif k == 2:
+                t2[e], v2[e] = ts[i], vs[i]
+            else:
+                t3[e], v3[e] = ts[i], vs[i]
+            ends[k] = e + 1
+            last[k] = ts[i]
+    return True
+
+
+scatter_kept = kernel(_scatter_kept, "boolean(int64[:], float64[:], float64[:], boolean[:], int64, int64, "
+                      + ", ".join(["float64[:]"] * 8) + ", int64[:], float64[:])")
+"""scatter_kept()(ring, ts, vs, keep, start, stop, t0, v0, ..., t3, v3, ends, last): see _scatter_kept (append_each)."""
 
 
 def first_index(t: np.ndarray, x: float, lo: int, after: bool) -> int:

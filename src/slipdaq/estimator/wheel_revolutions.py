@@ -11,7 +11,7 @@ import numpy as np
 from slipdaq import WHEELS
 from slipdaq.compiled import kernel
 from slipdaq.estimator.numpy_rules import interp_at, search_with_guess
-from slipdaq.estimator.ring import SeriesRing, first_index, longest_gap_of
+from slipdaq.estimator.ring import SeriesRing, append_each, first_index, longest_gap_of
 
 TWO_PI = 2.0 * math.pi
 MIN_GAP_S = 0.05
@@ -40,9 +40,6 @@ class WheelWindows:
         self.rings = [SeriesRing(4096) for _ in WHEELS]
         """By wheel index (WHEELS order)."""
         self.by_wheel = dict(zip(WHEELS, self.rings))
-        self._ends = np.zeros(len(WHEELS), dtype=np.int64)
-        self._last = np.zeros(len(WHEELS), dtype=np.float64)
-        """append's scratch: the rings' ends, and each one's newest time written."""
 
     def last_times(self) -> list[float]:
         return [r.last_t for r in self.rings]
@@ -54,16 +51,7 @@ class WheelWindows:
             if keep[start]:
                 self.rings[wheel[start]].append(time_s[start], revolutions[start])
             return
-        a, b, c, d = self.rings
-        ends, last = self._ends, self._last
-        ends[0], ends[1], ends[2], ends[3] = a._end, b._end, c._end, d._end
-        if scatter_kept()(wheel, time_s, revolutions, keep, start, stop, a._t, a._v, b._t, b._v, c._t, c._v, d._t,
-                          d._v, ends, last):  # room in every ring: the samples written, as extend() writes them
-            for k, ring in enumerate(self.rings):
-                end = int(ends[k])
-                if end != ring._end:
-                    ring._end = end
-                    ring.last_t = float(last[k])
+        if append_each(self.rings, wheel, time_s, revolutions, keep, start, stop):
             return
         kept = np.flatnonzero(keep[start:stop])
         w = wheel[start:stop][kept]
@@ -98,49 +86,6 @@ class WheelWindows:
             if code == ARC_GAP:
                 gaps.append(w)
         return out, tuple(gaps)
-
-
-def _scatter_kept(wheel: np.ndarray, time_s: np.ndarray, revolutions: np.ndarray, keep: np.ndarray, start: int,
-                  stop: int, t0: np.ndarray, v0: np.ndarray, t1: np.ndarray, v1: np.ndarray, t2: np.ndarray,
-                  v2: np.ndarray, t3: np.ndarray, v3: np.ndarray, ends: np.ndarray, last: np.ndarray) -> bool:
-    """The kept samples start..stop, each after its wheel's ring's end (ends[k]; the rings' arrays t_k, v_k), in
-    record order; ends moved past them and last[k] the newest time written to ring k. False, nothing written, where
-    a wheel index is not one of the four or a ring has no room for all of its samples (SeriesRing.extend's fast path
-    for every ring, or that method)."""
-    n = np.zeros(4, dtype=np.int64)
-    for i in range(start, stop):
-        if keep[i]:
-            w = wheel[i]
-            if w < 0 or w > 3:
-                return False
-            n[w] += 1
-    if ends[0] + n[0] > len(t0) or ends[1] + n[1] > len(t1) or ends[2] + n[2] > len(t2) or ends[3] + n[3] > len(t3):
-        return False
-    for i in range(start, stop):
-        if keep[i]:
-            w = wheel[i]
-            e = ends[w]
-            if w == 0:
-                t0[e] = time_s[i]
-                v0[e] = revolutions[i]
-            elif w == 1:
-                t1[e] = time_s[i]
-                v1[e] = revolutions[i]
-            elif w == 2:
-                t2[e] = time_s[i]
-                v2[e] = revolutions[i]
-            else:
-                t3[e] = time_s[i]
-                v3[e] = revolutions[i]
-            ends[w] = e + 1
-            last[w] = time_s[i]
-    return True
-
-
-scatter_kept = kernel(_scatter_kept, "boolean(int64[:], float64[:], float64[:], boolean[:], int64, int64, "
-                      + ", ".join(["float64[:]"] * 8) + ", int64[:], float64[:])")
-"""scatter_kept()(wheel, time_s, revolutions, keep, start, stop, t0, v0, ..., t3, v3, ends, last): see _scatter_kept
-(WheelWindows.append)."""
 
 
 ARC_NONE, ARC_GAP, ARC = 0, 1, 2
