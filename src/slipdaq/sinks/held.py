@@ -11,8 +11,10 @@ from typing import Any, TypeVar
 
 from slipdaq.sinks import SINK_CALLS, Sink
 
-HOLD_MAX_CALLS = 4096
-"""More calls held than this: the first awaited result is waited for (what is held stays bounded)."""
+HOLD_MAX_CALLS = 16384
+"""More calls held than this: the first awaited result is waited for (what is held stays bounded). A replay makes
+about 240 calls a second of 4 x 1 kHz, so this is about a minute of log: a run whose summaries fall behind while the
+second core is busy (a two-pass replay's second pass) goes on meanwhile rather than waiting (docs/performance.md)."""
 
 
 T = TypeVar("T")
