@@ -35,6 +35,7 @@ of 4 WPT messages at 1 kHz and 20 Hz NMEA take 32 MB raw, 122 MB as a run record
 kept for the second (in the run and, a log's process feeding them, there too: about twice the raw data in each). A
 log's process feeds no longer log; past it, FedPasses's second pass reads and decodes the log itself."""
 
+
 def fed_whole(log: str | Path) -> bool:
     """The log's messages take at most FEED_BYTES uncompressed (its summary's chunk indexes); False for a log without
     a summary (not finished: its size is not known before it is read)."""
