@@ -20,6 +20,7 @@ KERNEL_MODULES = (
     "slipdaq.estimator.ring",
     "slipdaq.estimator.smoother",
     "slipdaq.estimator.wheel_revolutions",
+    "slipdaq.maneuver.linearity",
 )
 """The modules that define a kernel (tests/compiled/test_ahead.py checks the list against every module of
 slipdaq). Named, not imported: they import this package."""

@@ -33,10 +33,14 @@ Linear region and the end of linearity (per wheel and maneuver), the exact rule
 from __future__ import annotations
 
 import math
+import operator
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
+from slipdaq.compiled import kernel
 from slipdaq.config import EstimatorConfig
 
 _ESTIMATOR_DEFAULTS = EstimatorConfig()
@@ -96,25 +100,130 @@ class Linearity:
         return f"ends at {abs(self.end_slip) * 100:.1f} % slip"
 
 
+SQUARE = 2.0
+"""The kernels' power of a residual, an argument so that numba calls libm's pow as Python's ** does (with the
+constant 2 it multiplies, which rounds differently for about 1 value in 1,200)."""
+
+
+def _line_sums(s: np.ndarray, f: np.ndarray, w: np.ndarray, square: float, out: np.ndarray) -> None:
+    """out = (Σw, the weighted means of f and s, Sff, Sfs, Sss: the weighted sums of squares and products about
+    them) of the points (s, f) with weights w (at least one), each sum added left to right as Python's sum()."""
+    sw = wf = ws = 0.0
+    for i in range(s.size):
+        sw += w[i]
+        wf += w[i] * f[i]
+        ws += w[i] * s[i]
+    f_mean = wf / sw
+    s_mean = ws / sw
+    sff = sfs = sss = 0.0
+    for i in range(s.size):
+        sff += w[i] * math.pow(f[i] - f_mean, square)
+        sfs += w[i] * (f[i] - f_mean) * (s[i] - s_mean)
+        sss += w[i] * math.pow(s[i] - s_mean, square)
+    out[0], out[1], out[2], out[3], out[4], out[5] = sw, f_mean, s_mean, sff, sfs, sss
+
+
+line_sums = kernel(_line_sums, "void(float64[:], float64[:], float64[:], float64, float64[:])")
+
+
+def _line_rss(s: np.ndarray, f: np.ndarray, w: np.ndarray, a: float, b: float, square: float) -> float:
+    """Σ w·(s − a − b·f)², left to right."""
+    rss = 0.0
+    for i in range(s.size):
+        rss += w[i] * math.pow(s[i] - a - b * f[i], square)
+    return rss
+
+
+line_rss = kernel(_line_rss, "float64(float64[:], float64[:], float64[:], float64, float64, float64)")
+
+
+def _origin_sums(s: np.ndarray, f: np.ndarray, square: float, out: np.ndarray) -> None:
+    """out = (Σs², Cx = Σs·f / Σs², Σ(f − Cx·s)²), left to right; Cx and the residual only where Σs² > 0."""
+    sss = ssf = 0.0
+    for i in range(s.size):
+        sss += s[i] * s[i]
+        ssf += s[i] * f[i]
+    out[0] = sss
+    if sss <= 0:
+        return
+    cx = ssf / sss
+    resid = 0.0
+    for i in range(s.size):
+        resid += math.pow(f[i] - cx * s[i], square)
+    out[1], out[2] = cx, resid
+
+
+origin_sums = kernel(_origin_sums, "void(float64[:], float64[:], float64, float64[:])")
+
+
+def _speed_weights(v: np.ndarray, reference_mps: float, square: float, out: np.ndarray) -> None:
+    """out = (max(v, 0.5) / max(reference_mps, 0.5))² for each speed, as Python's max() and ** take them."""
+    ref = 0.5 if 0.5 > reference_mps else reference_mps
+    for i in range(v.size):
+        x = 0.5 if 0.5 > v[i] else v[i]
+        out[i] = math.pow(x / ref, square)
+
+
+speed_weights_kernel = kernel(_speed_weights, "void(float64[:], float64, float64, float64[:])")
+
+
+def _sum(x: np.ndarray) -> float:
+    """Python's sum() of the values: added left to right from 0 (never −0.0)."""
+    return float(np.cumsum(x)[-1]) + 0.0 if x.size else 0.0
+
+
+def _median(x: np.ndarray) -> float:
+    """statistics.median of the values (at least one)."""
+    if np.isnan(x).any():
+        return float(statistics.median(x.tolist()))
+    y = np.sort(x)
+    i = y.size // 2
+    return float(y[i]) if y.size % 2 else float((y[i - 1] + y[i]) / 2)
+
+
+def _variance(x: np.ndarray) -> float:
+    """statistics.variance of the values (at least two), the same float: the exact sum of squared deviations over
+    n − 1, rounded once (its formula, in integers: the values scaled by one power of two to integers)."""
+    _, exp = np.frexp(x)
+    low = int(exp.min()) - 53  # x = m·2^e with |m| < 1 of 53 bits: x·2^-low is an integer
+    if not np.isfinite(x).all() or int(exp.max()) - low > 1023:
+        return float(statistics.variance(x.tolist()))
+    ints = [int(v) for v in np.ldexp(x, -low).tolist()]
+    n = len(ints)
+    num = n * sum(map(operator.mul, ints, ints)) - sum(ints) ** 2
+    den = n * (n - 1)
+    return num / (den << -2 * low) if low < 0 else (num << 2 * low) / den
+
+
+def _array(values: Sequence[float | None] | np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.float64)
+
+
 def fit_through_origin(points: Sequence[tuple[float, float]]) -> LineFit | None:
     """Least squares Fx = Cx·s through the origin; None for fewer than 2 points."""
-    if len(points) < 2:
+    pairs = np.array(points, dtype=np.float64).reshape(-1, 2)
+    return _through_origin(_array(pairs[:, 0]), _array(pairs[:, 1]))
+
+
+def _through_origin(s: np.ndarray, f: np.ndarray) -> LineFit | None:
+    if s.size < 2:
         return None
-    sss = sum(s * s for s, _ in points)
+    out = np.zeros(3)
+    origin_sums()(s, f, SQUARE, out)
+    sss, cx, resid = out.tolist()
     if sss <= 0:
         return None
-    cx = sum(s * f for s, f in points) / sss
-    resid = sum((f - cx * s) ** 2 for s, f in points)
-    stderr = math.sqrt(resid / (len(points) - 1) / sss)
-    return LineFit(cx, stderr, len(points))
+    stderr = math.sqrt(resid / (s.size - 1) / sss)
+    return LineFit(cx, stderr, s.size)
 
 
 MIN_SLOPE_T = 3.0
 """The slip-on-force slope must be this many standard errors above 0."""
 
 
-def fit_slip_on_force(points: Sequence[tuple[float, float]], noise: tuple[float, float] | None = None,
-                      weights: Sequence[float] | None = None) -> LineFit | None:
+def fit_slip_on_force(slip: Sequence[float] | np.ndarray, force: Sequence[float] | np.ndarray,
+                      noise: tuple[float, float] | None = None,
+                      weights: Sequence[float] | np.ndarray | None = None) -> LineFit | None:
     """s = s0 + Fx/Cx, slip the regressand; None for fewer than 3 points or no positive slope.
 
     weights: per point (default 1): the slip's noise variance is var_s/w (a GPS speed noise in m/s makes a slip noise
@@ -124,27 +233,25 @@ def fit_slip_on_force(points: Sequence[tuple[float, float]], noise: tuple[float,
         b = (Sss - lambda Sff + sqrt((Sss - lambda Sff)^2 + 4 lambda Sfs^2)) / (2 Sfs)
     (Sff, Sss, Sfs: weighted sums of squares and products about the weighted means). Without noise: weighted least
     squares of s on Fx."""
-    n = len(points)
+    s, f = _array(slip), _array(force)
+    n = s.size
     if n < 3:
         return None
-    w = [1.0] * n if weights is None else list(weights)
-    sw = sum(w)
-    f_mean = sum(wi * f for wi, (_, f) in zip(w, points)) / sw
-    s_mean = sum(wi * s for wi, (s, _) in zip(w, points)) / sw
-    sff = sum(wi * (f - f_mean) ** 2 for wi, (_, f) in zip(w, points))
+    w = np.ones(n) if weights is None else _array(weights)
+    sums = np.empty(6)
+    line_sums()(s, f, w, SQUARE, sums)
+    _, f_mean, s_mean, sff, sfs, sss = sums.tolist()
     if sff <= 0:
         return None
-    sfs = sum(wi * (f - f_mean) * (s - s_mean) for wi, (s, f) in zip(w, points))
     b = sfs / sff
     method = "slip on force"
     if noise is not None and noise[0] > 0 and noise[1] > 0 and sfs > 0:
         lam = noise[0] / noise[1]
-        sss = sum(wi * (s - s_mean) ** 2 for wi, (s, _) in zip(w, points))
         d = sss - lam * sff
         b = (d + math.sqrt(d * d + 4.0 * lam * sfs * sfs)) / (2.0 * sfs)
         method = "errors-in-variables"
     a = s_mean - b * f_mean
-    resid = sum(wi * (s - a - b * f) ** 2 for wi, (s, f) in zip(w, points))
+    resid = line_rss()(s, f, w, a, b, SQUARE)
     se_b = math.sqrt(resid / (n - 2) / sff)
     if b <= MIN_SLOPE_T * se_b:  # no force spread beyond the noise (one cluster): no slope to take
         return None
@@ -155,22 +262,35 @@ MIN_NOISE_ANCHORS = 10
 """The cruise windows give the slip's and the force's noise (their spread about their means) from this many on."""
 
 
-def anchor_noise(anchors: Sequence[tuple[float, float]], weights: Sequence[float] | None = None
-                 ) -> tuple[float, float] | None:
+def anchor_noise(slip: Sequence[float] | np.ndarray, force: Sequence[float] | np.ndarray,
+                 weights: Sequence[float] | np.ndarray | None = None) -> tuple[float, float] | None:
     """(var_s at weight 1, var_F) of the cruise windows: there the true force hardly changes, so their spread is the
     noise of each (an upper bound: a drift of the true value adds to it); None with fewer than MIN_NOISE_ANCHORS."""
-    n = len(anchors)
+    s, f = _array(slip), _array(force)
+    n = s.size
     if n < MIN_NOISE_ANCHORS:
         return None
-    w = [1.0] * n if weights is None else list(weights)
-    s_mean = sum(wi * s for wi, (s, _) in zip(w, anchors)) / sum(w)
-    var_s = sum(wi * (s - s_mean) ** 2 for wi, (s, _) in zip(w, anchors)) / (n - 1)
-    return var_s, statistics.variance([f for _, f in anchors])
+    sums = np.empty(6)
+    line_sums()(s, f, np.ones(n) if weights is None else _array(weights), SQUARE, sums)
+    return float(sums[5]) / (n - 1), _variance(f)
 
 
-def speed_weights(speeds: Sequence[float], reference_mps: float) -> list[float]:
+def speed_weights(speeds: Sequence[float] | np.ndarray, reference_mps: float) -> np.ndarray:
     """(V/V_ref)^2: the inverse of a window's slip noise variance (GPS speed noise / V), relative to V_ref."""
-    return [(max(v, 0.5) / max(reference_mps, 0.5)) ** 2 for v in speeds]
+    v = _array(speeds)
+    out = np.empty(v.size)
+    speed_weights_kernel()(v, float(reference_mps), SQUARE, out)
+    return out
+
+
+def _defined(pairs: Sequence[tuple[float | None, float | None]], speeds: Sequence[float | None]
+             ) -> tuple[np.ndarray, np.ndarray, tuple[float | None, ...]]:
+    """(s, f, speed) of the pairs with both defined, the speeds as given."""
+    rows = [(s, f, v) for (s, f), v in zip(pairs, speeds) if s is not None and f is not None]
+    if not rows:
+        return np.empty(0), np.empty(0), ()
+    s, f, v = zip(*rows)
+    return _array(s), _array(f), v
 
 
 def analyse_linearity(
@@ -182,48 +302,43 @@ def analyse_linearity(
     the log's cruise windows; speeds, anchor_speeds: the windows' speeds (the line's weights, speed_weights)."""
     spd = list(speeds) if speeds is not None else [None] * len(slips)
     aspd = list(anchor_speeds) if anchor_speeds is not None else [None] * len(anchors)
-    weighted = all(v is not None for s, f, v in zip(slips, forces, spd) if s is not None and f is not None) and \
-        all(v is not None for (s, f), v in zip(anchors, aspd) if s is not None and f is not None)
-    # (slip, force, speed); the speed 1.0 for all when some is missing (unweighted)
-    both = [(s, f, float(v) if weighted and v is not None else 1.0) for s, f, v in zip(slips, forces, spd)
-            if s is not None and f is not None]
-    sign = 1.0 if sum(f for _, f, _ in both) >= 0 else -1.0
-    anchor = [(s, f, float(v) if weighted and v is not None else 1.0) for (s, f), v in zip(anchors, aspd)
-              if s is not None and f is not None]
-    pts = sorted(
-        ((s, f) for s, f in zip(slips, forces)
-         if s is not None and f is not None and abs(s) >= rule.slip_min and s * f > 0),
-        key=lambda p: abs(p[0]),
-    )
-    if not pts:
+    pairs = list(zip(slips, forces))
+    # (slip, force, speed) of the windows and the anchors; the speed 1.0 for all when some is missing (unweighted)
+    b_s, b_f, b_spd = _defined(pairs, spd)
+    a_s, a_f, a_spd = _defined(anchors, aspd)
+    weighted = None not in b_spd and None not in a_spd
+    b_v = _array(b_spd) if weighted else np.ones(b_s.size)
+    a_v = _array(a_spd) if weighted else np.ones(a_s.size)
+    sign = 1.0 if _sum(b_f) >= 0 else -1.0
+    both = np.array(pairs, dtype=np.float64).reshape(-1, 2)  # None: NaN, which no comparison keeps
+    s_all, f_all = both[:, 0], both[:, 1]
+    with np.errstate(invalid="ignore"):
+        keep = (np.abs(s_all) >= rule.slip_min) & (s_all * f_all > 0)
+    order = np.flatnonzero(keep)
+    order = order[np.argsort(np.abs(s_all[order]), kind="stable")]
+    p_s, p_f = s_all[order], f_all[order]
+    p_abs = np.abs(p_s)
+    if not p_s.size:
         return Linearity(0, None)
-    bins: dict[int, list[tuple[float, float]]] = {}
-    for p in pts:
-        bins.setdefault(math.floor(abs(p[0]) / rule.bin_width), []).append(p)
-    kept = [(j, b) for j, b in sorted(bins.items()) if len(b) >= rule.min_bin_points]
+    # bins by |s|: contiguous runs of the points sorted by |s|; kept: (index, start, stop) of the full ones
+    keys = np.floor(p_abs / rule.bin_width)
+    starts = [0, *(np.flatnonzero(np.diff(keys)) + 1).tolist(), p_s.size]
+    kept = [(int(keys[a]), a, b) for a, b in zip(starts, starts[1:]) if b - a >= rule.min_bin_points]
+    bin_f = [_median(np.abs(p_f[a:b])) for _, a, b in kept]
+    bin_s = [_median(p_abs[a:b]) for _, a, b in kept]
 
     fit_max = rule.slip_max
     line: LineFit | None = None
-    end: tuple[int, list[tuple[float, float]]] | None = None
+    end: tuple[int, int, int] | None = None
     for _ in range(rule.max_refits):
-        fit_pts = [p for p in pts if abs(p[0]) <= fit_max]
-        if len(fit_pts) < rule.min_fit_points:
+        n_fit = int(np.searchsorted(p_abs, fit_max, side="right"))
+        if n_fit < rule.min_fit_points:
             break
-        kept_anchors = [p for p in anchor if abs(p[0]) <= fit_max]
-        fit_both = [p for p in both if p[1] * sign > 0 and abs(p[0]) <= fit_max] + kept_anchors
-        v_ref = statistics.median(p[2] for p in kept_anchors) if kept_anchors else 1.0
-        line = (fit_slip_on_force([(s, f) for s, f, _ in fit_both],
-                                  anchor_noise([(s, f) for s, f, _ in kept_anchors],
-                                               speed_weights([p[2] for p in kept_anchors], v_ref)),
-                                  speed_weights([p[2] for p in fit_both], v_ref)) if anchor else None) \
-            or fit_through_origin(fit_pts)
+        line = _line_of(b_s, b_f, b_v, a_s, a_f, a_v, sign, fit_max) if a_s.size else None
+        line = line or _through_origin(p_s[:n_fit], p_f[:n_fit])
         if line is None:
             break
-        below = [
-            statistics.median(abs(f) for _, f in b)
-            < (1.0 - rule.tolerance) * abs(line.force_n(sign * statistics.median(abs(s) for s, _ in b)))
-            for _, b in kept
-        ]
+        below = [fb < (1.0 - rule.tolerance) * abs(line.force_n(sign * sb)) for fb, sb in zip(bin_f, bin_s)]
         end = None
         for i in range(len(kept) - rule.min_end_bins + 1):
             if all(below[i:]):
@@ -234,25 +349,39 @@ def analyse_linearity(
         edge = end[0] * rule.bin_width
         if edge > fit_max:  # the end lies beyond the fitted points: the line is clean
             break
-        if sum(abs(p[0]) < edge for p in pts) < rule.min_fit_points:
+        if np.count_nonzero(p_abs < edge) < rule.min_fit_points:
             break
         fit_max = math.nextafter(edge, 0.0)
     if line is None:
-        return Linearity(len(pts), None)
-    if end is None:
-        linear = pts
-        end_slip = end_force = None
-    else:
-        edge = end[0] * rule.bin_width
-        linear = [p for p in pts if abs(p[0]) < edge]
-        sign = 1.0 if sum(s for s, _ in end[1]) > 0 else -1.0
-        end_slip = sign * statistics.median(abs(s) for s, _ in end[1])
-        end_force = sign * statistics.median(abs(f) for _, f in end[1])
-    peak = max(linear, key=lambda p: abs(p[1]), default=None)
+        return Linearity(p_s.size, None)
+    end_slip = end_force = None
+    linear = p_s.size
+    if end is not None:
+        linear = int(np.count_nonzero(p_abs < end[0] * rule.bin_width))
+        _, a, b = end
+        sign = 1.0 if _sum(p_s[a:b]) > 0 else -1.0
+        end_slip = sign * _median(p_abs[a:b])
+        end_force = sign * _median(np.abs(p_f[a:b]))
+    # the point of largest |Fx| among the first `linear` (sorted by |s|: those below the end's edge); the first such
+    peak = int(np.argmax(np.abs(p_f[:linear]))) if linear else None
     return Linearity(
-        len(pts), line, end_slip, end_force,
-        peak[1] if peak else None, peak[0] if peak else None,
+        p_s.size, line, end_slip, end_force,
+        float(p_f[peak]) if peak is not None else None, float(p_s[peak]) if peak is not None else None,
     )
+
+
+def _line_of(b_s: np.ndarray, b_f: np.ndarray, b_v: np.ndarray, a_s: np.ndarray, a_f: np.ndarray, a_v: np.ndarray,
+             sign: float, fit_max: float) -> LineFit | None:
+    """Rule step 2's slip-on-force line: the maneuver's windows with its force's sign and the cruise windows, both
+    with |s| <= fit_max, weighted by speed about the cruise windows' median speed (1.0 without them)."""
+    with np.errstate(invalid="ignore"):
+        ka = np.abs(a_s) <= fit_max
+        kb = (b_f * sign > 0) & (np.abs(b_s) <= fit_max)
+    ks, kf, kv = a_s[ka], a_f[ka], a_v[ka]
+    v_ref = _median(kv) if kv.size else 1.0
+    return fit_slip_on_force(np.concatenate((b_s[kb], ks)), np.concatenate((b_f[kb], kf)),
+                             anchor_noise(ks, kf, speed_weights(kv, v_ref)),
+                             speed_weights(np.concatenate((b_v[kb], kv)), v_ref))
 
 
 def peak_binned(points: Sequence[tuple[float, float]], rule: LinearityRule) -> tuple[float | None, float | None]:
