@@ -382,10 +382,9 @@ class Pipeline:
     def _estimate(self, e: Estimate, log_time_s: float) -> None:
         self.estimates += 1
         self._out.on_estimate(e, log_time_s)
-        row = e.as_row()
         if self._detect:
-            self._maneuvers(self.maneuvers.add_estimate(row), log_time_s)
-        coast = self.coasts.add_estimate(row)
+            self._maneuvers(self.maneuvers.add_estimate(e.as_row()), log_time_s)
+        coast = self.coasts.add(e.time_s, e.speed_mps, e.source)
         if coast is not None:
             self._coast(coast, log_time_s)
 

@@ -168,8 +168,11 @@ class CoastDetector:
 
     def add_estimate(self, row: dict[str, Any]) -> CoastRun | None:
         """One estimate row; the coast it decides, if any."""
-        t, v = row.get("time_s"), row.get("speed_mps")
-        if t is None or v is None or row.get("source", "gps") != "gps" \
+        return self.add(row.get("time_s"), row.get("speed_mps"), row.get("source", "gps"))
+
+    def add(self, t: float | None, v: float | None, source: str | None) -> CoastRun | None:
+        """One estimate's time_s, speed_mps and source (its row's values); the coast it decides, if any."""
+        if t is None or v is None or source != "gps" \
                 or self._last_pressed_s >= (self._times[0] if self._times else t) - 0.5:
             self._restart()
             return None
