@@ -70,6 +70,8 @@ def test_effective_config_round_trips(cfg) -> None:  # type: ignore[no-untyped-d
         ("[gps]\nlatency_s = -0.1\n", "gps.latency_s", "0 to 5"),
         ("[wpt]\npulses_per_rev = \"many\"\n", "wpt.pulses_per_rev", "integer"),
         ("[estimator]\nwindow_s = 0\n", "estimator.window_s", "greater than 0"),
+        # slip divides by the GPS speed: at 0 a car at a standstill has none
+        ("[estimator]\nmin_speed_mps = 0\n", "estimator.min_speed_mps", "greater than 0"),
         ("[bogus]\nx = 1\n", "bogus", "unknown key"),
         ("[vehicle\n", "", "not valid TOML"),
     ],

@@ -209,7 +209,7 @@ class BrakeConfig(_CanSignalSection):
 class EstimatorConfig(_Section):
     window_s: float = Field(0.5, gt=0, le=10, description="length of an estimate's window")
     fast_rate_hz: float = Field(100.0, ge=0, le=1000, description="rate of the high-rate slip (/slip/fast); 0 = off")
-    min_speed_mps: float = Field(1.0, ge=0, description="below this GPS speed, slip, Re and Cx are undefined")
+    min_speed_mps: float = Field(1.0, gt=0, description="below this GPS speed, slip, Re and Cx are undefined")
     cx_slip_min: float = Field(0.005, ge=0, description="|slip| below this gives no Cx (Fx/s ill-conditioned)")
     cx_slip_max: float = Field(0.10, gt=0, description="|slip| above this is outside the linear region: no Cx")
     cx_fit_slip_spread_max: float = Field(0.015, gt=0, description="a window in which any wheel's slip varies more "
