@@ -11,11 +11,13 @@ import pickletools
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+import numpy as np
 import pytest
 
 from slipdaq.config import load_config
+from slipdaq.decode.can_wheels import WheelDecoder
 from slipdaq.offline.run import process
-from slipdaq.records import Estimate, GpsFix, WheelEstimate
+from slipdaq.records import CanFrame, CanFrameBatch, Estimate, GpsFix, NmeaLine, WheelEstimate
 from slipdaq.records.fast_rows import FastSlipBatch
 from slipdaq.records.pickling import by_fields
 from slipdaq.sim.emit import SimSettings, generate
@@ -38,9 +40,11 @@ class _Kept(Sink):
 
 
 def _same(a: Any, b: Any) -> bool:
-    """Field by field, NaN equal to NaN, records within records compared the same way."""
+    """Field by field, NaN equal to NaN, records within records compared the same way (arrays: dtype, shape, values)."""
     if type(a) is not type(b):
         return False
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
     if isinstance(a, float):
         return a == b or (math.isnan(a) and math.isnan(b))
     if isinstance(a, dict):
@@ -66,6 +70,24 @@ def test_a_replays_records_come_back_field_by_field() -> None:
     assert all(_same(a, b) for a, b in zip(kept.records, back, strict=True))
     ops = {op.name for op, _, _ in pickletools.genops(pickle.dumps(kept.records, protocol=pickle.HIGHEST_PROTOCOL))}
     assert "REDUCE" in ops and "BUILD" not in ops  # made by the class's call, no state set afterwards
+
+
+def test_a_first_pass_fed_records_come_back_field_by_field() -> None:
+    """What a two-pass run's first pass is fed (offline.first_pass_feed): NMEA lines, CAN frame batches and the wheel
+    decoder's samples, each made by its class's call."""
+    cfg = load_config(CONFIG)
+    records = [e.record for e in generate(cfg, "cycle", "paved", SimSettings(seed=4), duration_s=3.0)
+               if e.record is not None]
+    lines = [r for r in records if isinstance(r, NmeaLine)]
+    batch = CanFrameBatch.from_frames([r for r in records if isinstance(r, CanFrame)])
+    samples = WheelDecoder(cfg).decode_batch(batch)
+    fed = [lines, batch, batch.slice(3, 40), samples, samples.of_frames(3, 40)]
+    assert lines and len(batch) > 100 and len(samples) > 100
+    for record in (lines[0], batch, samples):  # made by the class's call with its fields' values
+        made, values = copyreg.dispatch_table[type(record)](record)
+        assert made is type(record) and _same(made(*values), record)
+    back = pickle.loads(pickle.dumps(fed, protocol=pickle.HIGHEST_PROTOCOL))
+    assert all(_same(a, b) for a, b in zip(fed, back, strict=True))
 
 
 def test_a_class_whose_init_does_not_take_every_field_is_refused() -> None:

@@ -495,5 +495,5 @@ class SourceEvent:
 
 
 EventHandler = Callable[[SourceEvent], None]
-by_fields(GpsFix, WheelEstimate, Estimate)
+by_fields(GpsFix, WheelEstimate, Estimate, NmeaLine, CanFrameBatch, WheelSampleBatch)
 

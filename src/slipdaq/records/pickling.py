@@ -1,6 +1,7 @@
 """Records pickled as a call of their class with their fields' values: a frozen dataclass with slots otherwise
 unpickles through dataclasses' __setstate__, a fields() lookup and an object.__setattr__ per field, about four times
-the time (what a replay's log process unpickles for each estimate: offline/log_process.py)."""
+the time (what a replay's log process unpickles for each estimate: offline/log_process.py; what a two-pass run's first
+pass is fed: offline/first_pass_feed.py)."""
 
 from __future__ import annotations
 
