@@ -167,20 +167,6 @@ def _speed_weights(v: np.ndarray, reference_mps: float, square: float, out: np.n
 speed_weights_kernel = kernel(_speed_weights, "void(float64[:], float64, float64, float64[:])")
 
 
-def _sum(x: np.ndarray) -> float:
-    """Python's sum() of the values: added left to right from 0 (never −0.0)."""
-    return float(np.cumsum(x)[-1]) + 0.0 if x.size else 0.0
-
-
-def _median(x: np.ndarray) -> float:
-    """statistics.median of the values (at least one)."""
-    if np.isnan(x).any():
-        return float(statistics.median(x.tolist()))
-    y = np.sort(x)
-    i = y.size // 2
-    return float(y[i]) if y.size % 2 else float((y[i - 1] + y[i]) / 2)
-
-
 def _variance(x: np.ndarray) -> float:
     """statistics.variance of the values (at least two), the same float: the exact sum of squared deviations over
     n − 1, rounded once (its formula, in integers: the values scaled by one power of two to integers)."""
@@ -309,7 +295,7 @@ def analyse_linearity(
     weighted = None not in b_spd and None not in a_spd
     b_v = _array(b_spd) if weighted else np.ones(b_s.size)
     a_v = _array(a_spd) if weighted else np.ones(a_s.size)
-    sign = 1.0 if _sum(b_f) >= 0 else -1.0
+    sign = 1.0 if sum(b_f.tolist()) >= 0 else -1.0
     both = np.array(pairs, dtype=np.float64).reshape(-1, 2)  # None: NaN, which no comparison keeps
     s_all, f_all = both[:, 0], both[:, 1]
     with np.errstate(invalid="ignore"):
@@ -324,8 +310,8 @@ def analyse_linearity(
     keys = np.floor(p_abs / rule.bin_width)
     starts = [0, *(np.flatnonzero(np.diff(keys)) + 1).tolist(), p_s.size]
     kept = [(int(keys[a]), a, b) for a, b in zip(starts, starts[1:]) if b - a >= rule.min_bin_points]
-    bin_f = [_median(np.abs(p_f[a:b])) for _, a, b in kept]
-    bin_s = [_median(p_abs[a:b]) for _, a, b in kept]
+    bin_f = [statistics.median(np.abs(p_f[a:b]).tolist()) for _, a, b in kept]
+    bin_s = [statistics.median(p_abs[a:b].tolist()) for _, a, b in kept]
 
     fit_max = rule.slip_max
     line: LineFit | None = None
@@ -359,9 +345,9 @@ def analyse_linearity(
     if end is not None:
         linear = int(np.count_nonzero(p_abs < end[0] * rule.bin_width))
         _, a, b = end
-        sign = 1.0 if _sum(p_s[a:b]) > 0 else -1.0
-        end_slip = sign * _median(p_abs[a:b])
-        end_force = sign * _median(np.abs(p_f[a:b]))
+        sign = 1.0 if sum(p_s[a:b].tolist()) > 0 else -1.0
+        end_slip = sign * statistics.median(p_abs[a:b].tolist())
+        end_force = sign * statistics.median(np.abs(p_f[a:b]).tolist())
     # the point of largest |Fx| among the first `linear` (sorted by |s|: those below the end's edge); the first such
     peak = int(np.argmax(np.abs(p_f[:linear]))) if linear else None
     return Linearity(
@@ -378,7 +364,7 @@ def _line_of(b_s: np.ndarray, b_f: np.ndarray, b_v: np.ndarray, a_s: np.ndarray,
         ka = np.abs(a_s) <= fit_max
         kb = (b_f * sign > 0) & (np.abs(b_s) <= fit_max)
     ks, kf, kv = a_s[ka], a_f[ka], a_v[ka]
-    v_ref = _median(kv) if kv.size else 1.0
+    v_ref = statistics.median(kv.tolist()) if kv.size else 1.0
     return fit_slip_on_force(np.concatenate((b_s[kb], ks)), np.concatenate((b_f[kb], kf)),
                              anchor_noise(ks, kf, speed_weights(kv, v_ref)),
                              speed_weights(np.concatenate((b_v[kb], kv)), v_ref))
