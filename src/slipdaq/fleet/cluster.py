@@ -43,6 +43,17 @@ from distributed.diagnostics.plugin import WorkerPlugin  # noqa: E402
 
 ALLOWED_FAILURES = 1
 """A task is retried once on another worker after its worker died, then reported failed."""
+DASHBOARD_OFF = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.admin.tick.interval": "1s",
+    "distributed.scheduler.work-stealing": False,
+}
+"""The local cluster's processes without what only the dashboard (not started) reads: the statistical profiler (a
+stack sample of every thread every 10 ms, in each worker, the task's thread held meanwhile), the system monitor's
+CPU, memory, disk and network samples (every 500 ms in each process) and the event loop's health tick (every 20 ms);
+and without work stealing, which has nothing to steal: fleet.feed has no more tasks out than the cluster has threads.
+The workers' memory monitor (their memory limit) keeps its interval."""
 
 
 @contextlib.contextmanager
@@ -78,7 +89,7 @@ def _client(client_cls: Any, cluster_cls: Any, scheduler: str | None, workers: i
     _warm_here()
     n = workers or os.cpu_count() or 1
     with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
-                          "distributed.worker.multiprocessing-method": "fork"}):
+                          "distributed.worker.multiprocessing-method": "fork", **DASHBOARD_OFF}):
         with cluster_cls(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                          silence_logs=logging.ERROR) as cluster, client_cls(cluster) as client:
             yield client
