@@ -109,7 +109,8 @@ class _Parts:
 class Pipeline:
     def __init__(self, config: Config, sinks: Sequence[Sink], *, calibration: Calibration | None = None,
                  frozen: bool = False, gps_speeds: Sequence[float] | None = None, maneuvers: bool = True,
-                 maneuver_executor: Executor | None = None, hold_output: bool = False, fast_slip: bool = True) -> None:
+                 maneuver_executor: Executor | None = None, hold_output: bool = False, fast_slip: bool = True,
+                 wheel_estimates: bool = True) -> None:
         """calibration: the stored calibration the estimator starts from (frozen: uses throughout, a second pass);
         gps_speeds: the speed the estimator takes for each GPS fix in turn, in place of the fix's own (a second
         pass's smoothed speeds); the sinks get the fixes as decoded. maneuvers=False: no maneuver is summarized (a
@@ -118,7 +119,9 @@ class Pipeline:
         to the sinks, in order, with the first record processed after it is ready (its log time then); without one,
         at once (replay, import: the log time of the record that decided it). hold_output (an executor in another
         process): its record goes to the sinks as it would at once, their later calls held until it is in (sinks.held).
-        fast_slip=False: no /slip/fast rows (a pass that keeps none: the first; SlipEstimator's fast_rows)."""
+        fast_slip=False: no /slip/fast rows (a pass that keeps none: the first; SlipEstimator's fast_rows).
+        wheel_estimates=False: estimates without their wheels (a pass whose sinks take no estimate: the first;
+        SlipEstimator's wheels)."""
         self.config = config
         self.sinks = list(sinks)
         self._out: Sink = SinkFanout(self.sinks)
@@ -135,7 +138,8 @@ class Pipeline:
         self._velocity_from: type | tuple[()] = () if config.gps.source == "can" else \
             NmeaLine if config.gps.velocity == "nmea" else UbxFrame
         """The raw records whose fixes are the reference speed (none: it comes from CAN)."""
-        self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen, fast_rows=fast_slip)
+        self.estimator = SlipEstimator(EstimatorParams.from_config(config), calibration, frozen, fast_rows=fast_slip,
+                                       wheels=wheel_estimates)
         self.maneuvers = ManeuverDetector(config, phases=MANEUVER_KINDS if maneuvers else ())
         self._detect = maneuvers
         """Decides each accelerate or brake maneuver as it ends (the report's rule); sinks get its /maneuver record."""

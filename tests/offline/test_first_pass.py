@@ -1,5 +1,5 @@
 """The first pass of a two-pass run makes only what it keeps (offline.first_pass): no high-rate slip rows, nothing
-for the maneuver detector, no record for sinks that take none. It must learn exactly what a pass that makes
+for the maneuver detector, no wheel's estimate, no record for sinks that take none. It must learn exactly what a pass that makes
 everything learns: the same estimates, calibration and events, also where a stored latency is dropped on the way
 (the latency is brought up to date at each fix as making the high-rate rows does)."""
 
@@ -35,11 +35,13 @@ class _Kept(Sink):
 
     def __init__(self) -> None:
         self.rows: list[dict[str, Any]] = []
+        self.estimates: list[Estimate] = []
         self.events: list[SourceEvent] = []
         self.fast = 0
 
     def on_estimate(self, estimate: Estimate, log_time_s: float) -> None:
         self.rows.append(estimate.as_row() | {"log_time_s": log_time_s})
+        self.estimates.append(estimate)
 
     def on_fast_slip_rows(self, rows: Any, log_time_s: float) -> None:
         self.fast += len(rows)
@@ -79,6 +81,13 @@ def test_the_first_pass_learns_what_a_full_pass_learns(stored: str) -> None:
         assert any("GPS latency" in e.detail for e in kept.events)
     assert lean.estimator.learned() == full.estimator.learned()
     assert dataclasses.asdict(lean.diagnostics()) == dataclasses.asdict(full.diagnostics())
+    bare, no_wheels = _run(cfg, records, start, maneuvers=False, fast_slip=False, wheel_estimates=False)
+    assert all(not e.wheels for e in no_wheels.estimates)  # every wheel's window into its fits, no WheelEstimate
+    assert no_wheels.estimates == [dataclasses.replace(e, wheels={}) for e in everything.estimates]
+    assert any(e.wheels["FL"].slip is not None for e in everything.estimates)
+    assert no_wheels.events == everything.events
+    assert bare.estimator.learned() == full.estimator.learned()
+    assert dataclasses.asdict(bare.diagnostics()) == dataclasses.asdict(full.diagnostics())
     got = first_pass(cfg, records, start, "log")
     assert got.learned == full.estimator.learned()
 

@@ -49,9 +49,9 @@ from slipdaq.estimator.readiness import (
     scan_samples,
 )
 from slipdaq.estimator.run_calibration import RunCalibration, driven_tire_force_n, stored_road_loads
-from slipdaq.estimator.wheel_estimate import wheel_estimate
+from slipdaq.estimator.wheel_estimate import learn_wheel, wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
-from slipdaq.estimator.window_measure import measure_window
+from slipdaq.estimator.window_measure import UNCALIBRATED_R0, measure_window
 from slipdaq.records import Estimate, GpsFix, SourceEvent, WheelSample
 from slipdaq.records.fast_rows import FastSlipBatch
 
@@ -71,12 +71,13 @@ class SlipEstimator:
     """
 
     def __init__(self, params: EstimatorParams, stored: Calibration | None = None, frozen: bool = False,
-                 fast_rows: bool = True) -> None:
+                 fast_rows: bool = True, wheels: bool = True) -> None:
         """stored: a calibration to start from (used until the run measures better, dropped where the run contradicts
         it); frozen: use the stored latency and radii throughout and learn none (the second pass of a replay);
         fast_rows=False: no high-rate slip rows (the first pass of a replay, which keeps none): the latency in use is
         still brought up to date at each fix, as making them does, so that the estimates and what the run learns
-        stay the same."""
+        stay the same; wheels=False: estimates without their wheels (a pass that keeps none: the first), each
+        wheel's window still into its fits, so that what the run learns stays the same."""
         self.p = params
         self._track = GpsTrack()
         self._grade = AltitudeGrade()
@@ -106,6 +107,7 @@ class SlipEstimator:
         self._fast = FastSlipRows(params.fast_rate_hz, params.min_speed_mps) \
             if params.fast_rate_hz > 0 and fast_rows else None
         self._fast_skipped = params.fast_rate_hz > 0 and not fast_rows
+        self._wheels = wheels
         self.fast_rows: list[FastSlipBatch] = []
         """The high-rate slip rows released and not yet taken (take_fast: the pipeline's, for /slip/fast), a batch per
         fix that released some."""
@@ -287,13 +289,21 @@ class SlipEstimator:
                              driven_tire_force_n(p, self.road_loads, win.force_n, len(self._driven)))
         cal.check_stored(track.last_t)
         r0 = cal.r0_all()
-        slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
         spread = WindowSpread(self._windows.rings, win.t0, win.t1)
+        self._last_center_s = win.t_c
+        if not self._wheels:
+            uncalibrated = False
+            for w in WHEELS:
+                r0_m, source = r0[w]
+                if learn_wheel(p, cal.stiffness[w], win.arcs[w], r0_m, win.d_slip_m, win.tire_force_n.get(w),
+                               win.speed_mps, win.weight, spread) is not None and source in UNCALIBRATED_R0:
+                    uncalibrated = True
+            return win.estimate({}, lat, p.window_s, uncalibrated)
+        slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
         wheels = {w: wheel_estimate(p, cal.stiffness[w], win.arcs[w], r0[w], win.d_slip_m, win.tire_force_n.get(w),
                                     win.speed_mps, win.weight, slip_nd.get(w), cal.stored_cx.get(w),
                                     spread)
                   for w in WHEELS}
-        self._last_center_s = win.t_c
         return win.estimate(wheels, lat, p.window_s)
 
     def learned(self) -> Learned:

@@ -50,11 +50,15 @@ class Window:
     imu_raw_mps2: float | None = None
     """The IMU's mean as it read (before an ImuCorrection), None without the IMU."""
 
-    def estimate(self, wheels: dict[str, WheelEstimate], lat: LatencyEstimate, window_s: float) -> Estimate:
+    def estimate(self, wheels: dict[str, WheelEstimate], lat: LatencyEstimate, window_s: float,
+                 uncalibrated: bool | None = None) -> Estimate:
+        """uncalibrated: whether a wheel with a slip has no radius of its own (None: as the wheels say; given for
+        an estimate without its wheels)."""
+        if uncalibrated is None:
+            uncalibrated = any(we.r0_source in UNCALIBRATED_R0 for we in wheels.values() if we.slip is not None)
         if self.disturbed:
             quality = "disturbed"
-        elif self.latency_unknown or any(we.r0_source in UNCALIBRATED_R0 for we in wheels.values()
-                                         if we.slip is not None):
+        elif self.latency_unknown or uncalibrated:
             quality = "uncalibrated"
         else:
             quality = "ok"

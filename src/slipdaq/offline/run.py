@@ -103,13 +103,15 @@ def process(
     description: str = "",
     maneuvers: bool = True,
     fast_slip: bool = True,
+    wheel_estimates: bool = True,
     summaries: Executor | None = None,
     tape: DecoderTape | None = None,
 ) -> Pipeline:
     """Every record through a fresh pipeline into the sinks (Pipeline's calibration, frozen, gps_speeds); shows
     progress on a terminal, a line every 5 s otherwise. maneuvers=False: the pipeline summarizes no maneuver (a pass
     whose sinks take no /maneuver record: the first pass, the report's rows, which decides its own). fast_slip=False:
-    no /slip/fast rows (the first pass). summaries: where the maneuvers' summaries are computed (a SummaryProcess),
+    no /slip/fast rows (the first pass). wheel_estimates=False: estimates without their wheels (the first pass: its
+    sinks take none). summaries: where the maneuvers' summaries are computed (a SummaryProcess),
     the sinks' calls after each held back until it is in: the same calls as without. tape: the wheel and NMEA
     decoders' outputs recorded (a first pass) or played back (the second: DecoderTape.attach).
 
@@ -117,7 +119,8 @@ def process(
     estimates are the same whatever the batches (Pipeline.process_can_batch)."""
     stream = stream or sys.stderr
     pipeline = Pipeline(config, sinks, calibration=calibration, frozen=frozen, gps_speeds=gps_speeds,
-                        maneuvers=maneuvers, fast_slip=fast_slip, maneuver_executor=summaries, hold_output=True)
+                        maneuvers=maneuvers, fast_slip=fast_slip, wheel_estimates=wheel_estimates,
+                        maneuver_executor=summaries, hold_output=True)
     if tape is not None:
         tape.attach(pipeline)
     compiled.prepare()
@@ -288,10 +291,11 @@ def first_pass(config: Config, records: Iterable[RawRecord | CanFrameBatch | lis
                learned_from: str, *, total: int | None = None, stream: TextIO | None = None,
                tape: DecoderTape | None = None) -> FirstPass:
     """Learn the calibration over the whole log (latency, r0, Cx) and the run's reference speed at each fix. What
-    only the second pass keeps is not made: no maneuver summarized, no high-rate slip row, nothing written."""
+    only the second pass keeps is not made: no maneuver summarized, no high-rate slip row, no wheel's estimate,
+    nothing written."""
     seen = _FirstPassSink(reference_wheels(config))
     p = process(config, records, [seen], calibration=start, total=total, stream=stream, description="pass 1 of 2",
-                maneuvers=False, fast_slip=False, tape=tape)
+                maneuvers=False, fast_slip=False, wheel_estimates=False, tape=tape)
     learned = p.estimator.learned()
     calibration = merged(start, learned, config, learned_from)
     return FirstPass(learned, calibration, smoothed_gps_speeds(seen, calibration, config))
