@@ -1,13 +1,14 @@
-"""A report's first pass fed by a process that reads and decodes the log (offline.first_pass_feed.FedPasses): the
-same rows as passes that read and decode it themselves, with the first pass's items kept for the second (the run's
-process then calling no wheel decoder and reading no message of the log) and with a log too long to keep (the second
-pass reading and decoding it); a feed that fails ends the run with its error, and a run that fails leaves no process
-behind."""
+"""A report's passes fed by processes that read and decode the log (offline.first_pass_feed.FedPasses): the same
+rows as passes that read and decode it themselves, with the first pass's items kept for the second and with a log too
+long to keep (the second pass fed by a process of its own, forked at the start and waiting until then): either way
+the run's process calls no wheel decoder and reads no message of the log. A feed that fails ends the run with its
+error, and a run that fails leaves no process behind, also one still waiting for its pass."""
 
 from __future__ import annotations
 
 import io
 import pickle
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -58,15 +59,14 @@ def _same(a: Rows, b: Rows) -> None:
 def test_fed_passes_give_the_rows_of_passes_that_decode(log: Path, monkeypatch: pytest.MonkeyPatch,
                                                         kept: bool) -> None:
     """Kept: the first pass fed, the second takes its items and calls again. Not kept (a log past FEED_BYTES): the
-    second pass reads and decodes the log here."""
+    second pass fed again, by a process of its own."""
     own, here, forks = _rows(log, monkeypatch, maneuvers=False)
     assert here["decode_batch"] > 0 and here["messages"] > 0 and forks == 0
     if not kept:
         monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
     fed, here, forks = _rows(log, monkeypatch, maneuvers=True)
-    assert (here == {"decode_batch": 0, "messages": 0}) is kept
-    assert here["messages"] == (0 if kept else 1)  # the second pass's read
-    assert forks == 2  # the feed's process and the summaries'
+    assert here == {"decode_batch": 0, "messages": 0}
+    assert forks == (2 if kept else 3)  # the feeds' processes and the summaries'
     _same(fed, own)
     assert fed.maneuvers and any(m.phase == "brake" for m in fed.maneuvers)
 
@@ -96,3 +96,47 @@ def test_a_run_that_fails_leaves_no_feed_behind(log: Path, monkeypatch: pytest.M
     with pytest.raises(RuntimeError, match="first pass failed"):
         two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
     assert len(FORKS) - before == 2 and children() == []
+
+
+def test_a_run_that_fails_leaves_no_waiting_feed_behind(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A log too long to keep: the second pass's feed, forked at the start, waits; the first pass fails."""
+    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
+    process = run.process
+
+    def failing(config: Any, records: Any, *args: Any, **kwargs: Any) -> Any:
+        for k, _ in enumerate(records):
+            if k == 2000:
+                raise RuntimeError("the first pass failed")
+        return process(config, records, *args, **kwargs)
+
+    monkeypatch.setattr(run, "process", failing)
+    before = len(FORKS)
+    with pytest.raises(RuntimeError, match="first pass failed"):
+        two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
+    assert len(FORKS) - before == 3 and children() == []
+
+
+def test_a_second_feed_that_fails_ends_the_run_with_its_error(log: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             tmp_path: Path) -> None:
+    """A log too long to keep, its second pass's feed failing (a decoding that fails in a process beside the run once
+    the first pass is over): the run's error, no process left."""
+    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)
+    over = tmp_path / "first pass over"
+    first_pass = run.first_pass
+
+    def first_then_mark(*args: Any, **kwargs: Any) -> Any:
+        got = first_pass(*args, **kwargs)
+        over.touch()
+        return got
+
+    failing = failing_in_a_child(raw_batches, 300)
+
+    def decode(messages: Any) -> Iterator[Any]:
+        return (failing if over.exists() else raw_batches)(messages)
+
+    monkeypatch.setattr(run, "first_pass", first_then_mark)
+    monkeypatch.setattr(run, "log_decoder", lambda _: decode)
+    with pytest.raises(ValueError, match="cannot be decoded") as raised:
+        two_pass_rows(log, stream=io.StringIO(), maneuvers=True)
+    assert "in the feed's process" in "".join(raised.value.__notes__)
+    assert children() == []

@@ -111,9 +111,15 @@ def received(feed: Connection, tape: DecoderTape, lost: Callable[[], NoReturn]) 
 
 
 def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, feed: Connection,
-          parent_end: Connection) -> None:
-    """A FeedProcess: the input read, decoded and sent run by run; an error sent in place of the end."""
-    started((parent_end,))
+          parent_ends: tuple[Connection, ...], go: Connection | None) -> None:
+    """A FeedProcess: (go given: once told to) the input read, decoded and sent run by run; an error sent in place of
+    the end."""
+    started(parent_ends)
+    if go is not None:
+        try:
+            go.recv_bytes()
+        except EOFError:  # the run ended without the pass: nothing to read
+            return
     send = sending(feed)
     try:
         for _ in FeedSender(config, send, None).runs(decode(read())):
@@ -124,18 +130,32 @@ def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, fee
 
 class FeedProcess:
     """A forked process that reads an input (read()), decodes it (decode) and feeds it to a pass: items(tape). It
-    reads ahead only as far as the pipe holds. close() ends it where it is (a pass that stopped early)."""
+    reads ahead only as far as the pipe holds; waiting: not before items() is first iterated (a process forked at the
+    run's start, before any thread, for a pass that comes later). close() ends it where it is (a pass that stopped
+    early, or never came)."""
 
-    def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode) -> None:
+    def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, *,
+                 waiting: bool = False) -> None:
         compiled.prepare()  # the kernels loaded once, before the fork
         self._feed, writing = sized_pipe()
-        self.process = get_context("fork").Process(target=_feed, args=(config, read, decode, writing, self._feed),
+        self._go: Connection | None = None
+        go = None
+        if waiting:
+            go, self._go = get_context("fork").Pipe(duplex=False)
+        ends = (self._feed,) if self._go is None else (self._feed, self._go)
+        self.process = get_context("fork").Process(target=_feed, args=(config, read, decode, writing, ends, go),
                                                    name="slipdaq-feed", daemon=True)
         self.process.start()
         writing.close()
+        if go is not None:
+            go.close()
 
     def items(self, tape: DecoderTape) -> Iterator[Item]:
         """The input's items, each run's decoder calls fed to tape (a fed DecoderTape) before its items."""
+        if self._go is not None:
+            self._go.send_bytes(b"go")
+            self._go.close()
+            self._go = None
         yield from received(self._feed, tape, self._lost)
 
     def _lost(self) -> NoReturn:
@@ -143,6 +163,9 @@ class FeedProcess:
         raise RuntimeError(f"the feed's process ended without its input's end (exit status {self.process.exitcode})")
 
     def close(self) -> None:
+        if self._go is not None:  # never told to go: it ends at once
+            self._go.close()
+            self._go = None
         if self.process.is_alive():
             self.process.terminate()
         self.process.join()
@@ -152,27 +175,30 @@ class FeedProcess:
 class FedPasses:
     """A two-pass run's input (as read_once.ReadOnce: first(), second(), tape), the first pass fed by fed(tape) (a log's
     process's LogProcess.fed, or a FeedProcess's: forked), on the core that pass leaves idle: its items, and its fed
-    tape, kept for the second; or, given again (a log too long to keep), the second pass reads and decodes the log
-    itself (again()), as a pass of a log too long to keep does (ReadOnce): feeding it too would take the core the
-    maneuvers' summaries take then."""
+    tape, kept for the second. Given again (a log too long to keep), the second pass is fed by again(tape) (a second
+    FeedProcess, forked waiting: FedPasses.forked), on the core it shares with the maneuvers' summaries; `tape` is then
+    the second pass's own fed tape once the first pass has ended."""
 
-    def __init__(self, fed: Callable[[DecoderTape], Iterable[Item]], again: Callable[[], Iterable[Item]] | None = None,
-                 tape_bytes: int | None = None) -> None:
+    def __init__(self, fed: Callable[[DecoderTape], Iterable[Item]],
+                 again: Callable[[DecoderTape], Iterable[Item]] | None = None, tape_bytes: int | None = None) -> None:
         self.tape = DecoderTape(tape_bytes, fed=True)
         self._fed, self._again = fed, again
         if again is not None:
-            self.tape.drop()  # nothing kept: played to the first pass as it is fed; the second decodes
+            self.tape.drop()  # nothing kept: played to the first pass as it is fed; the second is fed again
         self._items: list[Item] = []
-        self._feed: FeedProcess | None = None
-        """The process that feeds the first pass, where it is this run's own (forked)."""
+        self._feeds: list[FeedProcess] = []
+        """The processes that feed the passes, where they are this run's own (forked)."""
 
     @classmethod
     def forked(cls, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool) -> FedPasses:
         """The first pass fed by a FeedProcess forked here (before any thread: the summaries' process after it);
-        keep: a log fed whole (fed_whole), else the second pass reads and decodes decode(read())."""
-        feed = FeedProcess(config, read, decode)
-        passes = cls(feed.items, None if keep else lambda: decode(read()))
-        passes._feed = feed
+        keep: a log fed whole (fed_whole), else the second pass fed by another, forked here too and waiting until the
+        second pass begins."""
+        feeds = [FeedProcess(config, read, decode)]
+        if not keep:
+            feeds.append(FeedProcess(config, read, decode, waiting=True))
+        passes = cls(feeds[0].items, None if keep else feeds[1].items)
+        passes._feeds = feeds
         return passes
 
     def first(self) -> Iterator[Item]:
@@ -181,18 +207,23 @@ class FedPasses:
             if keep:
                 self._items.append(item)
             yield item
-        self.close()
+        if self._feeds:
+            self._feeds[0].close()
+        if not keep:  # the second pass plays what its own feed sends, keeping nothing
+            self.tape = DecoderTape(0, fed=True)
+            self.tape.drop()
 
     def second(self) -> Iterator[Item]:
         if self._again is not None:
-            yield from self._again()
+            yield from self._again(self.tape)
+            self.close()
             return
         kept, self._items = self._items, []
         yield from let_go(kept)
 
     def close(self) -> None:
-        if self._feed is not None:
-            self._feed.close()
+        for feed in self._feeds:
+            feed.close()
 
     def __enter__(self) -> FedPasses:
         return self
