@@ -107,7 +107,8 @@ def _two_pass_both_ways(log: Path, tmp_path: Path, total: int, monkeypatch: pyte
                         fed: bool = True) -> None:
     """replay_two_pass, its log's process forked before the first pass and reading the log itself: the bytes of the
     second pass written here. fed: the run's process decodes no wheel frame and reads no message of the log (the log's
-    process feeds it: first_pass_feed)."""
+    process feeds it: first_pass_feed); else (a log too long to feed whole) the first pass is fed by a process of its
+    own and the second pass reads and decodes the log here."""
     cfg = config_from_log(log)
     here, apart = tmp_path / f"{log.stem}-two-pass-here.mcap", tmp_path / f"{log.stem}-two-pass-apart.mcap"
     first = first_pass(cfg, iter_raw_batches(log), None, str(log), total=total, stream=io.StringIO())
@@ -116,9 +117,10 @@ def _two_pass_both_ways(log: Path, tmp_path: Path, total: int, monkeypatch: pyte
         scanned = ScanResult(log)
         p_apart, first_apart = replay_two_pass(cfg, log, apart, None, metadata=FIXED_META, total=total,
                                                scanned=scanned)
-    assert (here_calls["decode_batch"] == here_calls["messages"] == 0) is fed
+    assert (here_calls["decode_batch"] == 0) is fed
+    assert here_calls["messages"] == (0 if fed else 1)  # the second pass's read
     assert scanned.has_summary and scanned.messages > 0  # the scan made where the log is read
-    assert len(FORKS) - before == 2  # the log's process and the summaries'
+    assert len(FORKS) - before == (2 if fed else 3)  # the log's process and the summaries' (and the first pass's feed)
     assert first_apart.gps_speeds == first.gps_speeds
     p_here = process_to_log(cfg, iter_raw_batches(log), here, "replay", metadata=FIXED_META, stream=io.StringIO(),
                             total=total, **first_apart.second_pass())  # its calibration's time learned the same
@@ -230,7 +232,8 @@ def test_a_feed_brings_the_scan_a_torn_log_is_not_fed_and_a_failing_feed_is_the_
     torn = tmp_path / "torn.mcap"
     torn.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.8)])
     assert first_pass_feed.fed_whole(log) and not first_pass_feed.fed_whole(torn)
-    for path in (log, torn):
+    for path, feed_bytes in ((log, first_pass_feed.FEED_BYTES), (log, 0), (torn, first_pass_feed.FEED_BYTES)):
+        monkeypatch.setattr(first_pass_feed, "FEED_BYTES", feed_bytes)  # 0: too long to feed whole, its own feed
         here = ScanResult(path)
         assert sum(1 for _ in iter_raw_messages(path, here)) > 100
         assert here.has_summary is (path == log) and bool(here.stopped_because) is (path == torn)
@@ -238,9 +241,15 @@ def test_a_feed_brings_the_scan_a_torn_log_is_not_fed_and_a_failing_feed_is_the_
         replay_two_pass(cfg, path, tmp_path / f"out-{path.stem}.mcap", None, metadata=FIXED_META, total=len(records),
                         scanned=scanned)
         assert scanned == here
+    monkeypatch.undo()
 
     monkeypatch.setattr(run, "log_decoder", lambda _: failing_in_a_child(raw_batches, 500))
     with pytest.raises(ValueError, match="cannot be decoded") as raised:
         replay_two_pass(cfg, log, tmp_path / "failed.mcap", None, metadata=FIXED_META, total=len(records))
     assert "in the log's process" in "".join(raised.value.__notes__)
+    assert children() == []
+    monkeypatch.setattr(first_pass_feed, "FEED_BYTES", 0)  # the first pass's own feed failing
+    with pytest.raises(ValueError, match="cannot be decoded") as raised:
+        replay_two_pass(cfg, log, tmp_path / "failed.mcap", None, metadata=FIXED_META, total=len(records))
+    assert "in the feed's process" in "".join(raised.value.__notes__)
     assert children() == []

@@ -111,9 +111,9 @@ def received(feed: Connection, tape: DecoderTape, lost: Callable[[], NoReturn]) 
 
 
 def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, feed: Connection,
-          parent_ends: tuple[Connection, ...], go: Connection | None) -> None:
-    """A FeedProcess: (go given: once told to) the input read, decoded and sent run by run; an error sent in place of
-    the end."""
+          parent_ends: tuple[Connection, ...], go: Connection | None, end: Callable[[], Any] | None) -> None:
+    """A FeedProcess: (go given: once told to) the input read, decoded and sent run by run, then end()'s value; an
+    error sent in place of the end."""
     started(parent_ends)
     if go is not None:
         try:
@@ -122,7 +122,7 @@ def _feed(config: Config, read: Callable[[], Iterable[Any]], decode: Decode, fee
             return
     send = sending(feed)
     try:
-        for _ in FeedSender(config, send, None).runs(decode(read())):
+        for _ in FeedSender(config, send, end).runs(decode(read())):
             pass
     except BaseException as e:
         send_error(lambda error: send((None, None, error)), e, "the feed's process", RuntimeError)
@@ -132,10 +132,11 @@ class FeedProcess:
     """A forked process that reads an input (read()), decodes it (decode) and feeds it to a pass: items(tape). It
     reads ahead only as far as the pipe holds; waiting: not before items() is first iterated (a process forked at the
     run's start, before any thread, for a pass that comes later). close() ends it where it is (a pass that stopped
-    early, or never came)."""
+    early, or never came). end: what the process sends after the input (a scan of the log read there), fed_end once
+    the items are taken."""
 
     def __init__(self, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, *,
-                 waiting: bool = False) -> None:
+                 waiting: bool = False, end: Callable[[], Any] | None = None) -> None:
         compiled.prepare()  # the kernels loaded once, before the fork
         self._feed, writing = sized_pipe()
         self._go: Connection | None = None
@@ -143,7 +144,8 @@ class FeedProcess:
         if waiting:
             go, self._go = get_context("fork").Pipe(duplex=False)
         ends = (self._feed,) if self._go is None else (self._feed, self._go)
-        self.process = get_context("fork").Process(target=_feed, args=(config, read, decode, writing, ends, go),
+        self.fed_end: Any = None
+        self.process = get_context("fork").Process(target=_feed, args=(config, read, decode, writing, ends, go, end),
                                                    name="slipdaq-feed", daemon=True)
         self.process.start()
         writing.close()
@@ -156,7 +158,7 @@ class FeedProcess:
             self._go.send_bytes(b"go")
             self._go.close()
             self._go = None
-        yield from received(self._feed, tape, self._lost)
+        self.fed_end = yield from received(self._feed, tape, self._lost)
 
     def _lost(self) -> NoReturn:
         self.process.join()
@@ -175,31 +177,45 @@ class FeedProcess:
 class FedPasses:
     """A two-pass run's input (as read_once.ReadOnce: first(), second(), tape), the first pass fed by fed(tape) (a log's
     process's LogProcess.fed, or a FeedProcess's: forked), on the core that pass leaves idle: its items, and its fed
-    tape, kept for the second. Given again (a log too long to keep), the second pass is fed by again(tape) (a second
-    FeedProcess, forked waiting: FedPasses.forked), on the core it shares with the maneuvers' summaries; `tape` is then
-    the second pass's own fed tape once the first pass has ended."""
+    tape, kept for the second. Given again (a log too long to keep), the second pass's items are again(tape): fed
+    (again_fed: by a second FeedProcess, forked waiting; `tape` is then the second pass's own fed tape once the first
+    pass has ended), or read and decoded by the second pass itself (its tape dropped: it decodes)."""
 
     def __init__(self, fed: Callable[[DecoderTape], Iterable[Item]],
-                 again: Callable[[DecoderTape], Iterable[Item]] | None = None, tape_bytes: int | None = None) -> None:
+                 again: Callable[[DecoderTape], Iterable[Item]] | None = None, tape_bytes: int | None = None, *,
+                 again_fed: bool = False) -> None:
         self.tape = DecoderTape(tape_bytes, fed=True)
-        self._fed, self._again = fed, again
+        self._fed, self._again, self._again_fed = fed, again, again_fed
         if again is not None:
-            self.tape.drop()  # nothing kept: played to the first pass as it is fed; the second is fed again
+            self.tape.drop()  # nothing kept: played to the first pass as it is fed
         self._items: list[Item] = []
         self._feeds: list[FeedProcess] = []
         """The processes that feed the passes, where they are this run's own (forked)."""
 
     @classmethod
-    def forked(cls, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool) -> FedPasses:
-        """The first pass fed by a FeedProcess forked here (before any thread: the summaries' process after it);
-        keep: a log fed whole (fed_whole), else the second pass fed by another, forked here too and waiting until the
-        second pass begins."""
-        feeds = [FeedProcess(config, read, decode)]
-        if not keep:
+    def forked(cls, config: Config, read: Callable[[], Iterable[Any]], decode: Decode, keep: bool, *,
+               read_again: Callable[[], Iterable[Any]] | None = None, end: Callable[[], Any] | None = None
+               ) -> FedPasses:
+        """The first pass fed by a FeedProcess forked here (before any thread: the summaries' process after it; end:
+        what it sends after the input, its fed_end); keep: a log fed whole (fed_whole); else the second pass fed by
+        another, forked here too and waiting until the second pass begins, or (read_again given: the other core
+        busy in the second pass) reading and decoding decode(read_again()) itself."""
+        feeds = [FeedProcess(config, read, decode, end=end)]
+        again: Callable[[DecoderTape], Iterable[Item]] | None = None
+        if not keep and read_again is None:
             feeds.append(FeedProcess(config, read, decode, waiting=True))
-        passes = cls(feeds[0].items, None if keep else feeds[1].items)
+            again = feeds[1].items
+        elif not keep and read_again is not None:
+            again_read = read_again
+            again = lambda _: decode(again_read())  # noqa: E731
+        passes = cls(feeds[0].items, again, again_fed=not keep and read_again is None)
         passes._feeds = feeds
         return passes
+
+    @property
+    def fed_end(self) -> Any:
+        """What the first pass's own feed sent after the input (None: none, or not this run's own)."""
+        return self._feeds[0].fed_end if self._feeds else None
 
     def first(self) -> Iterator[Item]:
         keep = self._again is None
@@ -209,7 +225,7 @@ class FedPasses:
             yield item
         if self._feeds:
             self._feeds[0].close()
-        if not keep:  # the second pass plays what its own feed sends, keeping nothing
+        if self._again_fed:  # the second pass plays what its own feed sends, keeping nothing
             self.tape = DecoderTape(0, fed=True)
             self.tape.drop()
 

@@ -209,8 +209,11 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     log's process (summaries.worth_a_process), it is forked before the first pass and reads and decodes the log
     itself meanwhile, on the core the first pass leaves idle; the run then sends it no input. A log fed whole
     (first_pass_feed.fed_whole): that process feeds the first pass the items and the decoders' calls (LogProcess.fed),
-    and the scan comes back with them. scanned: the logformat.salvage.ScanResult the first read fills."""
-    from slipdaq.logformat.reader import iter_raw_messages
+    and the scan comes back with them. A finished log too long for that: its first pass fed by a process of its own
+    (first_pass_feed.FedPasses.forked), the second pass reading and decoding the log itself. scanned: the
+    logformat.salvage.ScanResult the first read fills."""
+
+    from slipdaq.logformat.reader import data_bytes, iter_raw_messages
 
     decode = log_decoder(log)
     read: ReadOnce | FedPasses = ReadOnce(lambda scan: iter_raw_messages(log, scanned if scan else None), items_of(decode))
@@ -218,14 +221,21 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
         apart = None
         if worth_a_process(total):
             feed = fed_whole(log)
+            if not feed and data_bytes(log) is not None:  # finished, too long to keep: a feed of its own, the second
+                # pass reading the log itself (the other core then runs the log's process and the summaries)
+                read = stack.enter_context(FedPasses.forked(
+                    config, functools.partial(iter_raw_messages, log, scanned), items_of(decode), False,
+                    read_again=functools.partial(iter_raw_messages, log), end=lambda: scanned))
             apart = stack.enter_context(log_process_for(config, out_path, "replay", decode,
                                                         functools.partial(iter_raw_messages, log, scanned if feed else None),
                                                         feed=feed, feed_end=lambda: scanned))
             if feed:
                 read = FedPasses(apart.fed)
         first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
-        if apart is not None and apart.fed_end is not None and scanned is not None:  # the scan made there
-            vars(scanned).update(vars(apart.fed_end))
+        fed_end = apart.fed_end if apart is not None and apart.fed_end is not None else \
+            read.fed_end if isinstance(read, FedPasses) else None
+        if fed_end is not None and scanned is not None:  # the scan made there
+            vars(scanned).update(vars(fed_end))
         p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, apart=apart,
                            tape=read.tape, **first.second_pass())
     return p, first
