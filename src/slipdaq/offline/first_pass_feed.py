@@ -1,12 +1,13 @@
 """A two-pass run's first pass fed by a process that reads the log, on the core that pass leaves idle: the log's
 process, which reads it anyway (LogProcess with read, feed), or one of its own (FeedProcess, FedPasses: the
-report's). That process decodes the input's items and makes the pipeline's wheel and NMEA decoder calls over them
-(DecodingPipeline: Pipeline's own cuts, no estimator), and sends the run each run of items (items.read_ahead) with
-those calls' tape entries (decoder_tape) before it takes the run further. The pass then neither reads nor decodes:
-it plays the entries as they come (DecoderTape(fed=True)); the second pass plays them again (a log fed whole), or
-reads and decodes the log itself. Both pipelines get the same items in the same runs, and Pipeline cuts the wheel
-frames by the records' times alone, so the calls are the same one for one; a played call is checked against its
-entry (TapeMismatch)."""
+report's, and a replay's of a log too long for the log's process to feed whole). That process decodes the input's
+items and makes the pipeline's wheel and NMEA decoder calls over them (DecodingPipeline: Pipeline's own cuts, no
+estimator), and sends the run each run of items (items.read_ahead) with those calls' tape entries (decoder_tape)
+before it takes the run further. The pass then neither reads nor decodes: it plays the entries as they come
+(DecoderTape(fed=True)); the second pass plays them again (a log fed whole), is fed in the same way by a process of
+its own (the report's, past FEED_BYTES), or reads and decodes the log itself. Both pipelines get the same items in
+the same runs, and Pipeline cuts the wheel frames by the records' times alone, so the calls are the same one for
+one; a played call is checked against its entry (TapeMismatch)."""
 
 from __future__ import annotations
 

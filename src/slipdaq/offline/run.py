@@ -212,7 +212,6 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
     and the scan comes back with them. A finished log too long for that: its first pass fed by a process of its own
     (first_pass_feed.FedPasses.forked), the second pass reading and decoding the log itself. scanned: the
     logformat.salvage.ScanResult the first read fills."""
-
     from slipdaq.logformat.reader import data_bytes, iter_raw_messages
 
     decode = log_decoder(log)
