@@ -51,7 +51,7 @@ from slipdaq.estimator.readiness import (
 from slipdaq.estimator.run_calibration import RunCalibration, driven_tire_force_n, stored_road_loads
 from slipdaq.estimator.wheel_estimate import learn_wheel, wheel_estimate
 from slipdaq.estimator.wheel_revolutions import WheelWindows, reference_slip, slip_from_distances
-from slipdaq.estimator.window_measure import UNCALIBRATED_R0, measure_window
+from slipdaq.estimator.window_measure import measure_window, radius_uncalibrated
 from slipdaq.records import Estimate, GpsFix, SourceEvent, WheelSample
 from slipdaq.records.fast_rows import FastSlipBatch
 
@@ -292,13 +292,9 @@ class SlipEstimator:
         spread = WindowSpread(self._windows.rings, win.t0, win.t1)
         self._last_center_s = win.t_c
         if not self._wheels:
-            uncalibrated = False
-            for w in WHEELS:
-                r0_m, source = r0[w]
-                if learn_wheel(p, cal.stiffness[w], win.arcs[w], r0_m, win.d_slip_m, win.tire_force_n.get(w),
-                               win.speed_mps, win.weight, spread) is not None and source in UNCALIBRATED_R0:
-                    uncalibrated = True
-            return win.estimate({}, lat, p.window_s, uncalibrated)
+            slips = [learn_wheel(p, cal.stiffness[w], win.arcs[w], r0[w][0], win.d_slip_m, win.tire_force_n.get(w),
+                                 win.speed_mps, win.weight, spread) for w in WHEELS]
+            return win.estimate({}, lat, p.window_s, radius_uncalibrated(zip(slips, (r0[w][1] for w in WHEELS))))
         slip_nd = reference_slip(win.arcs, r0, self._reference, self._driven, p.min_speed_mps * p.window_s)
         wheels = {w: wheel_estimate(p, cal.stiffness[w], win.arcs[w], r0[w], win.d_slip_m, win.tire_force_n.get(w),
                                     win.speed_mps, win.weight, slip_nd.get(w), cal.stored_cx.get(w),

@@ -4,6 +4,7 @@ share per tire, the wheels' arcs 2*pi*N, and whether it was disturbed; and the E
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,10 +53,10 @@ class Window:
 
     def estimate(self, wheels: dict[str, WheelEstimate], lat: LatencyEstimate, window_s: float,
                  uncalibrated: bool | None = None) -> Estimate:
-        """uncalibrated: whether a wheel with a slip has no radius of its own (None: as the wheels say; given for
-        an estimate without its wheels)."""
+        """uncalibrated: as radius_uncalibrated says of the wheels (None: of `wheels`; given for an estimate without
+        its wheels)."""
         if uncalibrated is None:
-            uncalibrated = any(we.r0_source in UNCALIBRATED_R0 for we in wheels.values() if we.slip is not None)
+            uncalibrated = radius_uncalibrated((we.slip, we.r0_source) for we in wheels.values())
         if self.disturbed:
             quality = "disturbed"
         elif self.latency_unknown or uncalibrated:
@@ -68,6 +69,12 @@ class Window:
             source="gps", gps_latency_s=lat.latency_s, latency_source=lat.source, quality=quality,
             accel_source=self.accel_source,
         )
+
+
+def radius_uncalibrated(slips_and_sources: Iterable[tuple[float | None, str]]) -> bool:
+    """Whether a wheel with a slip over the window (its slip, its r0's source) has no radius of its own
+    (UNCALIBRATED_R0): the window's quality is then 'uncalibrated'."""
+    return any(source in UNCALIBRATED_R0 for slip, source in slips_and_sources if slip is not None)
 
 
 def measure_window(p: EstimatorParams, track: GpsTrack, grade: AltitudeGrade, windows: WheelWindows,
