@@ -155,20 +155,23 @@ class FeedProcess:
 
     def items(self, tape: DecoderTape) -> Iterator[Item]:
         """The input's items, each run's decoder calls fed to tape (a fed DecoderTape) before its items."""
+        self._let_go(read=True)
+        self.fed_end = yield from received(self._feed, tape, self._lost)
+
+    def _let_go(self, read: bool) -> None:
+        """A waiting process told, once, to read (read) or, never told to, to end."""
         if self._go is not None:
-            self._go.send_bytes(b"go")
+            if read:
+                self._go.send_bytes(b"go")
             self._go.close()
             self._go = None
-        self.fed_end = yield from received(self._feed, tape, self._lost)
 
     def _lost(self) -> NoReturn:
         self.process.join()
         raise RuntimeError(f"the feed's process ended without its input's end (exit status {self.process.exitcode})")
 
     def close(self) -> None:
-        if self._go is not None:  # never told to go: it ends at once
-            self._go.close()
-            self._go = None
+        self._let_go(read=False)
         if self.process.is_alive():
             self.process.terminate()
         self.process.join()
@@ -184,8 +187,10 @@ class FedPasses:
 
     def __init__(self, fed: Callable[[DecoderTape], Iterable[Item]],
                  again: Callable[[DecoderTape], Iterable[Item]] | None = None, tape_bytes: int | None = None, *,
-                 again_fed: bool = False) -> None:
+                 again_fed: bool = False, end: Callable[[], Any] = lambda: None) -> None:
+        """end: what the first pass's feed sent after its input, once that pass has ended (its fed_end)."""
         self.tape = DecoderTape(tape_bytes, fed=True)
+        self.fed_end = end
         self._fed, self._again, self._again_fed = fed, again, again_fed
         if again is not None:
             self.tape.drop()  # nothing kept: played to the first pass as it is fed
@@ -209,14 +214,10 @@ class FedPasses:
         elif not keep and read_again is not None:
             again_read = read_again
             again = lambda _: decode(again_read())  # noqa: E731
-        passes = cls(feeds[0].items, again, again_fed=not keep and read_again is None)
+        passes = cls(feeds[0].items, again, again_fed=not keep and read_again is None,
+                     end=lambda: feeds[0].fed_end)
         passes._feeds = feeds
         return passes
-
-    @property
-    def fed_end(self) -> Any:
-        """What the first pass's own feed sent after the input (None: none, or not this run's own)."""
-        return self._feeds[0].fed_end if self._feeds else None
 
     def first(self) -> Iterator[Item]:
         keep = self._again is None

@@ -229,12 +229,12 @@ def replay_two_pass(config: Config, log: str | Path, out_path: Path, start: Cali
                                                         functools.partial(iter_raw_messages, log, scanned if feed else None),
                                                         feed=feed, feed_end=lambda: scanned))
             if feed:
-                read = FedPasses(apart.fed)
+                fed_by = apart
+                read = FedPasses(fed_by.fed, end=lambda: fed_by.fed_end)
         first = first_pass(config, read.first(), start, str(log), total=total, tape=read.tape)
-        fed_end = apart.fed_end if apart is not None and apart.fed_end is not None else \
-            read.fed_end if isinstance(read, FedPasses) else None
-        if fed_end is not None and scanned is not None:  # the scan made there
-            vars(scanned).update(vars(fed_end))
+        made_there = read.fed_end() if isinstance(read, FedPasses) else None
+        if made_there is not None and scanned is not None:  # the scan made where the log was read
+            vars(scanned).update(vars(made_there))
         p = process_to_log(config, read.second(), out_path, "replay", metadata=metadata, total=total, apart=apart,
                            tape=read.tape, **first.second_pass())
     return p, first
