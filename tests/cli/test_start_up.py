@@ -102,3 +102,26 @@ def test_kernels_load_without_scipy_linalg() -> None:
     got = subprocess.run([sys.executable, "-c", KERNELS_PROBE], capture_output=True, text=True,
                          check=True).stdout.split()
     assert got == ["True", "False", "2.0"]
+
+
+GC_THRESHOLD = """
+import gc, runpy, sys
+sys.argv = ["slipdaq", *sys.argv[1:]]
+try:
+    runpy.run_module("slipdaq", run_name="__main__")
+except SystemExit:
+    print(*gc.get_threshold())
+"""
+
+
+@pytest.mark.parametrize("verb", ["replay", "report", "export", "import", "batch", "run", "demo"])
+def test_offline_verbs_collect_the_young_generation_less_often(verb: str) -> None:
+    """A verb that processes whole logs runs with OFFLINE_GC_THRESHOLD, a live one with Python's own (its pauses
+    short); the process's own threshold as the command left it (`--help` ends it before any work)."""
+    from slipdaq.__main__ import OFFLINE_GC_THRESHOLD, OFFLINE_VERBS
+
+    out = subprocess.run([sys.executable, "-c", GC_THRESHOLD, verb, "--help"], capture_output=True, text=True,
+                         check=True).stdout.split("\n")[-2]
+    threshold = tuple(int(x) for x in out.split())
+    assert threshold == (OFFLINE_GC_THRESHOLD if verb in OFFLINE_VERBS else (700, 10, 10))
+    assert OFFLINE_GC_THRESHOLD[0] > 700
