@@ -25,10 +25,11 @@ GRID = "#e3e3e3"
 NO_DATA = "no defined values in this maneuver"
 
 
-def nums(values: Any, digits: int) -> list[float | None]:
-    """A column for the page: rounded to `digits` decimals, NaN and None as null."""
-    arr = np.round(np.asarray(values, dtype=np.float64), digits)
-    return [None if v != v else v for v in arr.tolist()]
+def nums(values: Any, digits: int) -> np.ndarray:
+    """A column for the page: rounded to `digits` decimals, NaN and None as null. A float64 array, which the page's
+    script (page_data.script: orjson with OPT_SERIALIZE_NUMPY) writes as the same bytes as the list of its values with
+    None for NaN (orjson writes NaN and the infinities as null); figures are only ever written that way."""
+    return np.round(np.asarray(values, dtype=np.float64), digits)
 
 
 def pairs(rows: Sequence[dict[str, Any]], x: str, y: str) -> tuple[np.ndarray, np.ndarray]:
