@@ -26,9 +26,9 @@ NO_DATA = "no defined values in this maneuver"
 
 
 def nums(values: Any, digits: int) -> np.ndarray:
-    """A column for the page: rounded to `digits` decimals, NaN and None as null. A float64 array, which the page's
-    script (page_data.script: orjson with OPT_SERIALIZE_NUMPY) writes as the same bytes as the list of its values with
-    None for NaN (orjson writes NaN and the infinities as null); figures are only ever written that way."""
+    """A column for the page: rounded to `digits` decimals, NaN, the infinities and None as null. A float64 array, which
+    the page's scripts (page_data: orjson with OPT_SERIALIZE_NUMPY, the only way figures are written) write as the
+    same bytes as the list of its values with None for NaN."""
     return np.round(np.asarray(values, dtype=np.float64), digits)
 
 
