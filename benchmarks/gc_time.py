@@ -7,16 +7,18 @@ counted. Figures for docs/performance.md ("The garbage collector in offline runs
 
     python -m benchmarks.gc_time [--rounds 2] -- replay LOG -o OUT.mcap
 
-An output the command writes is removed before each run.
+OUT (its -o or --output) must not exist: what each run writes there is removed before the next.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 CHILD = r"""
@@ -55,16 +57,21 @@ def main() -> int:
     ap.add_argument("args", nargs=argparse.REMAINDER, help="the slipdaq command line (after --)")
     a = ap.parse_args()
     args = a.args[1:] if a.args[:1] == ["--"] else a.args
-    out, stats = _output_of(args), Path("gc-time.json").resolve()
+    out = _output_of(args)
+    if out is not None and out.exists():
+        ap.error(f"{out} exists: give an output path that does not (each run's output is removed before the next)")
     runs: dict[str, list[dict[str, object]]] = {"slipdaq": [], "python": []}
-    for r in range(a.rounds):
-        for side in (["slipdaq", "python"] if r % 2 == 0 else ["python", "slipdaq"]):
-            if out is not None:
-                subprocess.run(["rm", "-rf", str(out)], check=True)
-            subprocess.run([sys.executable, "-c", CHILD, side, str(stats), *args], check=True,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            runs[side].append(json.loads(stats.read_text()))
-            stats.unlink()
+    with tempfile.TemporaryDirectory(prefix="slipdaq-gc-time-") as tmp:
+        stats = Path(tmp) / "gc.json"
+        for r in range(a.rounds):
+            for side in (["slipdaq", "python"] if r % 2 == 0 else ["python", "slipdaq"]):
+                subprocess.run([sys.executable, "-c", CHILD, side, str(stats), *args], check=True,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                runs[side].append(json.loads(stats.read_text()))
+                if out is not None and out.is_dir():
+                    shutil.rmtree(out)
+                elif out is not None:
+                    out.unlink(missing_ok=True)
     print(f"\nThe garbage collector in `slipdaq {' '.join(args)}`'s own process, {a.rounds} rounds in turns, medians "
           f"(`python -m benchmarks.gc_time --rounds {a.rounds} -- {' '.join(args)}`)\n")
     print("| thresholds | collections (gen 0, 1, 2) | seconds (gen 0, 1, 2) | in all | main thread CPU |")
