@@ -1,16 +1,20 @@
 """The base revision a benchmark compares this tree against: given on the command line, by default the merge base
-of HEAD with main (what a branch changes); its `src` and `config` unpacked from git for PYTHONPATH."""
+of HEAD with main (what a branch changes); its `src` and `config` unpacked from git for PYTHONPATH; the sides run in
+turns (in_turns), each as a program under its own slipdaq (under, side_json)."""
 
 from __future__ import annotations
 
 import argparse
 import compileall
 import io
+import json
 import os
 import subprocess
 import sys
 import tarfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -59,3 +63,18 @@ def under(src: Path, benchmark_file: str, *args: str) -> tuple[list[str], dict[s
     on the path."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
     return [sys.executable, "-m", f"benchmarks.{Path(benchmark_file).stem}", *args], env
+
+
+def in_turns(sides: Sequence[str], rounds: int) -> Iterator[tuple[int, str]]:
+    """(round, side) for every side in every round, the sides' order reversed every other round: drift in the
+    machine's speed then weighs on each side alike."""
+    for r in range(rounds):
+        for side in list(sides) if r % 2 == 0 else list(sides)[::-1]:
+            yield r, side
+
+
+def side_json(src: Path, benchmark_file: str, *args: str, cwd: Path | None = None) -> Any:
+    """A benchmark module run as a program under src's slipdaq (`under`), its last line of output read as JSON."""
+    cmd, env = under(src, benchmark_file, *args)
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True, cwd=cwd).stdout
+    return json.loads(out.strip().splitlines()[-1])

@@ -25,7 +25,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, unpack
 
 WORKER = """
 import io, json, sys, time
@@ -104,14 +104,13 @@ def main() -> int:
                         str(a.seconds), "--rate-hz", str(a.rate_hz), "--rounds", "0", "--work", str(work)], check=True, cwd=ROOT)
     sides = {f"base {base}": unpack(base, work / f"base-{base}"), "this tree": ROOT / "src"}
     got: dict[str, list[dict[str, float]]] = {name: [] for name in sides}
-    for r in range(a.rounds):
-        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            out = subprocess.run([sys.executable, "-c", WORKER, str(raw), str(work / "log-cost-out.mcap"),
-                                  str(a.repeats)],
-                                 env=dict(os.environ, PYTHONPATH=str(sides[name])), check=True, capture_output=True,
-                                 text=True).stdout
-            got[name].append(json.loads(out.strip().splitlines()[-1]))
-            print(f"  round {r + 1} {name}: {got[name][-1]}", flush=True)
+    for r, name in in_turns(sides, a.rounds):
+        out = subprocess.run([sys.executable, "-c", WORKER, str(raw), str(work / "log-cost-out.mcap"),
+                              str(a.repeats)],
+                             env=dict(os.environ, PYTHONPATH=str(sides[name])), check=True, capture_output=True,
+                             text=True).stdout
+        got[name].append(json.loads(out.strip().splitlines()[-1]))
+        print(f"  round {r + 1} {name}: {got[name][-1]}", flush=True)
     frames = int(raw.with_suffix(".frames").read_text())
     print(f"\nA replay of {raw.name} ({frames:,} frames; {a.rounds} interleaved rounds, medians)\n")
     print("| side | CPU into a sink that takes nothing | CPU into an MCAP log | difference | main thread: into nothing "

@@ -14,14 +14,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import add_base_argument, under, unpack
+from benchmarks.base_revision import add_base_argument, in_turns, side_json, unpack
 
 
 def _one(logs: list[Path], repeat: int) -> dict[str, Any]:
@@ -68,13 +67,11 @@ def main() -> int:
     if a.base:
         sides[f"base {a.base}"] = unpack(a.base, Path(tempfile.gettempdir()) / f"slipdaq-base-{a.base}")
     got: dict[str, list[dict[str, Any]]] = {side: [] for side in sides}
-    for r in range(a.rounds):
-        for side in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            cmd, env = under(sides[side], __file__, *map(str, a.logs), "--repeat", str(a.repeat), "--one")
-            one = json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout)
-            got[side].append(one)
-            print(f"  round {r + 1} {side}: log_page " + ", ".join(f"{c:.3f} s" for c in one["cpu_s"]),
-                  file=sys.stderr)
+    for r, side in in_turns(sides, a.rounds):
+        one = side_json(sides[side], __file__, *map(str, a.logs), "--repeat", str(a.repeat), "--one")
+        got[side].append(one)
+        print(f"  round {r + 1} {side}: log_page " + ", ".join(f"{c:.3f} s" for c in one["cpu_s"]),
+              file=sys.stderr)
     print(f"\nlog_page of each log, CPU, the least over {a.rounds} rounds of {a.repeat} calls "
           f"(`python -m benchmarks.page_data LOG ... --rounds {a.rounds} --repeat {a.repeat}"
           f"{' --base ' + a.base if a.base else ''}`)\n")

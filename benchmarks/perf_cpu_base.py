@@ -15,14 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, under, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, side_json, unpack
 
 
 def _side(argv: list[str]) -> int:
@@ -57,14 +56,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for rate in (float(x) for x in a.rates.split(",")):
         got: dict[str, list[dict[str, float]]] = {name: [] for name in sides}
-        for r in range(a.rounds):
-            for name in list(sides) if r % 2 == 0 else list(sides)[::-1]:
-                cmd, env = under(sides[name], __file__, "_side", "--rate", str(rate), "--seconds", str(a.seconds))
-                out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
-                got[name].append(json.loads(out.strip().splitlines()[-1]))
-                g = got[name][-1]
-                print(f"  {rate:g} frames/s, round {r + 1}, {name}: CPU {g['cpu']:.1f} %, p99 {g['p99_ms']} ms, "
-                      f"{g['logged']:,} of {g['sent']:,} logged, {g['lost']} lost", flush=True)
+        for r, name in in_turns(sides, a.rounds):
+            got[name].append(side_json(sides[name], __file__, "_side", "--rate", str(rate), "--seconds", str(a.seconds)))
+            g = got[name][-1]
+            print(f"  {rate:g} frames/s, round {r + 1}, {name}: CPU {g['cpu']:.1f} %, p99 {g['p99_ms']} ms, "
+                  f"{g['logged']:,} of {g['sent']:,} logged, {g['lost']} lost", flush=True)
         for name, runs in got.items():
             cpu = [g["cpu"] for g in runs]
             p99 = [g["p99_ms"] for g in runs if g["p99_ms"] is not None]

@@ -14,13 +14,12 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, under, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, side_json, unpack
 
 
 def passes(log: Path, n: int) -> list[float]:
@@ -52,13 +51,11 @@ def main() -> int:
     work = a.work or Path(tempfile.mkdtemp(prefix="read-log-"))
     sides = {f"base {base}": unpack(base, work / f"base-{base}"), "this tree": ROOT / "src"}
     got: dict[str, dict[str, list[float]]] = {name: {str(log): [] for log in a.logs} for name in sides}
-    for r in range(a.rounds):
-        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            cmd, env = under(sides[name], __file__, *map(str, a.logs), "--passes", str(a.passes), "--child")
-            out = json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout)
-            for log, times in out.items():
-                got[name][log] += times
-            print(f"  round {r + 1} {name} done", flush=True)
+    for r, name in in_turns(sides, a.rounds):
+        out = side_json(sides[name], __file__, *map(str, a.logs), "--passes", str(a.passes), "--child")
+        for log, times in out.items():
+            got[name][log] += times
+        print(f"  round {r + 1} {name} done", flush=True)
     print(f"\n`iter_raw_batches` over each log, in process, {a.rounds} rounds of {a.passes} passes, median (least)\n")
     print("| log | " + " | ".join(sides) + " | this tree / base |\n|---|" + "---:|" * (len(sides) + 1))
     for log in map(str, a.logs):

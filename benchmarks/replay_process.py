@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, unpack
 
 MAKE_LOG = """
 import sys
@@ -136,12 +136,11 @@ def main() -> int:
     for src in sides.values():  # numba's cache for each tree, imports warm
         run_replay(src, raw, work / "warm.mcap", *flags)
     got: dict[str, list[tuple[float, float, float, float, float]]] = {name: [] for name in sides}
-    for r in range(a.rounds):
-        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
-            w, c, m, f, p1 = got[name][-1]
-            print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)"
-                  + f", first pass {p1:.2f} s" * a.two_pass, flush=True)
+    for r, name in in_turns(sides, a.rounds):
+        got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
+        w, c, m, f, p1 = got[name][-1]
+        print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)"
+              + f", first pass {p1:.2f} s" * a.two_pass, flush=True)
     med = {name: tuple(statistics.median(x[k] for x in v) for k in range(5)) for name, v in got.items()}
     b, n = med[f"base {base}"], med["this tree"]
     print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "

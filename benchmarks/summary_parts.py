@@ -15,7 +15,6 @@ import argparse
 import importlib
 import io
 import json
-import subprocess
 import sys
 import tempfile
 import time
@@ -23,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import add_base_argument, under, unpack
+from benchmarks.base_revision import add_base_argument, in_turns, side_json, unpack
 
 PARTS = (
     ("slipdaq.maneuver.figures", "summarize_maneuver", "a maneuver's whole summary"),
@@ -93,15 +92,13 @@ def main() -> int:
     if a.base:
         sides[f"base {a.base}"] = unpack(a.base, Path(tempfile.gettempdir()) / f"slipdaq-base-{a.base}")
     least: dict[str, dict[str, list[float]]] = {side: {} for side in sides}
-    for r in range(a.rounds):
-        for side in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            cmd, env = under(sides[side], __file__, str(a.raw), "--one")
-            got = json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout)
-            for name, (calls, cpu) in got.items():
-                old = least[side].get(name)
-                least[side][name] = [calls, cpu if old is None else min(old[1], cpu)]
-            print(f"  round {r + 1} {side}: " + ", ".join(f"{n} {v[1]:.3f} s" for n, v in got.items()),
-                  file=sys.stderr)
+    for r, side in in_turns(sides, a.rounds):
+        got = side_json(sides[side], __file__, str(a.raw), "--one")
+        for name, (calls, cpu) in got.items():
+            old = least[side].get(name)
+            least[side][name] = [calls, cpu if old is None else min(old[1], cpu)]
+        print(f"  round {r + 1} {side}: " + ", ".join(f"{n} {v[1]:.3f} s" for n, v in got.items()),
+              file=sys.stderr)
     print(f"\nThe maneuver summaries of {a.raw.name} replayed in process, a CPU timer around each part; the least of "
           f"{a.rounds} rounds (`python -m benchmarks.summary_parts RAW --rounds {a.rounds}"
           f"{' --base ' + a.base if a.base else ''}`)\n")

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, unpack
 from benchmarks.doc_block import machine
 from benchmarks.report_long import make_log
 
@@ -233,12 +233,11 @@ def main() -> int:
     npz, kwargs = fit_inputs(work, a.hours)
     sides = {"this tree": ROOT / "src", f"base {base}": unpack(base, work / f"base-{base}")}
     got: dict[str, list[dict[str, Any]]] = {name: [] for name in sides}
-    for r in range(a.rounds):
-        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(sides[name]), str(ROOT)]))
-            got[name].append(json.loads(_child([CHILD, str(npz), str(a.copies), json.dumps(kwargs)], env)))
-            print(f"round {r + 1} {name}: " + ", ".join(f"{w} {v['cpu_s']:.2f} s" for w, v in got[name][-1].items()),
-                  flush=True)
+    for r, name in in_turns(sides, a.rounds):
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(sides[name]), str(ROOT)]))
+        got[name].append(json.loads(_child([CHILD, str(npz), str(a.copies), json.dumps(kwargs)], env)))
+        print(f"round {r + 1} {name}: " + ", ".join(f"{w} {v['cpu_s']:.2f} s" for w, v in got[name][-1].items()),
+              flush=True)
     this, old = list(sides)
     load = os.getloadavg()
     print(f"\n`python -m benchmarks.tire_fit_speed {' '.join(sys.argv[1:])}`: fit_mf61 of each wheel's points of "

@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.base_revision import ROOT, add_base_argument, resolve, under, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, side_json, unpack
 from benchmarks.replay_process import MAKE_LOG, python_path
 
 PARTS = ("first pass", "of it: smoothing", "second pass, log written", "second pass, no sink",
@@ -157,13 +157,11 @@ def main() -> int:
         subprocess.run([sys.executable, "-c", MAKE_LOG, str(log), str(a.seconds), str(a.rate_hz)], check=True,
                        env=dict(os.environ, PYTHONPATH=python_path(sides[f"base {base}"])), capture_output=True)
     got: dict[str, list[dict[str, float]]] = {name: [] for name in sides}
-    for r in range(a.rounds):
-        for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            cmd, env = under(sides[name], __file__, "--measure", str(log), str(work / "out.mcap"), "--tile", str(a.tile))
-            got[name].append(json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True,
-                                                       cwd=ROOT).stdout.strip().splitlines()[-1]))
-            print(f"  round {r + 1} {name}: " + ", ".join(f"{k} {got[name][-1][k]:.2f} s" for k in parts
-                                                          if k in got[name][-1]), flush=True)
+    for r, name in in_turns(sides, a.rounds):
+        got[name].append(side_json(sides[name], __file__, "--measure", str(log), str(work / "out.mcap"), "--tile",
+                                   str(a.tile), cwd=ROOT))
+        print(f"  round {r + 1} {name}: " + ", ".join(f"{k} {got[name][-1][k]:.2f} s" for k in parts
+                                                      if k in got[name][-1]), flush=True)
     print(f"\nCPU of a two-pass replay's parts, {a.seconds:g} s of 4 × {a.rate_hz:g} Hz + 20 Hz NMEA, in process, "
           f"{a.rounds} rounds, medians\n")
     print("| part | " + " | ".join(sides) + " |\n|---|" + "---:|" * len(sides))
