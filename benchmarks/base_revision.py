@@ -12,7 +12,7 @@ import os
 import subprocess
 import sys
 import tarfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +65,7 @@ def under(src: Path, benchmark_file: str, *args: str) -> tuple[list[str], dict[s
     return [sys.executable, "-m", f"benchmarks.{Path(benchmark_file).stem}", *args], env
 
 
-def in_turns(sides: Sequence[str], rounds: int) -> Iterator[tuple[int, str]]:
+def in_turns(sides: Collection[str], rounds: int) -> Iterator[tuple[int, str]]:
     """(round, side) for every side in every round, the sides' order reversed every other round: drift in the
     machine's speed then weighs on each side alike."""
     for r in range(rounds):

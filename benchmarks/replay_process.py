@@ -19,6 +19,11 @@ frames once. With --recorded: the log replayed is one as a run records it, its r
 (/estimate, /slip/fast, /wpt/count, ...: about three messages for each raw one), which a replay reads past: the
 raw-only log replayed once by the base.
 
+A second table says what two cores allow each side: the least wall time of a run of that CPU whose start (taken as
+`python -m slipdaq replay --help`'s wall time, timed after each run: less than the real start) runs on one core and
+the rest on both, no less than its main thread's CPU; and the CPU over every process at which that bound meets the
+target (500,000 frames/s, or 300,000 with --two-pass).
+
     python -m benchmarks.replay_process --base 6641212 [--seconds 300] [--rate-hz 1000] [--rounds 5] [--two-pass]
                                         [--recorded]
 """
@@ -104,6 +109,21 @@ def run_replay(src: Path, raw: Path, out: Path, *flags: str) -> tuple[float, flo
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), main_thread, forked, first
 
 
+def start_wall(src: Path) -> float:
+    """Wall s of `python -m slipdaq replay --help` (the interpreter and the CLI's imports): less than a replay's start
+    before its first record, which one core runs alone."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "slipdaq", "replay", "--help"], check=True, stdout=subprocess.DEVNULL,
+                   env=dict(os.environ, PYTHONPATH=python_path(src)))
+    return time.perf_counter() - t0
+
+
+def two_core_bound(cpu_s: float, main_thread_s: float, start_s: float) -> float:
+    """The least wall time two cores allow a run of cpu_s of CPU (every process) whose first start_s run on one core
+    and whose main thread takes main_thread_s: both cores busy from the start's end to the last instruction."""
+    return max(main_thread_s, start_s + (cpu_s - start_s) / 2)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_base_argument(ap)
@@ -136,12 +156,15 @@ def main() -> int:
     for src in sides.values():  # numba's cache for each tree, imports warm
         run_replay(src, raw, work / "warm.mcap", *flags)
     got: dict[str, list[tuple[float, float, float, float, float]]] = {name: [] for name in sides}
+    starts: dict[str, list[float]] = {name: [] for name in sides}
     for r, name in in_turns(sides, a.rounds):
         got[name].append(run_replay(sides[name], raw, work / f"out-{name.split()[0]}.mcap", *flags))
+        starts[name].append(start_wall(sides[name]))
         w, c, m, f, p1 = got[name][-1]
         print(f"  round {r + 1} {name}: {w:.2f} s wall, {c:.2f} s CPU (main thread {m:.2f} s, forked {f:.2f} s)"
-              + f", first pass {p1:.2f} s" * a.two_pass, flush=True)
+              + f", first pass {p1:.2f} s" * a.two_pass + f"; start {starts[name][-1]:.2f} s", flush=True)
     med = {name: tuple(statistics.median(x[k] for x in v) for k in range(5)) for name, v in got.items()}
+    start = {name: statistics.median(v) for name, v in starts.items()}
     b, n = med[f"base {base}"], med["this tree"]
     print(f"\n`python -m slipdaq replay{' --two-pass' * a.two_pass}` of {a.seconds:g} s of 4 × {a.rate_hz:g} Hz "
           f"+ 20 Hz NMEA ({frames:,} frames{', a recorded log: every derived topic in it' * a.recorded}), "
@@ -154,6 +177,17 @@ def main() -> int:
               + f" {frames / w:,.0f} | {frames / c:,.0f} |")
     ratios = " | ".join(f"{x / y:.2f}" if y else "—" for x, y in zip(n[:4 + a.two_pass], b))  # a short log: no fork
     print(f"| this tree / base | {ratios} | {b[0] / n[0]:.2f}× | {b[1] / n[1]:.2f}× |")
+    target = 300_000 if a.two_pass else 500_000
+    print(f"\nWhat two cores allow (medians): the least wall time with both cores busy from the end of a start that "
+          f"one core runs alone (taken as `replay --help`'s wall time, less than the real start) to the last "
+          f"instruction, and no less than the main thread's CPU; the CPU over every process at which that bound "
+          f"meets {target:,} frames/s.\n")
+    print("| side | start (`replay --help`) | bound | frames/s at the bound | CPU for the target | of the side's CPU |"
+          "\n|---|---:|---:|---:|---:|---:|")
+    for name, (_, c, m, *_rest) in med.items():
+        s, bound = start[name], two_core_bound(c, m, start[name])
+        need = 2 * frames / target - s
+        print(f"| {name} | {s:.2f} s | {bound:.2f} s | {frames / bound:,.0f} | {need:.2f} s | {need / c:.2f} |")
     return 0
 
 
