@@ -41,8 +41,14 @@ MAX_GPS_SHIFT_S = 0.01
 judged. With GPS latency 0 the daemon places an epoch at its UTC + the median of (stamp - UTC), so that median
 moves every window against the wheel frames, a slip error of |a| shift / V (0.5 points at 5 m/s^2, 10 m/s,
 10 ms); it is the sender's lateness in writing the lines plus the daemon's delay in reading them, and lines read
-late in one go share one stamp, so the estimator rejects all but the first. Measured in the VM: 2.6-3.8 ms; 18 ms
-(|slip error| median 0.46 points) and 130 ms when other work on the host starved it."""
+late in one go share one stamp, so the estimator rejects all but the first. Measured in the VM: 2.6-3.8 ms; 10-12 ms
+on a slow host (|slip error| median 0.064-0.068 points, p95 0.21-0.26); 18 ms (|slip error| median 0.46 points) and
+130 ms when other work on the host starved it. Over it, a run whose estimates meet every bound still passes (up to
+MAX_GPS_SHIFT_PASS_S): the shift only adds to their error; one that misses a bound gets no verdict."""
+MAX_GPS_SHIFT_PASS_S = 0.02
+"""Largest median shift at which estimates that meet every bound pass. Beyond it a correct daemon misses the median
+bound on the shift alone (18 ms: 0.46 points against 0.5), so a pass could only be a daemon's own timing error
+cancelling the shift: no verdict."""
 MIN_JUDGED_WINDOWS = 200
 """Wheel windows that must be judged for a verdict: about half of a 20 s drive's above MIN_SPEED_MPS (416)."""
 SIGN_SHARE = 0.8
@@ -161,10 +167,10 @@ def judge_drive(rows: Iterable[dict[str, Any]], truth: dict[str, np.ndarray], wh
     v.driving = (sum(s > 0.01 for s in driving), len(driving))
     v.braking = (sum(s < -0.01 for s in braking), len(braking))
     v.gps_shift_s = float(np.median(gps_shift_s))
-    if v.gps_shift_s > MAX_GPS_SHIFT_S:
-        v.problems.append(f"no verdict: the daemon stamped the NMEA lines a median {v.gps_shift_s * 1e3:.0f} ms after "
-                          f"their planned time (at most {MAX_GPS_SHIFT_S * 1e3:.0f} ms; the sender's lateness plus "
-                          f"the daemon's read delay): the machine did not run them in real time")
+    late = (f"no verdict: the daemon stamped the NMEA lines a median {v.gps_shift_s * 1e3:.0f} ms after their planned "
+            f"time (the sender's lateness plus the daemon's read delay): the machine did not run them in real time")
+    if v.gps_shift_s > MAX_GPS_SHIFT_PASS_S:
+        v.problems.append(f"{late} (at most {MAX_GPS_SHIFT_PASS_S * 1e3:.0f} ms)")
         return v
     if err.samples < MIN_JUDGED_WINDOWS:
         v.problems.append(f"no verdict: only {err.samples} wheel windows could be judged (at least "
@@ -179,6 +185,9 @@ def judge_drive(rows: Iterable[dict[str, Any]], truth: dict[str, np.ndarray], wh
     for name, (good, total) in (("accelerating", v.driving), ("braking", v.braking)):
         if not total or good <= SIGN_SHARE * total:
             v.problems.append(f"slip has the wrong sign while {name}: {total - good} of {total} FL windows")
+    if v.problems and v.gps_shift_s > MAX_GPS_SHIFT_S:  # the shift may account for what is missed
+        v.problems = [f"{late} (at most {MAX_GPS_SHIFT_S * 1e3:.0f} ms for a failure to count; missed: "
+                      f"{'; '.join(v.problems)})"]
     return v
 
 

@@ -3,8 +3,9 @@ log, the sender's records of the frames and NMEA lines it sent, its --nmea file,
 runs on the host and in the VM.
 
 The recorded daemon passes; the same frames and NMEA lines put through the estimator with a wrong config
-(`slipdaq replay --config`) fail; a sender whose samples lag too much, or NMEA stamped too late, give no verdict
-rather than a pass; a log whose frames are not the ones sent is refused.
+(`slipdaq replay --config`) fail; a sender whose samples lag too much, or NMEA stamped far too late, give no verdict
+rather than a pass; NMEA stamped late passes estimates that meet the bounds and gives the others no verdict; a log
+whose frames are not the ones sent is refused.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import pytest
 from hil_support import read_log, read_nmea, read_nmea_record, read_sent, write_config
-from judge import MIN_JUDGED_WINDOWS, gps_shift, judge_drive, load_truth, wheel_frames
+from judge import MAX_GPS_SHIFT_PASS_S, MAX_GPS_SHIFT_S, MIN_JUDGED_WINDOWS, gps_shift, judge_drive, load_truth, wheel_frames
 
 DATA = Path(__file__).resolve().parent / "data"
 LOG = DATA / "case1-live.mcap"
@@ -97,15 +98,45 @@ def test_a_sender_that_lags_gives_no_verdict(recorded) -> None:  # type: ignore[
     assert verdict.error.samples < MIN_JUDGED_WINDOWS
 
 
-def test_nmea_stamped_late_gives_no_verdict(recorded) -> None:  # type: ignore[no-untyped-def]
-    """NMEA lines stamped 15 ms later than they were (as on a host that starved the VM: 18 ms after plan, median,
-    |slip error| median 0.46 points): the windows move against the wheel frames by that much, and the judge gives
-    no verdict."""
+def _shifted(shift: list[float], median_s: float) -> list[float]:
+    """The recorded NMEA lines' shifts moved so that their median is median_s."""
+    med = sorted(shift)[len(shift) // 2]  # 600 lines: the upper median; numpy's is the mean of the middle two
+    return [x - med + median_s for x in shift]
+
+
+def test_nmea_stamped_very_late_gives_no_verdict(recorded) -> None:  # type: ignore[no-untyped-def]
+    """NMEA lines stamped a median 30 ms after plan: past MAX_GPS_SHIFT_PASS_S a correct daemon misses the bounds on
+    the shift alone (18 ms: |slip error| median 0.46 points), so even estimates that meet them get no verdict."""
     from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
-    problems = judge_drive(iter_estimates(LOG), truth, wheels, [x + 0.015 for x in shift]).problems
+    problems = judge_drive(iter_estimates(LOG), truth, wheels, _shifted(shift, 0.030)).problems
     assert len(problems) == 1 and problems[0].startswith("no verdict: the daemon stamped the NMEA lines")
+
+
+def test_nmea_stamped_late_passes_estimates_that_meet_the_bounds(recorded) -> None:  # type: ignore[no-untyped-def]
+    """A median shift of 12 ms (over MAX_GPS_SHIFT_S, under MAX_GPS_SHIFT_PASS_S), as a slow host gave: the recorded
+    daemon's estimates meet every bound, and the shift could only have added to their error: a pass."""
+    from slipdaq.logformat.reader import iter_estimates
+
+    wheels, truth, shift = recorded
+    late = _shifted(shift, 0.012)
+    assert MAX_GPS_SHIFT_S < sorted(late)[len(late) // 2] < MAX_GPS_SHIFT_PASS_S
+    verdict = judge_drive(iter_estimates(LOG), truth, wheels, late)
+    assert verdict.problems == [] and verdict.error.samples >= MIN_JUDGED_WINDOWS
+
+
+def test_nmea_stamped_late_gives_a_miss_no_verdict(recorded, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The same shift with a daemon that misses the bounds (tire size 205/55 R16 for 195/60 R15, r0 not calibrated):
+    the shift may account for the miss, so no verdict (played again, then the case fails), naming what was missed."""
+    from slipdaq.logformat.reader import iter_estimates
+
+    wheels, truth, shift = recorded
+    wrong = _replayed(tmp_path, (r"^size = .*$", 'size = "205/55 R16"'),
+                      (r"^# calibrate_r0 = true.*$", "calibrate_r0 = false"))
+    problems = judge_drive(iter_estimates(wrong), truth, wheels, _shifted(shift, 0.012)).problems
+    assert len(problems) == 1 and problems[0].startswith("no verdict: the daemon stamped the NMEA lines")
+    assert "missed: median |slip error|" in problems[0]
 
 
 def test_frames_that_were_not_sent_are_refused() -> None:
