@@ -43,8 +43,8 @@ moves every window against the wheel frames, a slip error of |a| shift / V (0.5 
 10 ms); it is the sender's lateness in writing the lines plus the daemon's delay in reading them, and lines read
 late in one go share one stamp, so the estimator rejects all but the first. Measured in the VM: 2.6-3.8 ms; 10-12 ms
 on a slow host (|slip error| median 0.064-0.068 points, p95 0.21-0.26); 18 ms (|slip error| median 0.46 points) and
-130 ms when other work on the host starved it. Over it, a run whose estimates meet every bound still passes (up to
-MAX_GPS_SHIFT_PASS_S): the shift only adds to their error; one that misses a bound gets no verdict."""
+130 ms when other work on the host starved it. Over it, a run whose estimates meet every bound with the shift's
+error in them still passes (up to MAX_GPS_SHIFT_PASS_S); one that misses a bound gets no verdict."""
 MAX_GPS_SHIFT_PASS_S = 0.02
 """Largest median shift at which estimates that meet every bound pass. Beyond it a correct daemon misses the median
 bound on the shift alone (18 ms: 0.46 points against 0.5), so a pass could only be a daemon's own timing error

@@ -117,7 +117,7 @@ def test_nmea_stamped_very_late_gives_no_verdict(recorded) -> None:  # type: ign
 
 def test_nmea_stamped_late_passes_estimates_that_meet_the_bounds(recorded) -> None:  # type: ignore[no-untyped-def]
     """A median shift of 12 ms (over MAX_GPS_SHIFT_S, under MAX_GPS_SHIFT_PASS_S), as a slow host gave: the recorded
-    daemon's estimates meet every bound, and the shift could only have added to their error: a pass."""
+    daemon's estimates meet every bound with the shift's error in them: a pass."""
     from slipdaq.logformat.reader import iter_estimates
 
     wheels, truth, shift = recorded
