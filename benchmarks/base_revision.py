@@ -57,12 +57,16 @@ def byte_compile(*srcs: Path) -> None:
         compileall.compile_dir(str(src), quiet=1)
 
 
+def side_env(src: Path) -> dict[str, str]:
+    """The environment of a process that runs with the slipdaq of src (a tree's src/ or an unpacked revision's): src,
+    then this repository (its benchmarks), on the path."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
+
+
 def under(src: Path, benchmark_file: str, *args: str) -> tuple[list[str], dict[str, str]]:
     """The command and environment that run a benchmark module (by its file's name) as a program with the slipdaq of
-    src (a tree's src/ or an unpacked revision's): `python -m benchmarks.NAME ARGS` with src, then this repository,
-    on the path."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
-    return [sys.executable, "-m", f"benchmarks.{Path(benchmark_file).stem}", *args], env
+    src: `python -m benchmarks.NAME ARGS` in side_env(src)."""
+    return [sys.executable, "-m", f"benchmarks.{Path(benchmark_file).stem}", *args], side_env(src)
 
 
 def in_turns(sides: Collection[str], rounds: int) -> Iterator[tuple[int, str]]:

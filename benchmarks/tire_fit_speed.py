@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, unpack
+from benchmarks.base_revision import ROOT, add_base_argument, in_turns, resolve, side_env, unpack
 from benchmarks.doc_block import machine
 from benchmarks.report_long import make_log
 
@@ -196,8 +196,7 @@ def compare_test_data(work: Path, base: str) -> int:
     four), this tree against the base: the largest relative change per coefficient, the curves' largest gap."""
     got = {}
     for name, src in (("this tree", ROOT / "src"), ("base", unpack(base, work / f"base-{base}"))):
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src), str(ROOT)]))
-        got[name] = json.loads(_child([TEST_DATA, str(ROOT)], env))
+        got[name] = json.loads(_child([TEST_DATA, str(ROOT)], side_env(src)))
     print(f"`python -m benchmarks.tire_fit_speed {' '.join(sys.argv[1:])}`: the fits of tests/tire_model's points, "
           f"this tree against base {base}\n\n| fit | largest relative change (coefficient) | curves apart, of the peak |"
           "\n|---|---:|---:|")
@@ -234,8 +233,7 @@ def main() -> int:
     sides = {"this tree": ROOT / "src", f"base {base}": unpack(base, work / f"base-{base}")}
     got: dict[str, list[dict[str, Any]]] = {name: [] for name in sides}
     for r, name in in_turns(sides, a.rounds):
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(sides[name]), str(ROOT)]))
-        got[name].append(json.loads(_child([CHILD, str(npz), str(a.copies), json.dumps(kwargs)], env)))
+        got[name].append(json.loads(_child([CHILD, str(npz), str(a.copies), json.dumps(kwargs)], side_env(sides[name]))))
         print(f"round {r + 1} {name}: " + ", ".join(f"{w} {v['cpu_s']:.2f} s" for w, v in got[name][-1].items()),
               flush=True)
     this, old = list(sides)
