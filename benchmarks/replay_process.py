@@ -124,6 +124,11 @@ def two_core_bound(cpu_s: float, main_thread_s: float, start_s: float) -> float:
     return max(main_thread_s, start_s + (cpu_s - start_s) / 2)
 
 
+def cpu_at_bound(wall_s: float, start_s: float) -> float:
+    """The CPU (every process) whose two_core_bound is wall_s, its main thread no longer than that: its inverse."""
+    return 2 * wall_s - start_s
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_base_argument(ap)
@@ -186,8 +191,9 @@ def main() -> int:
           "\n|---|---:|---:|---:|---:|---:|")
     for name, (_, c, m, *_rest) in med.items():
         s, bound = start[name], two_core_bound(c, m, start[name])
-        need = 2 * frames / target - s
-        print(f"| {name} | {s:.2f} s | {bound:.2f} s | {frames / bound:,.0f} | {need:.2f} s | {need / c:.2f} |")
+        need = cpu_at_bound(frames / target, s)
+        cells = f"{need:.2f} s | {need / c:.2f}" if need > s else "none: the start alone is longer | —"
+        print(f"| {name} | {s:.2f} s | {bound:.2f} s | {frames / bound:,.0f} | {cells} |")
     return 0
 
 
